@@ -1,0 +1,192 @@
+"""Plain folder of images plus intrinsics.
+
+Layout::
+
+    *.png | *.jpg | *.jpeg      the images, in natural name order (img2 before img10)
+    camera.json                 PinholeCamera.to_dict() (may carry distortion), or
+    intrinsics.txt              "fx fy cx cy" on one line, or a 3x3 K (9 numbers);
+                                the size is taken from the first image
+    times.txt                   optional: one timestamp (seconds) per image, in order
+    depth/<stem>.png            optional: uint16 depth, raw / depth_scale metres
+                                (default millimetres), 0 = no measurement
+    depth/<stem>.npy            optional: float depth in metres (<= 0 / non-finite invalid)
+
+* Frame number = 0-based position in the sorted image list; timestamp = frame
+  number unless ``times.txt`` exists.
+* ``camera`` passed in the config overrides the files; ``camera.json`` wins
+  over ``intrinsics.txt``.
+* Frames without a depth file have ``depth=None``; no ground-truth poses.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..frame import Frame
+from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
+                     read_camera_json, read_depth_png, read_rgb, select_frames)
+
+__all__ = ["FolderConfig", "FolderSequence", "read_intrinsics_txt"]
+
+logger = logging.getLogger(__name__)
+
+
+def _natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def read_intrinsics_txt(path: PathLike, width: int, height: int) -> PinholeCamera:
+    """Camera from ``intrinsics.txt``: ``fx fy cx cy`` (4 numbers) or a 3x3 K (9 numbers)."""
+    path = Path(path)
+    try:
+        vals = [float(x) for line in path.read_text(encoding="utf-8").splitlines()
+                if line.strip() and not line.strip().startswith("#")
+                for x in line.replace(",", " ").split()]
+    except ValueError:
+        raise ValueError(f"malformed intrinsics file {path}: non-numeric value") from None
+    try:
+        if len(vals) == 4:
+            return PinholeCamera(vals[0], vals[1], vals[2], vals[3], width, height)
+        if len(vals) == 9:
+            return PinholeCamera.from_K(np.reshape(vals, (3, 3)), width, height)
+    except ValueError as exc:
+        raise ValueError(f"invalid intrinsics in {path}: {exc}") from None
+    raise ValueError(f"malformed intrinsics file {path}: expected 'fx fy cx cy' or a 3x3 K, "
+                     f"got {len(vals)} numbers")
+
+
+@dataclass
+class FolderConfig:
+    """Options of :class:`FolderSequence`.
+
+    Attributes:
+        camera: intrinsics of the stored images; default None reads
+            ``camera.json`` or ``intrinsics.txt`` from the folder.
+        undistort: undistort when the camera has distortion (default True).
+        load_depth: read ``depth/<stem>.png|.npy`` when present (default True).
+        frames: selection by frame number (position in the sorted list;
+            ``"A:B[:S]"``, slice, range, list; default None = all).
+        depth_dir: depth sub-folder name (default ``"depth"``).
+        depth_scale: raw PNG depth units per metre (default 1000: millimetres).
+        extensions: image file extensions, case-insensitive (default png, jpg, jpeg).
+    """
+
+    camera: Optional[PinholeCamera] = None
+    undistort: bool = True
+    load_depth: bool = True
+    frames: FrameSelection = None
+    depth_dir: str = "depth"
+    depth_scale: float = 1000.0
+    extensions: Tuple[str, ...] = (".png", ".jpg", ".jpeg")
+
+
+@dataclass
+class _Record:
+    number: int
+    timestamp: float
+    path: Path
+
+
+class FolderSequence(FrameSequence):
+    """Lazy reader of a plain image folder (see the module docstring)."""
+
+    def __init__(self, path: PathLike, config: Optional[FolderConfig] = None, **kwargs) -> None:
+        super().__init__()
+        cfg = config_from_kwargs(FolderConfig, config, kwargs, "FolderSequence")
+        self.config = cfg
+        root = Path(path).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"image folder not found: {root}")
+        self.root = root
+        self._name = root.resolve().name
+        self._undistort = bool(cfg.undistort)
+        exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in cfg.extensions)
+        images = sorted((p for p in root.iterdir() if p.is_file() and p.suffix.lower() in exts),
+                        key=lambda p: _natural_key(p.name))
+        if not images:
+            raise FileNotFoundError(f"no images ({', '.join(exts)}) in {root}")
+        stems = [p.stem for p in images]
+        if len(set(stems)) != len(stems):
+            dup = sorted({s for s in stems if stems.count(s) > 1})
+            raise ValueError(f"{root}: several images share a stem: {dup[:5]}")
+
+        self._raw_camera = self._resolve_camera(cfg.camera, images[0])
+
+        times = np.arange(len(images), dtype=np.float64)
+        times_path = root / "times.txt"
+        if times_path.is_file():
+            times = self._read_times(times_path, len(images))
+        keep = select_frames(range(len(images)), cfg.frames)
+        self._records: List[_Record] = [_Record(k, float(times[k]), images[k]) for k in keep]
+
+    def _resolve_camera(self, camera, first_image: Path) -> PinholeCamera:
+        if camera is not None:
+            if not isinstance(camera, PinholeCamera):
+                raise TypeError("FolderConfig.camera must be a PinholeCamera")
+            return camera
+        if (self.root / "camera.json").is_file():
+            return read_camera_json(self.root / "camera.json")
+        if (self.root / "intrinsics.txt").is_file():
+            h, w = read_rgb(first_image).shape[:2]
+            return read_intrinsics_txt(self.root / "intrinsics.txt", w, h)
+        raise FileNotFoundError(f"{self.root}: no intrinsics: add camera.json or intrinsics.txt "
+                                "or pass camera=PinholeCamera(...)")
+
+    @staticmethod
+    def _read_times(path: Path, n: int) -> np.ndarray:
+        stamps = []
+        for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            try:
+                t = float(s)
+            except ValueError:
+                raise ValueError(f"{path}:{lineno}: malformed timestamp {s!r}") from None
+            if not np.isfinite(t):
+                raise ValueError(f"{path}:{lineno}: timestamp is not finite")
+            if stamps and not t > stamps[-1]:
+                raise ValueError(f"{path}:{lineno}: timestamps are not strictly increasing")
+            stamps.append(t)
+        if len(stamps) != n:
+            raise ValueError(f"{path} has {len(stamps)} timestamps for {n} images")
+        return np.asarray(stamps, dtype=np.float64)
+
+    def _read_depth(self, stem: str) -> Tuple[Optional[np.ndarray], Optional[Path]]:
+        ddir = self.root / self.config.depth_dir
+        png, npy = ddir / f"{stem}.png", ddir / f"{stem}.npy"
+        if png.is_file():
+            return read_depth_png(png, self.config.depth_scale, self._raw_camera), png
+        if npy.is_file():
+            try:
+                depth = np.load(npy, allow_pickle=False)
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"cannot read depth file {npy}: {exc}") from None
+            if depth.shape != self._raw_camera.shape or not np.issubdtype(depth.dtype, np.floating):
+                raise ValueError(f"depth file {npy} must be a float (H, W) = "
+                                 f"{self._raw_camera.shape} array, got {depth.dtype} {depth.shape}")
+            depth = depth.astype(np.float32)
+            with np.errstate(invalid="ignore"):
+                depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
+            return depth, npy
+        return None, None
+
+    def _load(self, index: int, rec: _Record) -> Frame:
+        image = self._finish_image(read_rgb(rec.path, self._raw_camera))
+        depth, depth_path = (None, None)
+        if self.config.load_depth:
+            depth, depth_path = self._read_depth(rec.path.stem)
+            if depth is not None:
+                depth = self._finish_depth(depth)
+        meta = {"dataset": "folder", "sequence": self._name, "index": index,
+                "frame_number": rec.number, "rgb_path": str(rec.path),
+                "depth_path": None if depth_path is None else str(depth_path),
+                "depth_registered": True}
+        return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
+                     name=rec.path.stem, meta=meta)

@@ -1,0 +1,175 @@
+"""Microsoft 7-Scenes reader (one ``seq-XX`` folder).
+
+Layout::
+
+    frame-NNNNNN.color.png|jpg   colour, 640x480
+    frame-NNNNNN.depth.png       uint16 millimetres; 0 and 65535 = no measurement
+    frame-NNNNNN.pose.txt        4x4 camera-to-world
+    camera-intrinsics.txt        optional 3x3 K (default fx = fy = 585, cx 320, cy 240)
+
+* Frame number = ``NNNNNN``.  7-Scenes has no timestamps: ``Frame.timestamp``
+  is the frame number (as a float), *not* seconds.
+* The depth maps are **not registered** to the colour images (the Kinect depth
+  camera is a different sensor with other intrinsics and a small baseline).
+  They are returned as an approximate depth in the colour view and
+  ``Frame.meta['depth_registered']`` is False: use them for coarse checks, not
+  as accurate per-pixel ground truth.
+* Stored poses carry rotation errors of up to a few 1e-4; they are projected
+  onto SE(3) (nearest rotation).  A missing or non-finite pose file gives
+  ``T_world_cam=None`` with a warning.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..frame import Frame
+from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
+                     nearest_rigid, read_depth_png, read_rgb, select_frames)
+
+__all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
+           "read_matrix_file"]
+
+logger = logging.getLogger(__name__)
+
+#: Default 7-Scenes colour intrinsics (640x480).
+SEVEN_SCENES_CAMERA = PinholeCamera(585.0, 585.0, 320.0, 240.0, 640, 480)
+
+_COLOR_RE = re.compile(r"^frame-(\d+)\.color\.(png|jpg|jpeg)$", re.IGNORECASE)
+
+
+@dataclass
+class SevenScenesConfig:
+    """Options of :class:`SevenScenesSequence`.
+
+    Attributes:
+        intrinsics: camera of the colour images; default None reads
+            ``camera-intrinsics.txt`` if present, else fx = fy = 585, cx 320, cy 240.
+        undistort: undistort when ``intrinsics`` carries distortion (default True;
+            7-Scenes images themselves have none).
+        load_depth: read the (unregistered, approximate) depth maps (default True).
+        load_pose: read the pose files (default True).
+        frames: selection by frame number ``NNNNNN`` (``"A:B[:S]"``, slice,
+            range or list; default None = all).
+        depth_scale: raw depth units per metre (default 1000: millimetres).
+    """
+
+    intrinsics: Optional[PinholeCamera] = None
+    undistort: bool = True
+    load_depth: bool = True
+    load_pose: bool = True
+    frames: FrameSelection = None
+    depth_scale: float = 1000.0
+
+
+def read_matrix_file(path: PathLike, shape) -> np.ndarray:
+    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    try:
+        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
+    except ValueError as exc:
+        raise ValueError(f"malformed matrix file {path}: {exc}") from None
+    if values.size != int(np.prod(shape)):
+        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
+                         f"({shape[0]}x{shape[1]}), got {values.size}")
+    return values.reshape(shape)
+
+
+@dataclass
+class _Record:
+    number: int
+    timestamp: float
+    color_path: Path
+    depth_path: Path
+    pose_path: Path
+    stem: str
+
+
+class SevenScenesSequence(FrameSequence):
+    """Lazy reader of a 7-Scenes sequence folder (see the module docstring)."""
+
+    def __init__(self, path: PathLike, config: Optional[SevenScenesConfig] = None,
+                 **kwargs) -> None:
+        super().__init__()
+        cfg = config_from_kwargs(SevenScenesConfig, config, kwargs, "SevenScenesSequence")
+        self.config = cfg
+        root = Path(path).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"7-Scenes sequence folder not found: {root}")
+        self.root = root
+        self._name = root.resolve().name
+        self._undistort = bool(cfg.undistort)
+
+        found = {}
+        for p in root.iterdir():
+            m = _COLOR_RE.match(p.name)
+            if m:
+                n = int(m.group(1))
+                if n in found:
+                    raise ValueError(f"{root}: frame {n} has two colour images "
+                                     f"({found[n].name}, {p.name})")
+                found[n] = p
+        if not found:
+            subs = sorted(q.name for q in root.iterdir() if q.is_dir() and q.name.startswith("seq"))
+            hint = f" (pass one of its sequence folders: {subs})" if subs else ""
+            raise FileNotFoundError(f"no frame-NNNNNN.color.png|jpg images in {root}{hint}")
+        numbers = sorted(found)
+        keep = select_frames(numbers, cfg.frames)
+
+        if cfg.intrinsics is not None:
+            if not isinstance(cfg.intrinsics, PinholeCamera):
+                raise TypeError("SevenScenesConfig.intrinsics must be a PinholeCamera")
+            self._raw_camera = cfg.intrinsics
+        elif (root / "camera-intrinsics.txt").is_file():
+            K = read_matrix_file(root / "camera-intrinsics.txt", (3, 3))
+            self._raw_camera = PinholeCamera.from_K(K, 640, 480)
+        else:
+            self._raw_camera = SEVEN_SCENES_CAMERA
+
+        self._records: List[_Record] = []
+        for k in keep:
+            n = numbers[k]
+            cp = found[n]
+            stem = cp.name[:cp.name.lower().index(".color.")]
+            self._records.append(_Record(n, float(n), cp, root / f"{stem}.depth.png",
+                                         root / f"{stem}.pose.txt", stem))
+
+    def _read_pose(self, rec: _Record) -> Optional[np.ndarray]:
+        if not rec.pose_path.is_file():
+            logger.warning("7-Scenes: pose file missing: %s", rec.pose_path)
+            return None
+        T = read_matrix_file(rec.pose_path, (4, 4))
+        if not np.all(np.isfinite(T)):
+            logger.warning("7-Scenes: non-finite pose in %s, frame has no pose", rec.pose_path)
+            return None
+        try:
+            return nearest_rigid(T, str(rec.pose_path))
+        except ValueError as exc:
+            raise ValueError(f"invalid pose file {rec.pose_path}: {exc}") from None
+
+    def ground_truth(self) -> List[Optional[np.ndarray]]:
+        """Camera-to-world poses of the selection (reads only the pose files)."""
+        return [self._read_pose(r) for r in self._records]
+
+    def _load(self, index: int, rec: _Record) -> Frame:
+        image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
+        depth = None
+        if self.config.load_depth:
+            depth = self._finish_depth(read_depth_png(rec.depth_path, self.config.depth_scale,
+                                                      self._raw_camera, invalid_values=(0, 65535)))
+        pose = self._read_pose(rec) if self.config.load_pose else None
+        meta = {"dataset": "7scenes", "sequence": self._name, "index": index,
+                "frame_number": rec.number, "rgb_path": str(rec.color_path),
+                "depth_path": str(rec.depth_path) if depth is not None else None,
+                "pose_path": str(rec.pose_path), "depth_registered": False,
+                "timestamp_is_frame_number": True}
+        return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
+                     T_world_cam=pose, name=rec.stem, meta=meta)

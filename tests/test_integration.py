@@ -1,0 +1,152 @@
+"""Batched normal integration on exact normals of analytic surfaces."""
+import numpy as np
+import pytest
+
+from analytic import cylinder, plane, scale_fitted_rel_error, sphere
+from spgeo import PinholeCamera, integrate_normals
+from spgeo.integration import IntegrationConfig, integrate_normals_regions
+
+CAM = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)
+CAM_ANISO = PinholeCamera(320.0, 280.0, 171.3, 108.9, 320, 240)  # fx != fy, off-centre
+
+
+def _check(z, n, mask, cam, tol=5e-3, **cfg):
+    ld = integrate_normals(np.nan_to_num(n), mask[None], cam, IntegrationConfig(**cfg))[0]
+    assert np.all(np.isnan(ld[~mask])) and np.all(np.isfinite(ld[mask]))
+    err = scale_fitted_rel_error(ld, z, mask)
+    assert np.median(err) < tol, np.median(err)
+    return err
+
+
+@pytest.mark.parametrize("cam", [CAM, CAM_ANISO], ids=["iso", "aniso"])
+def test_tilted_plane(cam):
+    z, n = plane(cam, [0.4, -0.3, -1.0], -2.0)
+    mask = np.zeros(cam.shape, bool)
+    mask[20:200, 30:290] = True
+    err = _check(z, n, mask, cam)
+    assert err.max() < 1e-5  # midpoint rule is exact to 3rd order on a plane
+
+
+@pytest.mark.parametrize("cam", [CAM, CAM_ANISO], ids=["iso", "aniso"])
+def test_sphere(cam):
+    z, n = sphere(cam, [0.1, -0.05, 2.5], 1.0)
+    mask = np.isfinite(z) & (-(n[..., 2]) > 0.3)  # keep away from the grazing rim
+    err = _check(z, n, mask, cam)
+    assert np.percentile(err, 99) < 2e-3
+
+
+def test_cylinder():
+    z, n = cylinder(CAM, [0.2, 0.0, 3.0], 1.2)
+    mask = np.isfinite(z) & (-(n[..., 2]) > 0.3)
+    _check(z, n, mask, CAM)
+
+
+def test_two_planes_edge_mask_per_face():
+    z1, n1 = plane(CAM, [0.6, 0.0, -1.0], -2.0)
+    z2, n2 = plane(CAM, [-0.6, 0.0, -1.0], -2.0)
+    left = z1 < z2  # the two faces of a convex edge meeting in the image
+    z = np.where(left, z1, z2)
+    n = np.where(left[..., None], n1, n2)
+    masks = np.stack([left, ~left])
+    ld = integrate_normals(n, masks, CAM)
+    for k in range(2):
+        err = scale_fitted_rel_error(ld[k], z, masks[k])
+        assert np.median(err) < 5e-3 and err.max() < 1e-4
+    # one mask across the crease: still one consistent surface (normals are integrable)
+    err = _check(z, n, np.ones(CAM.shape, bool), CAM)
+    assert np.percentile(err, 95) < 5e-3
+
+
+def test_holes_thin_parts_and_single_pixels():
+    z, n = plane(CAM, [0.3, 0.2, -1.0], -2.5)
+    mask = np.zeros(CAM.shape, bool)
+    mask[40:120, 40:160] = True
+    mask[70:90, 80:100] = False                     # a hole
+    mask[80, 160:220] = True                        # 1-pixel-wide horizontal part
+    mask[81:140, 219] = True                        # 1-pixel-wide vertical part
+    for k in range(10):                             # a 1-pixel diagonal staircase
+        mask[140 + k, 219 + k] = True
+    mask[200, 300] = True                           # an isolated single pixel
+    ld = integrate_normals(n, mask[None], CAM)[0]
+    assert np.all(np.isfinite(ld[mask]))
+    linked = mask.copy()
+    linked[200, 300] = False
+    err = scale_fitted_rel_error(ld, z, linked)    # diagonal bridges keep it one surface
+    assert err.max() < 1e-4
+    res = integrate_normals_regions(n, [np.flatnonzero(mask)], CAM)
+    assert res.n_components.tolist() == [2]        # the lone pixel is the only unlinked part
+
+
+def test_single_pixel_masks_and_overlap():
+    z, n = sphere(CAM, [0.0, 0.0, 2.0], 0.8)
+    n = np.nan_to_num(n)
+    m1 = np.zeros(CAM.shape, bool)
+    m1[100:140, 140:180] = True
+    m2 = np.zeros(CAM.shape, bool)
+    m2[120:160, 160:200] = True                     # overlaps m1
+    m3 = np.zeros(CAM.shape, bool)
+    m3[10, 10] = True                               # a single pixel mask
+    ld = integrate_normals(n, np.stack([m1, m2, m3]), CAM)
+    assert ld[2, 10, 10] == 0.0 and np.isnan(ld[2]).sum() == CAM.width * CAM.height - 1
+    for k, m in enumerate([m1, m2]):
+        assert np.median(scale_fitted_rel_error(ld[k], z, m)) < 1e-4
+
+
+def test_anchor_and_mean_constants():
+    z, n = plane(CAM, [0.2, 0.1, -1.0], -2.0)
+    mask = np.zeros(CAM.shape, bool)
+    mask[50:100, 50:120] = True
+    anchor = 70 * CAM.width + 90
+    ld = integrate_normals(n, mask[None], CAM, anchors=[anchor])[0]
+    assert abs(ld.reshape(-1)[anchor]) < 1e-12
+    ld_mean = integrate_normals(n, mask[None], CAM, IntegrationConfig(constant="mean"))[0]
+    assert abs(np.nanmean(ld_mean)) < 1e-10
+    # with the anchor constant, exp(s) with s = true log-depth at the anchor is metric
+    s = np.log(z.reshape(-1)[anchor])
+    np.testing.assert_allclose(np.exp(ld[mask] + s), z[mask], rtol=1e-6)
+
+
+def test_cg_matches_direct():
+    z, n = sphere(CAM, [0.1, 0.0, 2.0], 0.9)
+    n = np.nan_to_num(n)
+    rng = np.random.default_rng(0)
+    masks = np.zeros((6,) + CAM.shape, bool)
+    for k in range(6):
+        u0, v0 = rng.integers(100, 180), rng.integers(60, 150)
+        masks[k, v0:v0 + 30, u0:u0 + 40] = True
+    a = integrate_normals(n, masks, CAM, IntegrationConfig(solver="direct"))
+    b = integrate_normals(n, masks, CAM, IntegrationConfig(solver="cg", cg_tol=1e-10,
+                                                           cg_maxiter=5000))
+    np.testing.assert_allclose(a[masks], b[masks], atol=1e-6)
+
+
+def test_nan_normals_and_bad_input():
+    z, n = plane(CAM, [0.0, 0.3, -1.0], -2.0)
+    n = n.copy()
+    n[60:62, 60:200] = np.nan                       # a line of unknown normals
+    mask = np.zeros(CAM.shape, bool)
+    mask[40:100, 50:210] = True
+    ld = integrate_normals(n, mask[None], CAM)[0]
+    assert np.all(np.isfinite(ld[mask]))
+    assert np.median(scale_fitted_rel_error(ld, z, mask)) < 1e-4
+    with pytest.raises(ValueError, match="empty"):
+        integrate_normals(n, np.zeros((1,) + CAM.shape, bool), CAM)
+    with pytest.raises(ValueError, match="masks must be"):
+        integrate_normals(n, np.ones((1, 10, 10), bool), CAM)
+    with pytest.raises(ValueError, match="normals"):
+        integrate_normals(n[:10], mask[None], CAM)
+    with pytest.raises(ValueError, match="anchor"):
+        integrate_normals(n, mask[None], CAM, anchors=[0])
+
+
+def test_many_masks_batched_equals_one_by_one():
+    from spgeo.evaluation.bench_integration import make_case
+
+    cam, n, z, regions = make_case(40, 160, 120, seed=3)
+    res = integrate_normals_regions(n, regions, cam)
+    logz = np.log(z).reshape(-1)
+    for i in (0, 7, len(regions) - 1):
+        single = integrate_normals_regions(n, [regions[i]], cam)
+        np.testing.assert_allclose(res.region(i), single.region(0), atol=1e-9)
+        d = res.region(i) - logz[regions[i]]
+        assert np.ptp(d) < 1e-3   # one scale per mask recovers the true depth
