@@ -30,12 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="spgeo-demo", help="output folder (default: spgeo-demo)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
     p.set_defaults(func=_cmd_demo)
-    try:
-        from .models import add_cli
-    except ImportError:  # pragma: no cover - models module always ships
-        add_cli = None
-    if add_cli is not None:
-        add_cli(sub)
+    from .models import add_cli as add_models_cli
+
+    add_models_cli(sub)
     return ap
 
 

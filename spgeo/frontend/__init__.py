@@ -23,13 +23,15 @@ FRONTENDS = ("classical", "depth", "onnx")
 
 
 def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
-                  segmenter: Optional[Segmenter] = None, **onnx_kwargs) -> PrimitiveFrontEnd:
+                  segmenter: Optional[Segmenter] = None, sam: Optional[dict] = None,
+                  normals: Optional[dict] = None) -> PrimitiveFrontEnd:
     """Build a named front-end (see the module docstring).
 
-    ``segmenter`` replaces the default segmenter of ``classical`` / ``depth``
-    (e.g. a :class:`LabelSegmenter` of ground-truth surface ids for oracle
-    ablations).  ``onnx_kwargs`` go to
-    :func:`spgeo.frontend.onnx_sam.onnx_frontend_parts` for ``onnx``.
+    ``segmenter`` replaces the default segmenter (e.g. a :class:`LabelSegmenter`
+    of ground-truth surface ids for oracle ablations).  For ``onnx``, ``sam``
+    holds keyword arguments of :func:`spgeo.models.sam_frontend_from_cache`
+    (registry family or ``encoder=``/``decoder=`` paths) and ``normals`` those
+    of :func:`spgeo.models.normal_model_from_cache` (registry name or path).
     """
     from .classical import ClassicalSegmenter
     from .depth_normals import DepthNormalEstimator, FrontoParallelNormals
@@ -41,8 +43,9 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
         return PrimitiveFrontEnd(segmenter or ClassicalSegmenter(), DepthNormalEstimator(),
                                  config, name="depth (uses depth)")
     if name == "onnx":
-        from ..models import build_onnx_frontend_parts
+        from ..models import normal_model_from_cache, sam_frontend_from_cache
 
-        seg, nrm = build_onnx_frontend_parts(**onnx_kwargs)
-        return PrimitiveFrontEnd(segmenter or seg, nrm, config, name="onnx")
+        seg = segmenter or sam_frontend_from_cache(**(sam or {}))
+        return PrimitiveFrontEnd(seg, normal_model_from_cache(**(normals or {})), config,
+                                 name="onnx")
     raise ValueError(f"unknown front-end {name!r}; choose one of {FRONTENDS}")

@@ -1,0 +1,532 @@
+"""Single-image surface normals from an ONNX model, converted to spgeo's convention.
+
+spgeo's convention (DESIGN.md §1 / :class:`~spgeo.frontend.base.NormalEstimator`):
+OpenCV camera frame, x right, y down, z forward; normals point towards the
+camera, so a wall facing the camera has ``n = (0, 0, -1)``.
+
+Every network has its own axes and sign.  :class:`NormalOnnxConfig` declares
+it either by a named preset (:data:`NORMAL_CONVENTIONS`), by a sentence such as
+``"x right, y up, z towards viewer"`` (see :func:`parse_convention`), or by an
+explicit 3x3 signed permutation ``model_to_spgeo`` (``n_spgeo = M @ n_model``).
+Conventions of real models cannot be verified offline: run
+:func:`check_convention_on_plane` on a new model, which renders a synthetic
+room with known normals and ranks all 48 signed permutations by angular error.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import logging
+import os
+import re
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Callable, List, Mapping, Optional, Tuple, Union
+
+import cv2
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..images import to_float_image
+from .onnx_sam import open_session
+
+__all__ = [
+    "NormalOnnxConfig", "NORMAL_CONVENTIONS", "NORMAL_PRESETS", "NormalPrediction",
+    "NormalModel", "parse_convention", "signed_permutations", "render_synthetic_room",
+    "ConventionScore", "check_convention_on_plane",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Named conventions as ``model_to_spgeo`` matrices (``n_spgeo = M @ n_model``).
+#:
+#: * ``spgeo`` / ``opencv-inward``: x right, y down, z forward, normals towards
+#:   the camera (identity).
+#: * ``opencv-outward`` / ``dsine``: same axes, opposite sign (a wall facing
+#:   the camera is (0, 0, +1)).  DSINE's maintainer describes DSINE's output
+#:   like this (github.com/baegwangbin/DSINE issue #12); not verified here.
+#: * ``opengl``: x right, y up, z towards the viewer, normals towards the
+#:   camera (a facing wall is (0, 0, +1)); the usual "blue = facing" colour maps.
+#:
+#: None of these is verified against a real model by spgeo: check with
+#: :func:`check_convention_on_plane`.
+NORMAL_CONVENTIONS: Mapping[str, Tuple[Tuple[float, ...], ...]] = MappingProxyType({
+    "spgeo": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    "opencv-inward": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    "opencv-outward": ((-1, 0, 0), (0, -1, 0), (0, 0, -1)),
+    "dsine": ((-1, 0, 0), (0, -1, 0), (0, 0, -1)),
+    "opengl": ((1, 0, 0), (0, -1, 0), (0, 0, -1)),
+})
+
+_AXIS_WORDS = {
+    "right": (0, 1), "left": (0, -1),
+    "down": (1, 1), "up": (1, -1),
+    "forward": (2, 1), "front": (2, 1), "into": (2, 1), "away": (2, 1),
+    "back": (2, -1), "backward": (2, -1), "backwards": (2, -1), "towards": (2, -1),
+    "toward": (2, -1), "out": (2, -1),
+}
+
+
+def parse_convention(text: str) -> np.ndarray:
+    """``model_to_spgeo`` of a sentence like ``"x right, y up, z towards viewer"``.
+
+    Each clause names a model axis (x, y, z) and the direction it points in
+    the image: ``right``/``left``, ``down``/``up``, ``forward``/``front``/
+    ``into (the scene)``/``away (from the camera)`` or ``back``/``towards
+    (viewer|camera)``/``out (of the screen)``.  Add the clause
+    ``"normals away from camera"`` (or ``"outward"``) when the model's normals
+    point away from the camera; the default is towards it.  A named
+    convention of :data:`NORMAL_CONVENTIONS` is accepted too.
+    """
+    if text in NORMAL_CONVENTIONS:
+        return np.asarray(NORMAL_CONVENTIONS[text], dtype=np.float64)
+    M = np.zeros((3, 3))
+    flip = 1.0
+    seen = set()
+    for clause in re.split(r"[,;]", text.lower()):
+        words = clause.split()
+        if not words:
+            continue
+        if words[0] == "normals" or words[0] in ("outward", "inward"):
+            if "outward" in words or ("away" in words and "from" in words):
+                flip = -1.0
+            continue
+        if words[0] not in ("x", "y", "z") or len(words) < 2:
+            raise ValueError(f"convention clause {clause.strip()!r} must look like 'x right'")
+        model_axis = "xyz".index(words[0])
+        direction = next((_AXIS_WORDS[w] for w in words[1:] if w in _AXIS_WORDS), None)
+        if direction is None:
+            raise ValueError(f"convention clause {clause.strip()!r}: unknown direction; use one "
+                             f"of {sorted(_AXIS_WORDS)}")
+        M[direction[0], model_axis] = direction[1]
+        seen.add(words[0])
+    if seen != {"x", "y", "z"} or abs(abs(np.linalg.det(M)) - 1) > 1e-9:
+        raise ValueError(f"convention {text!r} must name x, y and z once each, along different "
+                         "image directions")
+    return flip * M
+
+
+def signed_permutations() -> List[np.ndarray]:
+    """All 48 3x3 signed permutation matrices (proper and improper)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            M = np.zeros((3, 3))
+            M[np.arange(3), perm] = signs
+            out.append(M)
+    return out
+
+
+# ----------------------------------------------------------------- config
+@dataclass(frozen=True)
+class NormalOnnxConfig:
+    """The I/O contract and convention of a single-image normal network.
+
+    Attributes:
+        model_path: ``.onnx`` file.
+        input_size: ``(height, width)`` fed to the network ((480, 640), the
+            authors' ScanNet model); ``None`` feeds the image at its own size
+            (fully convolutional / dynamic models).
+        resize_mode: ``"stretch"`` (default; resize to ``input_size``) or
+            ``"letterbox"`` (keep aspect, centre-pad to ``input_size``; the
+            pad is cropped from the output).
+        pad_value: letterbox pad colour in ``input_range`` units; ``None``
+            (default) pads with ``mean`` (zero after normalisation).
+        input_name / output_name: tensor names; ``None`` (default) accepts the
+            model's only input / its first output.  Given names must exist.
+        confidence_output_name: optional separate confidence output (e.g.
+            ``normal_confidence``).  A 4-channel normal output's 4th channel
+            is read as confidence (e.g. a kappa) whatever this says.
+        input_range: ``"0-1"`` (default) or ``"0-255"`` pixel scale before
+            normalisation.
+        mean, std: per-channel normalisation in ``input_range`` units
+            (default ImageNet (0.485, 0.456, 0.406) / (0.229, 0.224, 0.225)).
+        channel_order: ``"RGB"`` (default) or ``"BGR"``.
+        layout / output_layout: ``"NCHW"`` (default) or ``"NHWC"``.
+        output_encoding: ``"unit"`` (default; raw vectors, renormalised) or
+            ``"rgb01"`` (``[0, 1]`` colour-coded, mapped by ``2 x - 1``).
+        convention: named convention or sentence (see :func:`parse_convention`);
+            default ``"spgeo"``.
+        model_to_spgeo: explicit 3x3 matrix, overrides ``convention``.
+        convention_verified: False logs a warning on load that the convention
+            is a guess (set for presets nobody checked).
+        providers: onnxruntime providers (``None``: CUDA if available, else CPU).
+        intra_op_num_threads: onnxruntime intra-op threads (0 = default).
+    """
+
+    model_path: Optional[str] = None
+    input_size: Optional[Tuple[int, int]] = (480, 640)
+    resize_mode: str = "stretch"
+    pad_value: Optional[Tuple[float, float, float]] = None
+    input_name: Optional[str] = None
+    output_name: Optional[str] = None
+    confidence_output_name: Optional[str] = None
+    input_range: str = "0-1"
+    mean: Tuple[float, float, float] = (0.485, 0.456, 0.406)
+    std: Tuple[float, float, float] = (0.229, 0.224, 0.225)
+    channel_order: str = "RGB"
+    layout: str = "NCHW"
+    output_layout: str = "NCHW"
+    output_encoding: str = "unit"
+    convention: str = "spgeo"
+    model_to_spgeo: Optional[Tuple[Tuple[float, float, float], ...]] = None
+    convention_verified: bool = True
+    providers: Optional[Tuple[str, ...]] = None
+    intra_op_num_threads: int = 0
+
+    def __post_init__(self) -> None:
+        checks = [("resize_mode", ("stretch", "letterbox")), ("input_range", ("0-1", "0-255")),
+                  ("channel_order", ("RGB", "BGR")), ("layout", ("NCHW", "NHWC")),
+                  ("output_layout", ("NCHW", "NHWC")), ("output_encoding", ("unit", "rgb01"))]
+        for name, allowed in checks:
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"NormalOnnxConfig.{name} must be one of {allowed}, "
+                                 f"got {getattr(self, name)!r}")
+        if self.input_size is not None:
+            size = tuple(int(s) for s in self.input_size)
+            if len(size) != 2 or min(size) <= 0:
+                raise ValueError(f"NormalOnnxConfig.input_size must be (height, width) > 0, "
+                                 f"got {self.input_size!r}")
+            object.__setattr__(self, "input_size", size)
+        if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
+            raise ValueError("NormalOnnxConfig.mean / std must hold 3 values, std > 0")
+        self.matrix()  # validate the convention now
+
+    def matrix(self) -> np.ndarray:
+        """``model_to_spgeo`` as a 3x3 float array."""
+        if self.model_to_spgeo is not None:
+            M = np.asarray(self.model_to_spgeo, dtype=np.float64)
+            if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+                raise ValueError(f"NormalOnnxConfig.model_to_spgeo must be a finite 3x3 matrix, "
+                                 f"got {self.model_to_spgeo!r}")
+            if abs(abs(np.linalg.det(M)) - 1) > 1e-6 or not np.allclose(np.abs(M @ M.T), np.eye(3),
+                                                                       atol=1e-6):
+                raise ValueError("NormalOnnxConfig.model_to_spgeo must be orthogonal "
+                                 "(a signed permutation or rotation)")
+            return M
+        return parse_convention(self.convention)
+
+
+#: Presets for known public models (URLs in :mod:`spgeo.models`).
+#: ``metric3d-onnx``: onnx-community/metric3d-vit-* exports (outputs
+#: ``predicted_depth``, ``predicted_normal``, ``normal_confidence``;
+#: canonical 616x1064 letterbox input, 0-255 ImageNet normalisation).  Its
+#: normal convention is NOT verified (guessed like DSINE, same lab of heads):
+#: run :func:`check_convention_on_plane` before trusting it.
+NORMAL_PRESETS: Mapping[str, NormalOnnxConfig] = MappingProxyType({
+    "generic-480x640": NormalOnnxConfig(),
+    "metric3d-onnx": NormalOnnxConfig(
+        input_size=(616, 1064), resize_mode="letterbox", input_range="0-255",
+        mean=(123.675, 116.28, 103.53), std=(58.395, 57.12, 57.375),
+        output_name="predicted_normal", confidence_output_name="normal_confidence",
+        convention="opencv-outward", convention_verified=False),
+})
+
+
+@dataclass
+class NormalPrediction:
+    """Normals in spgeo's convention, float32 (H, W, 3) unit (NaN where unknown),
+    and the model's confidence channel resized to (H, W) if it has one."""
+
+    normals: np.ndarray
+    confidence: Optional[np.ndarray] = None
+
+
+def _resize(img: np.ndarray, height: int, width: int, bilinear: bool = False) -> np.ndarray:
+    """cv2 resize of (h, w[, c]) float maps; area averaging when shrinking unless ``bilinear``."""
+    if img.shape[:2] == (height, width):
+        return img
+    shrink = height < img.shape[0] or width < img.shape[1]
+    interp = cv2.INTER_AREA if shrink and not bilinear else cv2.INTER_LINEAR
+    out = cv2.resize(np.ascontiguousarray(img, dtype=np.float32), (width, height),
+                     interpolation=interp)
+    return out.reshape(height, width, *img.shape[2:])
+
+
+class NormalModel:
+    """:class:`~spgeo.frontend.base.NormalEstimator` running an ONNX normal network.
+
+    The image is converted to the network's input (size, range, normalisation,
+    channel order, layout), the output is read (layout, encoding, optional
+    confidence), mapped to spgeo's convention by ``model_to_spgeo``, resized
+    bilinearly to the image size and renormalised to unit length.
+    """
+
+    uses_depth = False
+
+    def __init__(self, config: NormalOnnxConfig) -> None:
+        self.config = config
+        self.M = config.matrix()
+        self.session = open_session(config.model_path, "normal", config.providers,
+                                    config.intra_op_num_threads)
+        what = f"normal model {config.model_path}"
+        inputs = {n.name: n for n in self.session.get_inputs()}
+        outputs = {n.name: n for n in self.session.get_outputs()}
+        if config.input_name is None:
+            if len(inputs) != 1:
+                raise ValueError(f"{what}: expected a single input, found {list(inputs)}; set "
+                                 "NormalOnnxConfig.input_name")
+            self.input_name = next(iter(inputs))
+        elif config.input_name not in inputs or len(inputs) != 1:
+            raise ValueError(f"{what}: expected the single input {config.input_name!r}, found "
+                             f"inputs {list(inputs)}")
+        else:
+            self.input_name = config.input_name
+        node = inputs[self.input_name]
+        shape = list(node.shape)
+        c_axis = 1 if config.layout == "NCHW" else 3
+        if len(shape) != 4 or (isinstance(shape[c_axis], int) and shape[c_axis] != 3):
+            raise ValueError(f"{what}: input {self.input_name!r} must be a {config.layout} "
+                             f"3-channel image, model declares {shape}")
+        hw = shape[2:4] if config.layout == "NCHW" else shape[1:3]
+        if config.input_size is not None and all(isinstance(d, int) and d > 0 for d in hw):
+            if tuple(hw) != tuple(config.input_size):
+                raise ValueError(f"{what}: input {self.input_name!r} is {hw[0]}x{hw[1]} but "
+                                 f"NormalOnnxConfig.input_size is {config.input_size}")
+        self.input_dtype = {"tensor(float)": np.float32, "tensor(float16)": np.float16,
+                            "tensor(double)": np.float64}.get(node.type)
+        if self.input_dtype is None:
+            raise ValueError(f"{what}: input {self.input_name!r} has unsupported type {node.type}")
+        self.output_name = config.output_name or next(iter(outputs))
+        for name in (self.output_name, config.confidence_output_name):
+            if name is not None and name not in outputs:
+                raise ValueError(f"{what}: expected output {name!r}, found outputs "
+                                 f"{list(outputs)}")
+        if not config.convention_verified:
+            logger.warning("%s: the normal convention %r is an unverified guess; check it with "
+                           "spgeo.frontend.onnx_normals.check_convention_on_plane", what,
+                           config.convention if config.model_to_spgeo is None
+                           else config.model_to_spgeo)
+
+    @classmethod
+    def from_path(cls, model_path, preset: str = "generic-480x640", **overrides) -> "NormalModel":
+        """Build from a file and a :data:`NORMAL_PRESETS` name (fields overridable)."""
+        if preset not in NORMAL_PRESETS:
+            raise ValueError(f"unknown normal preset {preset!r}; known: {sorted(NORMAL_PRESETS)}")
+        return cls(dataclasses.replace(NORMAL_PRESETS[preset], model_path=os.fspath(model_path),
+                                       **overrides))
+
+    # ---- pre / post processing
+    def _prepare(self, rgb01: np.ndarray):
+        cfg = self.config
+        h, w = rgb01.shape[:2]
+        x = rgb01 * np.float32(255.0 if cfg.input_range == "0-255" else 1.0)
+        if cfg.channel_order == "BGR":
+            x = x[..., ::-1]
+        mean = np.asarray(cfg.mean, np.float32)  # per network input channel
+        std = np.asarray(cfg.std, np.float32)
+        crop = None
+        if cfg.input_size is not None:
+            ih, iw = cfg.input_size
+            if cfg.resize_mode == "stretch":
+                x = _resize(x, ih, iw)
+            else:
+                s = min(ih / h, iw / w)
+                rh, rw = max(1, int(round(h * s))), max(1, int(round(w * s)))
+                top, left = (ih - rh) // 2, (iw - rw) // 2
+                pad = np.asarray(cfg.pad_value if cfg.pad_value is not None else cfg.mean,
+                                 np.float32)
+                canvas = np.empty((ih, iw, 3), np.float32)
+                canvas[:] = pad
+                canvas[top:top + rh, left:left + rw] = _resize(x, rh, rw)
+                x = canvas
+                crop = (top / ih, left / iw, rh / ih, rw / iw)
+        x = (x - mean) / std
+        x = np.moveaxis(x, -1, 0)[None] if cfg.layout == "NCHW" else x[None]
+        return np.ascontiguousarray(x, dtype=self.input_dtype), crop
+
+    @staticmethod
+    def _to_hwc(arr: np.ndarray, layout: str, what: str) -> np.ndarray:
+        arr = np.asarray(arr, dtype=np.float32)
+        if arr.ndim == 4:
+            if arr.shape[0] != 1:
+                raise ValueError(f"{what}: batch size {arr.shape[0]}, expected 1")
+            arr = arr[0]
+        if arr.ndim == 2:
+            return arr[..., None]
+        if arr.ndim != 3:
+            raise ValueError(f"{what}: output has shape {arr.shape}, expected an image")
+        return np.moveaxis(arr, 0, -1) if layout == "NCHW" else arr
+
+    @staticmethod
+    def _uncrop(arr: np.ndarray, crop) -> np.ndarray:
+        if crop is None:
+            return arr
+        oh, ow = arr.shape[:2]
+        t, l, rh, rw = crop
+        t0, l0 = int(round(t * oh)), int(round(l * ow))
+        return arr[t0:t0 + max(1, int(round(rh * oh))), l0:l0 + max(1, int(round(rw * ow)))]
+
+    def predict_raw(self, image: np.ndarray) -> NormalPrediction:
+        """Model output in the MODEL's convention (unit, (H, W, 3)), resized to the image."""
+        rgb = to_float_image(image)
+        if rgb.ndim == 2:
+            rgb = np.repeat(rgb[..., None], 3, axis=2)
+        h, w = rgb.shape[:2]
+        x, crop = self._prepare(np.ascontiguousarray(rgb, dtype=np.float32))
+        names = [self.output_name]
+        if self.config.confidence_output_name:
+            names.append(self.config.confidence_output_name)
+        outs = self.session.run(names, {self.input_name: x})
+        what = f"normal model {self.config.model_path}"
+        raw = self._to_hwc(outs[0], self.config.output_layout, what)
+        if raw.shape[-1] not in (3, 4):
+            raise ValueError(f"{what}: output {self.output_name!r} has {raw.shape[-1]} channels, "
+                             "expected 3 (normals) or 4 (normals + confidence)")
+        conf = raw[..., 3:4] if raw.shape[-1] == 4 else None
+        if len(outs) > 1:
+            conf = self._to_hwc(outs[1], self.config.output_layout, what)[..., :1]
+        n = raw[..., :3]
+        if not np.all(np.isfinite(n)):
+            raise ValueError(f"{what}: output contains NaN/inf")
+        if self.config.output_encoding == "rgb01":
+            n = 2.0 * n - 1.0
+        n = _resize(self._uncrop(n, crop), h, w, bilinear=True)
+        norm = np.linalg.norm(n, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n = np.where(norm > 1e-6, n / norm, np.nan).astype(np.float32)
+        if conf is not None:
+            conf = _resize(self._uncrop(conf, crop), h, w, bilinear=True).reshape(h, w)
+            conf = conf.astype(np.float32)
+        return NormalPrediction(n, conf)
+
+    def predict(self, image: np.ndarray) -> NormalPrediction:
+        """Normals in spgeo's convention (and the confidence, if any) for ``image``."""
+        raw = self.predict_raw(image)
+        n = raw.normals @ self.M.T.astype(np.float32)
+        return NormalPrediction(n.astype(np.float32), raw.confidence)
+
+    def estimate(self, image: np.ndarray, camera: PinholeCamera,
+                 depth: Optional[np.ndarray] = None) -> np.ndarray:
+        """:class:`~spgeo.frontend.base.NormalEstimator` interface (depth is ignored)."""
+        camera.check_image(image)
+        return self.predict(image).normals
+
+
+# --------------------------------------------------------- convention check
+def render_synthetic_room(camera: Optional[PinholeCamera] = None, seed: int = 0
+                          ) -> Tuple[np.ndarray, np.ndarray]:
+    """Render a textured box room seen from inside; returns ``(image, normals)``.
+
+    The camera (default 640x480, f = 525) sits at the origin looking along +z
+    into a room with floor, ceiling, left/right walls and a back wall (plus a
+    slanted panel), checker-textured and Lambert-shaded so a network sees
+    perspective and shading cues.  ``normals`` (H, W, 3) are the true normals
+    in spgeo's convention (towards the camera).
+    """
+    cam = camera or PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480)
+    rays = cam.rays()  # (H, W, 3), z = 1
+    # planes: n . x = d with n pointing into the room (towards the camera)
+    planes = [
+        (np.array([0.0, -1.0, 0.0]), -1.2),   # floor y = 1.2 (below), normal up (-y)
+        (np.array([0.0, 1.0, 0.0]), -1.3),    # ceiling y = -1.3, normal down (+y)
+        (np.array([1.0, 0.0, 0.0]), -1.8),    # left wall x = -1.8, normal +x
+        (np.array([-1.0, 0.0, 0.0]), -1.6),   # right wall x = 1.6, normal -x
+        (np.array([0.0, 0.0, -1.0]), -4.0),   # back wall z = 4, normal -z
+    ]
+    s = np.sqrt(0.5)
+    panel = (np.array([s, 0.0, -s]), -s * 2.6)  # slanted panel through (-0.4, ., 3.0)
+    H, W = cam.height, cam.width
+    best_t = np.full((H, W), np.inf)
+    normals = np.zeros((H, W, 3))
+    for n, d in planes + [panel]:
+        denom = rays @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = d / denom
+        ok = (denom < -1e-9) & (t > 0) & (t < best_t)
+        if n is panel[0]:
+            p = rays * t[..., None]
+            ok &= (np.abs(p[..., 1]) < 0.45) & (p[..., 0] > -1.0) & (p[..., 0] < -0.1)
+        best_t = np.where(ok, t, best_t)
+        normals[ok] = n
+    pts = rays * best_t[..., None]
+    checker = ((np.floor(pts[..., 0] * 2.5) + np.floor(pts[..., 1] * 2.5)
+                + np.floor(pts[..., 2] * 2.5)) % 2).astype(np.float64)
+    light = np.array([0.3, -0.8, -0.5])
+    light /= np.linalg.norm(light)
+    shade = 0.35 + 0.65 * np.clip(normals @ light, 0.0, 1.0)  # light: direction to the lamp
+    base = np.array([0.75, 0.7, 0.6]) * (0.6 + 0.4 * checker[..., None])
+    rng = np.random.default_rng(seed)
+    img = base * shade[..., None] * (1.0 / (1.0 + 0.08 * best_t[..., None]))
+    img = np.clip(img + rng.normal(0.0, 0.01, img.shape), 0.0, 1.0).astype(np.float32)
+    return img, normals.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class ConventionScore:
+    """Angular error (degrees) of the model on the synthetic scene for one
+    candidate ``model_to_spgeo`` matrix.
+
+    ``score_deg`` ranks the candidates: the mean over the scene's planes
+    (distinct true normals) of each plane's median error, so that a large
+    back wall cannot outvote the floor and side walls; with more than 32
+    distinct true normals it is the mean over pixels.  ``median_deg`` /
+    ``mean_deg`` are over all valid pixels; ``proper``: det = +1 (a rotation,
+    not a reflection)."""
+
+    model_to_spgeo: Tuple[Tuple[float, float, float], ...]
+    score_deg: float
+    median_deg: float
+    mean_deg: float
+    proper: bool
+
+
+def check_convention_on_plane(model: Union[NormalModel, Callable[[np.ndarray], np.ndarray]],
+                              camera: Optional[PinholeCamera] = None,
+                              image: Optional[np.ndarray] = None,
+                              normals_gt: Optional[np.ndarray] = None) -> List[ConventionScore]:
+    """Rank the 48 signed permutations by how well they map the model's raw
+    output onto the true normals of a synthetic scene.
+
+    Args:
+        model: a :class:`NormalModel` (its raw, unconverted output is used) or
+            a callable ``image -> (H, W, 3)`` raw normals.
+        camera: camera of the default synthetic room (640x480, f = 525).
+        image, normals_gt: use this image and its true spgeo-convention normals
+            instead of :func:`render_synthetic_room`.
+
+    Returns:
+        :class:`ConventionScore` list, best (lowest ``score_deg``) first; use
+        ``result[0].model_to_spgeo`` as ``NormalOnnxConfig.model_to_spgeo``.
+        Logs the top candidates.
+    """
+    if (image is None) != (normals_gt is None):
+        raise ValueError("check_convention_on_plane: give both image and normals_gt, or neither")
+    if image is None:
+        image, normals_gt = render_synthetic_room(camera)
+    raw = model.predict_raw(image).normals if isinstance(model, NormalModel) else model(image)
+    raw = np.asarray(raw, dtype=np.float64)
+    gt = np.asarray(normals_gt, dtype=np.float64)
+    if raw.shape != gt.shape or raw.shape[-1] != 3:
+        raise ValueError(f"raw normals {raw.shape} and ground truth {gt.shape} must both be "
+                         "(H, W, 3)")
+    valid = np.all(np.isfinite(raw), -1) & np.all(np.isfinite(gt), -1) & (
+        np.linalg.norm(gt, axis=-1) > 0.5) & (np.linalg.norm(raw, axis=-1) > 1e-6)
+    if not valid.any():
+        raise ValueError("check_convention_on_plane: no valid pixels")
+    idx = np.flatnonzero(valid)
+    idx = idx[::max(1, len(idx) // 40000)]  # a regular subsample is plenty for 48 candidates
+    r = raw.reshape(-1, 3)[idx]
+    r /= np.linalg.norm(r, axis=-1, keepdims=True)
+    g = gt.reshape(-1, 3)[idx]
+    g /= np.linalg.norm(g, axis=-1, keepdims=True)
+    mats = np.stack(signed_permutations())  # (48, 3, 3)
+    mapped = np.einsum("kij,nj->kni", mats, r)
+    ang = np.degrees(np.arccos(np.clip(np.einsum("kni,ni->kn", mapped, g), -1.0, 1.0)))
+    med, mean = np.median(ang, axis=1), ang.mean(axis=1)
+    _, plane = np.unique(np.round(g, 3), axis=0, return_inverse=True)
+    plane = plane.reshape(-1)
+    if plane.max() < 32:
+        score = np.mean([np.median(ang[:, plane == p], axis=1) for p in range(plane.max() + 1)],
+                        axis=0)
+    else:
+        score = mean
+    order = np.lexsort((mean, score))
+    scores = [ConventionScore(tuple(tuple(float(v) for v in row) for row in mats[k]),
+                              float(score[k]), float(med[k]), float(mean[k]),
+                              bool(np.linalg.det(mats[k]) > 0)) for k in order]
+    for s in scores[:3]:
+        logger.info("convention candidate %s: %.1f deg per plane (median %.1f, mean %.1f)%s",
+                    s.model_to_spgeo, s.score_deg, s.median_deg, s.mean_deg,
+                    "" if s.proper else " (reflection)")
+    return scores

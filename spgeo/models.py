@@ -1,0 +1,476 @@
+"""Model cache: where ONNX files live, which public files spgeo knows, and fetching them.
+
+The cache directory is ``$SPGEO_MODEL_DIR`` if set, else
+``platformdirs.user_cache_dir("spgeo")/models``.  :data:`REGISTRY` lists
+public ONNX exports with their URL, sha256 (where one is published), size,
+licence and the config preset that drives them
+(:data:`spgeo.frontend.onnx_sam.SAM_PRESETS`,
+:data:`spgeo.frontend.onnx_normals.NORMAL_PRESETS`).
+
+Downloads go to a temporary file in the cache directory with a progress bar,
+are checked against the size and sha256 and then renamed into place
+atomically.  An entry without a published sha256 is refused unless
+``allow_unverified=True``; the hash actually downloaded is then recorded in
+``<file>.sha256`` next to it.  Every function that takes a model also accepts
+a path to a local ``.onnx`` file instead of a registry name.
+
+The ``models`` command line (``spgeo models list|fetch|path``) is added to
+the main parser by :func:`add_cli`.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import logging
+import os
+import shutil
+import tempfile
+import urllib.error
+import urllib.request
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import List, Mapping, Optional, Tuple, Union
+
+__all__ = [
+    "ModelEntry", "REGISTRY", "ModelDownloadError", "model_dir", "list_models", "get_entry",
+    "model_path", "fetch_model", "register_local", "resolve_model", "sha256_file",
+    "sam_model_from_cache", "sam_frontend_from_cache", "normal_model_from_cache", "add_cli",
+]
+
+logger = logging.getLogger(__name__)
+
+PathLike = Union[str, os.PathLike]
+KINDS = ("sam-encoder", "sam-decoder", "normals")
+_CHUNK = 1 << 20
+
+
+class ModelDownloadError(ConnectionError):
+    """A model file could not be downloaded (network, HTTP or I/O failure)."""
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    """One downloadable model file.
+
+    Attributes:
+        name: registry key (``<family>-encoder`` / ``<family>-decoder`` for SAM pairs).
+        kind: ``"sam-encoder"``, ``"sam-decoder"`` or ``"normals"``.
+        url: download URL (``https://`` or ``file://``).
+        sha256: published hex digest, or ``None`` when none is published.
+        size: size in bytes if published, else ``None``.
+        licence: SPDX-style licence of the weights.
+        preset: name of the config preset (SAM_PRESETS / NORMAL_PRESETS).
+        filename: file name in the cache (default: the URL's last component).
+        source: where the URL / checksum come from.
+        notes: caveats (e.g. single-mask decoder, unverified convention).
+    """
+
+    name: str
+    kind: str
+    url: str
+    sha256: Optional[str]
+    size: Optional[int]
+    licence: str
+    preset: str
+    filename: str = ""
+    source: str = ""
+    notes: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"ModelEntry {self.name!r}: kind must be one of {KINDS}, "
+                             f"got {self.kind!r}")
+        if self.sha256 is not None:
+            sha = self.sha256.lower()
+            if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+                raise ValueError(f"ModelEntry {self.name!r}: sha256 must be 64 hex digits")
+            object.__setattr__(self, "sha256", sha)
+        if not self.filename:
+            object.__setattr__(self, "filename", self.url.rstrip("/").rsplit("/", 1)[-1])
+
+
+_LABELME = "https://github.com/wkentaro/labelme/releases/download/sam-20230416/"
+_ESAM = "https://github.com/labelmeai/efficient-sam/releases/download/onnx-models-20231225/"
+_OSAM_SAM = ("sha256 from wkentaro/osam osam/_models/sam/_models.py (the labelme author's "
+             "model registry)")
+_OSAM_ESAM = "sha256 from wkentaro/osam osam/_models/efficientsam/_models.py"
+_SINGLE = ("quantized export made with --return-single-mask (labelme export script): one "
+           "candidate per prompt, so the 3-candidate stability/smallest rule degenerates")
+
+
+def _e(*args, **kw) -> ModelEntry:
+    return ModelEntry(*args, **kw)
+
+
+#: Known public models (read-only).  Pass your own mapping as ``registry=`` to
+#: the functions below to use others.
+REGISTRY: Mapping[str, ModelEntry] = MappingProxyType({e.name: e for e in [
+    _e("sam-vit-b-encoder", "sam-encoder", _LABELME + "sam_vit_b_01ec64.quantized.encoder.onnx",
+       "3346b9cc551c9902fbf3b203935e933592b22e042365f58321c17fc12641fd6a", 99827688,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM),
+    _e("sam-vit-b-decoder", "sam-decoder", _LABELME + "sam_vit_b_01ec64.quantized.decoder.onnx",
+       "edbcf1a0afaa55621fb0abe6b3db1516818b609ea9368f309746a3afc68f7613", 8743656,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM, notes=_SINGLE),
+    _e("sam-vit-l-encoder", "sam-encoder", _LABELME + "sam_vit_l_0b3195.quantized.encoder.onnx",
+       "f7158a4a1fe7f670ef47ea2f7f852685425c1ed6caa40f5df86cbe2b0502034f", 322569107,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM),
+    _e("sam-vit-l-decoder", "sam-decoder", _LABELME + "sam_vit_l_0b3195.quantized.decoder.onnx",
+       "552ebb23bf52c5e5b971ac710d1eb8dccfd88b36cc6aff881d1536d1662e6d7b", 8743680,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM, notes=_SINGLE),
+    _e("sam-vit-h-encoder", "sam-encoder", _LABELME + "sam_vit_h_4b8939.quantized.encoder.onnx",
+       "a5c745fd4279efc5e5436b412200e983dafc2249ce172af6cc0002a71bb5f485", 656243518,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM,
+       notes="ViT-H is the encoder the SuperPrimitive authors used"),
+    _e("sam-vit-h-decoder", "sam-decoder", _LABELME + "sam_vit_h_4b8939.quantized.decoder.onnx",
+       "020b385a45ffe51097e1acd10cd791075a86171153505f789a793bc382eef210", 8743672,
+       "Apache-2.0", "sam-labelme", source=_OSAM_SAM,
+       notes="single- or multi-mask export not verified; SegmentModel adapts to the "
+             "candidate count it returns"),
+    _e("efficientsam-vitt-encoder", "sam-encoder", _ESAM + "efficient_sam_vitt_encoder.onnx",
+       "7a73ee65aa2c37237c89b4b18e73082f757ffb173899609c5d97a2bbd4ebb02d", 24799761,
+       "Apache-2.0", "efficientsam", source=_OSAM_ESAM),
+    _e("efficientsam-vitt-decoder", "sam-decoder", _ESAM + "efficient_sam_vitt_decoder.onnx",
+       "e1afe46232c3bfa3470a6a81c7d3181836a94ea89528aff4e0f2d2c611989efd", 16565728,
+       "Apache-2.0", "efficientsam", source=_OSAM_ESAM,
+       notes="3 candidates per prompt, batched prompts"),
+    _e("efficientsam-vits-encoder", "sam-encoder", _ESAM + "efficient_sam_vits_encoder.onnx",
+       "4cacbb23c6903b1acf87f1d77ed806b840800c5fcd4ac8f650cbffed474b8896", None,
+       "Apache-2.0", "efficientsam", source=_OSAM_ESAM),
+    _e("efficientsam-vits-decoder", "sam-decoder", _ESAM + "efficient_sam_vits_decoder.onnx",
+       "4727baf23dacfb51d4c16795b2ac382c403505556d0284e84c6ff3d4e8e36f22", None,
+       "Apache-2.0", "efficientsam", source=_OSAM_ESAM,
+       notes="3 candidates per prompt, batched prompts"),
+    _e("metric3d-vit-small-fp16", "normals",
+       "https://huggingface.co/onnx-community/metric3d-vit-small/resolve/main/onnx/"
+       "model_fp16.onnx",
+       "4afcc0893dbb3c0c63e270f8bb24bfa63ccf2dc68ab9c0c3601fdae4f0aafd9b", 75778144,
+       "BSD-2-Clause", "metric3d-onnx", filename="metric3d-vit-small-fp16.onnx",
+       source="URL from YvanYin/Metric3D README (ONNX checkpoints, issue #117); sha256/size "
+              "pinned by a third-party download script, not by the publisher",
+       notes="Metric3D v2 ViT-S (depth + normals); normal convention unverified"),
+    _e("metric3d-vit-small", "normals",
+       "https://huggingface.co/onnx-community/metric3d-vit-small/resolve/main/onnx/model.onnx",
+       None, None, "BSD-2-Clause", "metric3d-onnx", filename="metric3d-vit-small.onnx",
+       source="URL from YvanYin/Metric3D README (ONNX checkpoints, issue #117)",
+       notes="fp32; no published sha256 (fetch needs allow_unverified); convention unverified"),
+]})
+
+
+# ------------------------------------------------------------------ basics
+def model_dir(create: bool = False) -> Path:
+    """The cache directory: ``$SPGEO_MODEL_DIR`` or ``user_cache_dir("spgeo")/models``."""
+    env = os.environ.get("SPGEO_MODEL_DIR")
+    if env:
+        path = Path(env).expanduser()
+    else:
+        import platformdirs
+
+        path = Path(platformdirs.user_cache_dir("spgeo")) / "models"
+    if create:
+        path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _registry(registry: Optional[Mapping[str, ModelEntry]]) -> Mapping[str, ModelEntry]:
+    return REGISTRY if registry is None else registry
+
+
+def get_entry(name: str, registry: Optional[Mapping[str, ModelEntry]] = None) -> ModelEntry:
+    """The registry entry ``name``; ``KeyError`` listing the known names otherwise."""
+    reg = _registry(registry)
+    try:
+        return reg[name]
+    except KeyError:
+        raise KeyError(f"unknown model {name!r}; known models: {sorted(reg)}") from None
+
+
+def list_models(registry: Optional[Mapping[str, ModelEntry]] = None
+                ) -> List[Tuple[ModelEntry, Path, bool]]:
+    """``[(entry, path in the cache, present), ...]`` sorted by name."""
+    reg = _registry(registry)
+    out = []
+    for name in sorted(reg):
+        path, present = model_path(name, reg)
+        out.append((reg[name], path, present))
+    return out
+
+
+def model_path(name: str, registry: Optional[Mapping[str, ModelEntry]] = None
+               ) -> Tuple[Path, bool]:
+    """``(path, present)``: where model ``name`` lives in the cache and whether it is there."""
+    entry = get_entry(name, registry)
+    path = model_dir() / entry.filename
+    return path, path.is_file()
+
+
+def sha256_file(path: PathLike) -> str:
+    """Hex sha256 of a file."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(_CHUNK), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _record_hash(path: Path, sha: str) -> None:
+    path.with_name(path.name + ".sha256").write_text(f"{sha}  {path.name}\n", encoding="utf-8")
+
+
+# ------------------------------------------------------------------ fetch
+def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
+                progress: bool = True, registry: Optional[Mapping[str, ModelEntry]] = None,
+                timeout: float = 60.0) -> Path:
+    """Download model ``name`` into the cache (if not already there) and return its path.
+
+    Args:
+        force: download again even if the file is present.
+        allow_unverified: accept an entry without a published sha256 (the
+            computed hash is recorded in ``<file>.sha256``).
+        progress: show a tqdm progress bar.
+        registry: mapping of entries to use instead of :data:`REGISTRY`.
+        timeout: socket timeout in seconds.
+
+    Raises:
+        KeyError: unknown name.
+        ValueError: no published sha256 and ``allow_unverified`` is False; or
+            the download's size / sha256 does not match (the file is discarded).
+        ModelDownloadError: no network / the URL could not be read; the message
+            says where to place the file by hand.
+    """
+    entry = get_entry(name, registry)
+    dest = model_dir() / entry.filename
+    if dest.is_file() and not force:
+        if entry.size is not None and dest.stat().st_size != entry.size:
+            raise ValueError(f"cached {dest} has {dest.stat().st_size} bytes, expected "
+                             f"{entry.size}; fetch again with force=True (--force)")
+        logger.info("model %s already present at %s", name, dest)
+        return dest
+    if entry.sha256 is None and not allow_unverified:
+        raise ValueError(f"model {name!r} has no published sha256; download it anyway with "
+                         f"allow_unverified=True (CLI: --allow-unverified), or place the file at "
+                         f"{dest} yourself")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    manual = (f"place the file at {dest} manually"
+              + (f" (sha256 {entry.sha256})" if entry.sha256 else ""))
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{entry.filename}.", suffix=".part",
+                                    dir=str(dest.parent))
+    tmp = Path(tmp_name)
+    digest = hashlib.sha256()
+    n_bytes = 0
+    try:
+        request = urllib.request.Request(entry.url, headers={"User-Agent": "spgeo"})
+        try:
+            response = urllib.request.urlopen(request, timeout=timeout)
+        except (urllib.error.URLError, OSError, ValueError) as exc:
+            reason = getattr(exc, "reason", exc)
+            raise ModelDownloadError(f"no network / could not download {entry.url} ({reason}); "
+                                     f"{manual}") from exc
+        from tqdm import tqdm
+
+        with response, os.fdopen(fd, "wb") as out:
+            fd = -1
+            total = response.headers.get("Content-Length") if response.headers else None
+            total = int(total) if total and total.isdigit() else entry.size
+            with tqdm(total=total, unit="B", unit_scale=True, desc=entry.filename,
+                      disable=not progress) as bar:
+                while True:
+                    try:
+                        block = response.read(_CHUNK)
+                    except OSError as exc:
+                        raise ModelDownloadError(f"download of {entry.url} stopped after "
+                                                 f"{n_bytes} bytes ({exc}); {manual}") from exc
+                    if not block:
+                        break
+                    out.write(block)
+                    digest.update(block)
+                    n_bytes += len(block)
+                    bar.update(len(block))
+        if entry.size is not None and n_bytes != entry.size:
+            raise ValueError(f"download of {name!r} from {entry.url} has {n_bytes} bytes, "
+                             f"expected {entry.size}; discarded")
+        sha = digest.hexdigest()
+        if entry.sha256 is not None and sha != entry.sha256:
+            raise ValueError(f"sha256 mismatch for {name!r} from {entry.url}: expected "
+                             f"{entry.sha256}, got {sha}; discarded")
+        os.replace(tmp, dest)
+    finally:
+        if fd >= 0:
+            os.close(fd)
+        if tmp.exists():
+            tmp.unlink()
+    if entry.sha256 is None:
+        logger.warning("model %s downloaded WITHOUT verification; sha256 %s recorded in %s.sha256",
+                       name, sha, dest.name)
+        _record_hash(dest, sha)
+    logger.info("model %s installed at %s (%d bytes)", name, dest, n_bytes)
+    return dest
+
+
+def register_local(name: str, path: PathLike, allow_unverified: bool = False,
+                   registry: Optional[Mapping[str, ModelEntry]] = None) -> Path:
+    """Install a local file as registry model ``name`` (copied into the cache).
+
+    The file is checked against the entry's sha256 (mismatch: ``ValueError``);
+    entries without one need ``allow_unverified=True`` and get the computed
+    hash recorded.  Returns the cache path.
+    """
+    entry = get_entry(name, registry)
+    src = Path(path)
+    if not src.is_file():
+        raise FileNotFoundError(f"model file not found: {src}")
+    sha = sha256_file(src)
+    if entry.sha256 is None:
+        if not allow_unverified:
+            raise ValueError(f"model {name!r} has no published sha256; pass allow_unverified=True")
+    elif sha != entry.sha256:
+        raise ValueError(f"sha256 mismatch for {name!r} ({src}): expected {entry.sha256}, "
+                         f"got {sha}")
+    dest = model_dir(create=True) / entry.filename
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{entry.filename}.", suffix=".part",
+                                    dir=str(dest.parent))
+    os.close(fd)
+    try:
+        shutil.copyfile(src, tmp_name)
+        os.replace(tmp_name, dest)
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    if entry.sha256 is None:
+        _record_hash(dest, sha)
+    return dest
+
+
+def resolve_model(name_or_path: PathLike, registry: Optional[Mapping[str, ModelEntry]] = None
+                  ) -> Tuple[Path, Optional[ModelEntry]]:
+    """A registry name or a path to a local file -> ``(path, entry or None)``.
+
+    Registry models must already be in the cache (``FileNotFoundError`` says
+    how to fetch them); nothing is downloaded here.
+    """
+    text = os.fspath(name_or_path)
+    reg = _registry(registry)
+    if text in reg:
+        path, present = model_path(text, reg)
+        if not present:
+            raise FileNotFoundError(f"model {text!r} is not in the cache ({path}); run "
+                                    f"`spgeo models fetch {text}` or spgeo.models.fetch_model")
+        return path, reg[text]
+    path = Path(text).expanduser()
+    if path.is_file():
+        return path, None
+    raise FileNotFoundError(f"model file not found: {path} (and {text!r} is not a registry "
+                            f"name; known: {sorted(reg)})")
+
+
+# -------------------------------------------------------------- factories
+def sam_model_from_cache(family: Optional[str] = "efficientsam-vitt",
+                         encoder: Optional[PathLike] = None,
+                         decoder: Optional[PathLike] = None, preset: Optional[str] = None,
+                         registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
+    """A :class:`~spgeo.frontend.onnx_sam.SegmentModel` from the cache or from files.
+
+    Args:
+        family: registry family (``<family>-encoder`` / ``<family>-decoder``),
+            e.g. ``"efficientsam-vitt"`` or ``"sam-vit-h"``.
+        encoder, decoder: registry names or paths overriding the family's files.
+        preset: SAM preset; default: the registry entry's, else ``"sam-official"``.
+        overrides: :class:`~spgeo.frontend.onnx_sam.SamOnnxConfig` fields
+            (e.g. ``upsample_to=(960, 1280)``).
+    """
+    from .frontend.onnx_sam import SegmentModel
+
+    if encoder is None or decoder is None:
+        if family is None:
+            raise ValueError("give a model family or both encoder and decoder")
+    enc_path, enc_entry = resolve_model(encoder if encoder is not None else f"{family}-encoder",
+                                        registry)
+    dec_path, dec_entry = resolve_model(decoder if decoder is not None else f"{family}-decoder",
+                                        registry)
+    if preset is None:
+        preset = (enc_entry or dec_entry).preset if (enc_entry or dec_entry) else "sam-official"
+    return SegmentModel.from_paths(enc_path, dec_path, preset=preset, **overrides)
+
+
+def sam_frontend_from_cache(family: Optional[str] = "efficientsam-vitt",
+                            encoder: Optional[PathLike] = None, decoder: Optional[PathLike] = None,
+                            generator_config=None, preset: Optional[str] = None,
+                            registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
+    """A :class:`~spgeo.frontend.onnx_sam.SamMaskGenerator` (a ``Segmenter``) built by
+    :func:`sam_model_from_cache`; ``generator_config`` is a ``SamMaskGeneratorConfig``."""
+    from .frontend.onnx_sam import SamMaskGenerator, SamMaskGeneratorConfig
+
+    model = sam_model_from_cache(family, encoder, decoder, preset, registry, **overrides)
+    return SamMaskGenerator(model, generator_config or SamMaskGeneratorConfig())
+
+
+def normal_model_from_cache(name_or_path: PathLike = "metric3d-vit-small-fp16",
+                            preset: Optional[str] = None,
+                            registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
+    """A :class:`~spgeo.frontend.onnx_normals.NormalModel` from a registry name or a path;
+    ``overrides`` are :class:`~spgeo.frontend.onnx_normals.NormalOnnxConfig` fields."""
+    from .frontend.onnx_normals import NormalModel
+
+    path, entry = resolve_model(name_or_path, registry)
+    preset = preset or (entry.preset if entry else "generic-480x640")
+    return NormalModel.from_path(path, preset=preset, **overrides)
+
+
+# --------------------------------------------------------------------- CLI
+def _cli_list(args: argparse.Namespace) -> int:
+    print(f"model directory: {model_dir()}")
+    for entry, path, present in list_models():
+        size = f"{entry.size / 1e6:.0f} MB" if entry.size else "? MB"
+        sha = "sha256" if entry.sha256 else "unverified"
+        print(f"{'*' if present else ' '} {entry.name:28s} {entry.kind:12s} {size:>8s}  "
+              f"{sha:10s} {entry.licence:12s} {entry.preset}")
+    print("(* = present)")
+    return 0
+
+
+def _cli_fetch(args: argparse.Namespace) -> int:
+    try:
+        path = fetch_model(args.name, force=args.force, allow_unverified=args.allow_unverified,
+                           progress=not args.no_progress)
+    except (KeyError, ValueError, ModelDownloadError) as exc:
+        print(f"error: {exc.args[0] if exc.args else exc}")
+        return 1
+    print(path)
+    return 0
+
+
+def _cli_path(args: argparse.Namespace) -> int:
+    try:
+        path, present = model_path(args.name)
+    except KeyError as exc:
+        print(f"error: {exc.args[0]}")
+        return 1
+    print(path if present else f"{path} (missing)")
+    return 0 if present else 1
+
+
+def add_cli(subparsers) -> argparse.ArgumentParser:
+    """Add the ``models`` sub-command (``list``, ``fetch NAME``, ``path NAME``).
+
+    ``subparsers`` is the object returned by ``ArgumentParser.add_subparsers()``;
+    every leaf sets ``func`` so the caller runs ``args.func(args)`` (returns an
+    exit code).
+    """
+    parser = subparsers.add_parser("models", help="list, fetch and locate ONNX models",
+                                   description="Model cache in $SPGEO_MODEL_DIR (or the user "
+                                               "cache directory).")
+    sub = parser.add_subparsers(dest="models_command", metavar="{list,fetch,path}")
+    sub.required = True
+    p_list = sub.add_parser("list", help="known models and whether they are cached")
+    p_list.set_defaults(func=_cli_list)
+    p_fetch = sub.add_parser("fetch", help="download a model into the cache")
+    p_fetch.add_argument("name", help="registry name (see `models list`)")
+    p_fetch.add_argument("--force", action="store_true", help="download again")
+    p_fetch.add_argument("--allow-unverified", action="store_true",
+                         help="accept a model without a published sha256")
+    p_fetch.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p_fetch.set_defaults(func=_cli_fetch)
+    p_path = sub.add_parser("path", help="print where a model is (exit 1 if missing)")
+    p_path.add_argument("name")
+    p_path.set_defaults(func=_cli_path)
+    return parser
