@@ -1,0 +1,146 @@
+"""Photometric factor: Jacobians vs numerical derivatives, cost vs DESIGN.md §4."""
+import numpy as np
+import pytest
+
+import gtsam
+from spgeo import PinholeCamera
+from spgeo.factors.photometric import (PhotometricConfig, PlanarShape, PrimitivePhotometricFactor,
+                                       ScaledShape)
+from spgeo.geometry import so3_exp
+
+CAM = PinholeCamera(120.0, 115.0, 63.2, 47.7, 128, 96)
+X_, S_, B_ = gtsam.symbol("x", 0), gtsam.symbol("s", 0), gtsam.symbol("b", 1)
+X1 = gtsam.symbol("x", 1)
+
+
+def smooth_image(seed=0):
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:CAM.height, 0:CAM.width].astype(float)
+    img = 0.5 + sum(0.1 * np.sin(rng.uniform(0.05, 0.3) * u + rng.uniform(0.05, 0.3) * v
+                                 + rng.uniform(0, 6)) for _ in range(6))
+    return np.clip(img, 0, 1)
+
+
+def pose(rot, trans):
+    T = np.eye(4)
+    T[:3, :3] = so3_exp(rot)
+    T[:3, 3] = trans
+    return T
+
+
+def make_factor(model="scaled", brightness=True, robust="none", seed=0):
+    rng = np.random.default_rng(seed)
+    pix_u = rng.uniform(10, 118, 200)
+    pix_v = rng.uniform(10, 86, 200)
+    rays = np.stack([(pix_u - CAM.cx) / CAM.fx, (pix_v - CAM.cy) / CAM.fy, np.ones(200)], -1)
+    if model == "scaled":
+        shape = ScaledShape(rays, 0.1 * np.sin(pix_u / 20.0) + 0.05 * pix_v / 96)
+        theta = np.array([np.log(2.0)])
+    else:
+        shape = PlanarShape(rays)
+        theta = np.array([0.05, -0.03, 0.5])
+    ref_int = rng.uniform(0.2, 0.8, 200)
+    f = PrimitivePhotometricFactor(X_, X1, S_, shape, ref_int, smooth_image(seed), CAM,
+                                   B_ if brightness else None, PhotometricConfig(robust=robust))
+    vals = gtsam.Values()
+    vals.insert(X_, gtsam.Pose3(pose([0.01, -0.02, 0.015], [0.1, 0.05, -0.02])))
+    vals.insert(X1, gtsam.Pose3(pose([-0.03, 0.02, 0.01], [-0.08, 0.02, 0.05])))
+    vals.insert(S_, theta)
+    if brightness:
+        vals.insert(B_, np.array([0.1, -0.05]))
+    return f, vals
+
+
+def numerical_jacobian(factor, vals, key, eps=1e-6):
+    base_dim = vals.dim()
+    cols = []
+    dim = 6 if key in (X_, X1) else vals.atVector(key).size
+    for j in range(dim):
+        cols_pm = []
+        for sgn in (1, -1):
+            delta = gtsam.VectorValues()
+            for k in vals.keys():
+                d = 6 if k in (X_, X1) else vals.atVector(k).size
+                vec = np.zeros(d)
+                if k == key:
+                    vec[j] = sgn * eps
+                delta.insert(k, vec)
+            cols_pm.append(factor.unwhitenedError(vals.retract(delta)))
+        cols.append((cols_pm[0] - cols_pm[1]) / (2 * eps))
+    assert base_dim > 0
+    return np.stack(cols, axis=1)
+
+
+@pytest.mark.parametrize("model", ["scaled", "planar"])
+@pytest.mark.parametrize("brightness", [True, False])
+def test_jacobians_match_numerical(model, brightness):
+    f, vals = make_factor(model, brightness)
+    lin = f.factor.linearize(vals)
+    A, b = lin.jacobian()
+    keys = list(f.keys)
+    dims = [6, 6, 1 if model == "scaled" else 3] + ([2] if brightness else [])
+    offs = np.concatenate([[0], np.cumsum(dims)])
+    valid = f.evaluate(vals.atPose3(X_).matrix(), vals.atPose3(X1).matrix(),
+                       vals.atVector(S_), vals.atVector(B_) if brightness else None)["valid"]
+    assert valid.mean() > 0.8
+    for i, key in enumerate(keys):
+        J_num = numerical_jacobian(f.factor, vals, key)
+        J = A[:, offs[i]:offs[i + 1]]
+        scale = np.abs(J_num).max()
+        assert scale > 0
+        np.testing.assert_allclose(J, J_num, atol=1e-6 * scale + 1e-9,
+                                   err_msg=f"Jacobian of key {i} ({model}, brightness={brightness})")
+
+
+def test_huber_jacobian_is_weighted_plain_jacobian():
+    f_h, vals = make_factor(robust="huber")
+    f_n, _ = make_factor(robust="none")
+    args = (vals.atPose3(X_).matrix(), vals.atPose3(X1).matrix(), vals.atVector(S_),
+            vals.atVector(B_))
+    rh, rn = f_h.evaluate(*args), f_n.evaluate(*args)
+    rho = rh["weights"] / np.where(rn["weights"] > 0, rn["weights"], 1)
+    assert np.any(rho < 0.999)            # some residuals beyond delta are down-weighted
+    for k in ("J_ref", "J_tgt", "J_shape", "J_brightness"):
+        np.testing.assert_allclose(rh[k], rho[:, None] * rn[k], atol=1e-12)
+
+
+def test_error_equals_design_cost_hand_computed():
+    """0.5 * mean |I_r(u) - I_t(u')| ^2 over valid pixels, with a hand-made warp:
+    pure translation along x of a fronto-parallel primitive at depth 2 shifts
+    every pixel by fx * tx / z."""
+    img_t = np.tile(np.linspace(0, 1, CAM.width), (CAM.height, 1))  # I_t(u, v) = u / (W - 1)
+    pix_u = np.array([20.0, 40.0, 60.0, 126.0])
+    pix_v = np.array([30.0, 40.0, 50.0, 60.0])
+    rays = np.stack([(pix_u - CAM.cx) / CAM.fx, (pix_v - CAM.cy) / CAM.fy, np.ones(4)], -1)
+    ref = np.array([0.1, 0.3, 0.5, 0.2])
+    f = PrimitivePhotometricFactor(X_, X1, S_, ScaledShape(rays, np.zeros(4)), ref, img_t, CAM,
+                                   config=PhotometricConfig(robust="none"))
+    vals = gtsam.Values()
+    vals.insert(X_, gtsam.Pose3())
+    vals.insert(X1, gtsam.Pose3(pose([0, 0, 0], [-0.1, 0, 0])))   # target camera moved -x
+    vals.insert(S_, np.array([np.log(2.0)]))
+    shift = CAM.fx * 0.1 / 2.0                                      # pixels, towards +u
+    u_t = pix_u + shift                                             # the last one leaves the image
+    inside = u_t <= CAM.width - 1
+    r = u_t / (CAM.width - 1) - ref
+    expected = 0.5 * np.sum(r[inside] ** 2) / 4                     # weights 1/sqrt(|Omega|)
+    assert inside.tolist() == [True, True, True, False]
+    assert f.factor.error(vals) == pytest.approx(expected, rel=1e-9)
+    e = f.factor.unwhitenedError(vals)
+    assert e.shape == (4,) and e[3] == 0.0                          # fixed length, zero row
+
+
+def test_bad_input():
+    rays = np.ones((3, 3))
+    with pytest.raises(ValueError, match="pixels"):
+        PrimitivePhotometricFactor(X_, X1, S_, ScaledShape(rays, np.zeros(3)), np.zeros(4),
+                                   np.zeros(CAM.shape), CAM)
+    with pytest.raises(ValueError, match="target image"):
+        PrimitivePhotometricFactor(X_, X1, S_, ScaledShape(rays, np.zeros(3)), np.zeros(3),
+                                   np.zeros((5, 5)), CAM)
+    with pytest.raises(ValueError, match="NaN"):
+        PrimitivePhotometricFactor(X_, X1, S_, ScaledShape(rays, np.zeros(3)),
+                                   np.array([0, np.nan, 0]), np.zeros(CAM.shape), CAM)
+    with pytest.raises(ValueError, match="differ"):
+        PrimitivePhotometricFactor(X_, X_, S_, ScaledShape(rays, np.zeros(3)), np.zeros(3),
+                                   np.zeros(CAM.shape), CAM)
