@@ -123,9 +123,13 @@ def test_error_equals_design_cost_hand_computed():
     u_t = pix_u + shift                                             # the last one leaves the image
     inside = u_t <= CAM.width - 1
     r = u_t / (CAM.width - 1) - ref
-    expected = 0.5 * np.sum(r[inside] ** 2) / 4                     # weights 1/sqrt(|Omega|)
     assert inside.tolist() == [True, True, True, False]
-    assert f.factor.error(vals) == pytest.approx(expected, rel=1e-9)
+    # default: mean over the pixels valid in the target
+    assert f.factor.error(vals) == pytest.approx(0.5 * np.mean(r[inside] ** 2), rel=1e-9)
+    f_all = PrimitivePhotometricFactor(X_, X1, S_, ScaledShape(rays, np.zeros(4)), ref, img_t,
+                                       CAM, config=PhotometricConfig(robust="none",
+                                                                     normalise="all"))
+    assert f_all.factor.error(vals) == pytest.approx(0.5 * np.sum(r[inside] ** 2) / 4, rel=1e-9)
     e = f.factor.unwhitenedError(vals)
     assert e.shape == (4,) and e[3] == 0.0                          # fixed length, zero row
 

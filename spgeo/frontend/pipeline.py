@@ -46,7 +46,8 @@ class FrontEndConfig:
             (grazing normals at occluding rims, which least squares would
             smooth over).  This replaces a 3x3 Scharr filter of the integrated
             log-depth: inside a mask both measure the same gradient, and the
-            kernel would reach outside the mask at its border.
+            kernel would reach outside the mask at its border.  Front-ends
+            that read depth also cut where the measured depth jumps by as much.
         integration: options of the batched integration.
     """
 
@@ -226,7 +227,7 @@ class PrimitiveFrontEnd:
             raise ValueError(f"normal estimator returned shape {normals.shape}, expected "
                              f"({cam.height}, {cam.width}, 3)")
         t_nrm = time.perf_counter()
-        prims = self._build(seg, normals, cam)
+        prims = self._build(seg, normals, cam, dep)
         t_int = time.perf_counter()
         if dep is not None and len(prims):
             s, cnt = prims.fit_log_scales(dep)
@@ -243,7 +244,8 @@ class PrimitiveFrontEnd:
                   1e3 * (time.perf_counter() - t0))
         return prims
 
-    def _build(self, seg: Segmentation, normals: np.ndarray, cam: PinholeCamera) -> PrimitiveSet:
+    def _build(self, seg: Segmentation, normals: np.ndarray, cam: PinholeCamera,
+               depth: Optional[np.ndarray] = None) -> PrimitiveSet:
         if (seg.height, seg.width) != cam.shape:
             raise ValueError(f"segmentation is {seg.width}x{seg.height}, expected {cam.width}x{cam.height}")
         cfg = self.config
@@ -264,6 +266,12 @@ class PrimitiveFrontEnd:
             # normals mark occluding rims that least squares would smooth over
             steep = _implied_gradient(normals, cam).reshape(-1)[pix] > cfg.jump_threshold
             cut |= steep[p] | steep[q]
+            if depth is not None:
+                # depth-using front-ends also cut where the measured depth jumps
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    logd = np.log(np.where(depth > 0, depth, np.nan)).reshape(-1)[pix]
+                jump = np.abs(logd[q] - logd[p]) * focal > cfg.jump_threshold
+                cut |= np.nan_to_num(jump, nan=0.0).astype(bool)
             if np.any(cut):
                 new_parts, new_parent = split_regions(parts, w, h, min_area, cut, edges)
                 log.debug("depth-jump split: %d -> %d parts", len(parts), len(new_parts))
