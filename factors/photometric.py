@@ -12,8 +12,12 @@ reference-frame point ``X_k(theta)``; it is moved into the target camera with
 ``rho_k`` is a per-pixel robust weight computed inside the factor (IRLS:
 ``sqrt(psi(r)/r)``; Huber by default, an L1-like cost for small ``delta``);
 GTSAM's own robust noise models would act on the whole factor instead.
-Pixels that project outside the target image or behind the camera give zero
-rows (fixed residual length).  By default the mean is taken over the pixels
+Pixels that project outside the target image give zero rows (fixed residual
+length).  Pixels whose point is geometrically impossible (behind the
+reference camera, which a plane parameter can cause, or behind the target
+camera) get a constant penalty row with zero Jacobian instead: with zero rows
+LM can "solve" a primitive by flipping its plane behind the camera, where
+every residual vanishes (observed with the planar model).  By default the mean is taken over the pixels
 that are valid in the target (``|Omega_valid|``, constant within a
 linearisation): with the full ``|Omega|`` the cost *drops* when pixels leave
 the image, and at coarse pyramid levels LM then happily rotates primitives out
@@ -63,12 +67,16 @@ class PhotometricConfig:
         normalise: ``"valid"`` (default): the per-primitive mean runs over the
             pixels valid in the target; ``"all"``: over all of the
             primitive's pixels (then leaving the image lowers the cost).
+        behind_penalty: photometric error (intensity units) charged to a pixel
+            whose point lies behind the reference or target camera (default
+            0.5, about the largest plausible photometric error).
     """
 
     robust: str = "huber"
     huber_delta: float = 0.04
     min_depth: float = 1e-3
     normalise: str = "valid"
+    behind_penalty: float = 0.5
 
     def __post_init__(self) -> None:
         if self.robust not in ("huber", "none"):
@@ -240,7 +248,8 @@ class PrimitivePhotometricFactor:
         X, dX, valid = self.shape.points(np.asarray(theta, dtype=np.float64))
         Y = X @ R.T + t
         Yx, Yy, z = Y[:, 0], Y[:, 1], Y[:, 2]
-        valid = valid & (z > self.config.min_depth)
+        behind = ~valid | (z <= self.config.min_depth)
+        valid = ~behind
         inv_z = np.where(valid, 1.0 / np.where(valid, z, 1.0), 0.0)
         cam = self.camera
         u = np.where(valid, cam.fx * Yx * inv_z + cam.cx, -1.0)
@@ -254,11 +263,16 @@ class PrimitivePhotometricFactor:
         ea = np.exp(-a)
         r = ea * I_t + b - self.ref_intensity
         if self.config.normalise == "valid":
-            scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid)), 1))
+            scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
         else:
             scale = self.scale
         w = scale * robust_weights(r, self.config) * valid
-        out = {"e": w * r, "r": np.where(valid, r, 0.0), "valid": valid, "weights": w}
+        e = w * r
+        if behind.any():
+            pen = self.config.behind_penalty
+            e = np.where(behind, scale * robust_weights(np.array([pen]), self.config)[0] * pen, e)
+        out = {"e": e, "r": np.where(valid, r, 0.0), "valid": valid, "behind": behind,
+               "weights": w}
         if not jacobians:
             return out
         wg = w * ea * inv_z

@@ -33,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     from .models import add_cli as add_models_cli
 
     add_models_cli(sub)
+    from .cli_complete import add_complete_cli  # spgeo complete (depth completion)
+
+    add_complete_cli(sub)
+    from .cli_sfm import add_sfm_cli  # spgeo sfm (few-view SfM)
+
+    add_sfm_cli(sub)
     return ap
 
 

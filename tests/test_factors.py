@@ -148,3 +148,21 @@ def test_bad_input():
     with pytest.raises(ValueError, match="differ"):
         PrimitivePhotometricFactor(X_, X_, S_, ScaledShape(rays, np.zeros(3)), np.zeros(3),
                                    np.zeros(CAM.shape), CAM)
+
+
+def test_points_behind_a_camera_cost_a_penalty_not_zero():
+    """A plane flipped behind the reference camera must not make the cost vanish."""
+    rng = np.random.default_rng(0)
+    rays = np.stack([rng.uniform(-0.4, 0.4, 50), rng.uniform(-0.3, 0.3, 50), np.ones(50)], -1)
+    f = PrimitivePhotometricFactor(X_, X1, S_, PlanarShape(rays), rng.uniform(0.4, 0.6, 50),
+                                   smooth_image(), CAM, config=PhotometricConfig())
+    vals = gtsam.Values()
+    vals.insert(X_, gtsam.Pose3())
+    vals.insert(X1, gtsam.Pose3(pose([0.01, 0, 0], [0.05, 0, 0])))
+    vals.insert(S_, np.array([0.0, 0.0, 0.5]))
+    good = f.factor.error(vals)
+    vals.update(S_, np.array([0.0, 0.0, -0.5]))            # every point behind the camera
+    flipped = f.factor.error(vals)
+    assert flipped > good and flipped > 0.01
+    lin = f.factor.linearize(vals)
+    assert np.all(lin.jacobian()[0] == 0)                   # constant penalty, no gradient

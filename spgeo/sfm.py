@@ -1,0 +1,486 @@
+"""Few-view structure from motion on SuperPrimitives (DESIGN.md §4, §5).
+
+A reference image is primified; its primitives' log-scales and the poses of
+1..n *unposed* supporting views (plus an affine brightness per view) are
+estimated by photometric alignment: one :class:`PrimitivePhotometricFactor`
+per (primitive, view) in a GTSAM graph, solved by Levenberg-Marquardt
+coarse-to-fine over a Gaussian pyramid (geometry stays at the reference's
+resolution; factors are rebuilt per level).
+
+Gauge: a tight prior on the reference pose (identity) and a weak prior on
+every log-scale (the paper's 1e-5) that fixes the global scale, which
+monocular images cannot observe: depths are in metres *up to one unknown
+global scale* (exactly so when all scales start at 0, the paper's default).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple, Union
+
+import cv2
+import numpy as np
+
+import gtsam
+
+from .camera import PinholeCamera
+from .factors.photometric import (PhotometricConfig, PlanarShape, PrimitivePhotometricFactor,
+                                  ScaledShape)
+from .frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from .geometry import invert_pose, rotation_angle_deg
+from .images import gaussian_pyramid, to_float_image, to_gray
+from .primitives import PointCloud, PrimitiveSet
+
+__all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
+
+log = logging.getLogger(__name__)
+
+
+def pose_key(j: int) -> int:
+    """Key of ``T_world_cam`` of image ``j`` (0 = reference)."""
+    return gtsam.symbol("x", j)
+
+
+def scale_key(i: int) -> int:
+    """Key of primitive ``i``'s shape variable (log-scale or plane)."""
+    return gtsam.symbol("s", i)
+
+
+def brightness_key(j: int) -> int:
+    """Key of view ``j``'s affine brightness ``(a, b)``."""
+    return gtsam.symbol("b", j)
+
+
+@dataclass(frozen=True)
+class SfMConfig:
+    """Options of :func:`few_view_sfm` (defaults follow the paper where it says).
+
+    Attributes:
+        shape_model: ``"scaled"`` (1-DoF log-scale on the integrated shape, the
+            paper) or ``"planar"`` (3-DoF inverse-depth plane per primitive).
+        levels: pyramid levels (coarse-to-fine; 4 at 320x240 -> 40x30 coarsest).
+        max_iterations: LM iterations per level, coarsest first (the last
+            value repeats for extra levels).
+        relative_error_tol: LM stops at a level when the cost decreases by
+            less than this fraction.
+        photometric: per-pixel robust cost options.
+        brightness: estimate an affine brightness ``(a, b)`` per view.
+        brightness_prior_sigma: prior sigma of ``(a, b)`` towards 0.
+        scale_prior_weight: weight of the prior pulling each log-scale to its
+            initial value (paper: 1e-5); sigma = ``1 / sqrt(weight)``.
+        planar_prior_sigma: prior sigma pulling the plane's slopes ``(a, b)``
+            towards fronto-parallel (planar model only).
+        ref_prior_sigma: sigma of the gauge prior on the reference pose.
+        reset_scales: start every log-scale at 0 (paper) even if the front-end
+            fitted scales (depth-using front-ends do).
+        init: ``"identity"`` (the paper: poses at identity, log-scales 0) or
+            ``"twoview"`` (default): feature-based relative pose per view
+            (:func:`spgeo.twoview.estimate_relative_pose`, OpenCV SIFT +
+            essential matrix), inliers triangulated into a sparse reference
+            depth that sets each primitive's initial log-scale by robust median;
+            views whose two-view estimate fails start at identity.  Measured
+            on synthetic view sets (``evaluation/bench_sfm.py``): identity
+            converges on some scenes only (orbit-like motion makes rotation
+            and translation ambiguous while all depths start equal).
+        rotation_first: when a view starts at identity, at the coarsest
+            level first solve the views' rotations and brightness with translations held at their initial
+            values (a tight translation prior) and scales fixed: rotational
+            alignment does not depend on depth, so the wrong initial depths
+            cannot pull it into a rotation/translation confusion.  Then all
+            variables are freed.
+        min_level_pixels: skip a primitive at a level where it has fewer pixels.
+        min_parallax: a view whose translation is below this fraction of the
+            median depth is flagged ``low_parallax``.
+        min_valid_fraction: a view in which fewer primitive pixels project
+            inside the image is flagged ``low_overlap``.
+        marginals: compute per-primitive scale stds and pose covariances.
+        lm_lambda_initial: initial LM damping.
+    """
+
+    shape_model: str = "scaled"
+    levels: int = 4
+    max_iterations: Tuple[int, ...] = (30, 20, 15, 10)
+    relative_error_tol: float = 1e-4
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    brightness: bool = True
+    brightness_prior_sigma: Tuple[float, float] = (0.3, 0.3)
+    scale_prior_weight: float = 1e-5
+    planar_prior_sigma: float = 2.0
+    ref_prior_sigma: float = 1e-6
+    reset_scales: bool = True
+    min_level_pixels: int = 4
+    rotation_first: bool = True
+    init: str = "twoview"
+    min_parallax: float = 0.01
+    min_valid_fraction: float = 0.3
+    marginals: bool = True
+    lm_lambda_initial: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.shape_model not in ("scaled", "planar"):
+            raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
+        if self.levels < 1 or not self.max_iterations:
+            raise ValueError("levels must be >= 1 and max_iterations non-empty")
+        if self.init not in ("identity", "twoview"):
+            raise ValueError(f"init must be 'identity' or 'twoview', got {self.init!r}")
+        if self.scale_prior_weight <= 0:
+            raise ValueError("scale_prior_weight must be > 0 (it fixes the scale gauge)")
+
+
+@dataclass
+class SfMResult:
+    """Output of :func:`few_view_sfm`.
+
+    Attributes:
+        status: ``"ok"`` or the first problem found: ``"low_parallax"``,
+            ``"low_overlap"``, ``"diverged"``.
+        view_status: status per supporting view.
+        T_ref_view: 4x4 pose of each supporting view in the reference camera
+            (camera-to-reference), translation in the map's (unknown) scale.
+        primitives: the reference primitives with solved log-scales (planar
+            model: the planes' depths are baked into ``log_depth``).
+        depth: (H, W) reference depth (metres up to the global scale), NaN uncovered.
+        camera: the reference camera at the working resolution.
+        log_scale_std: (N,) marginal std of each primitive's log-scale (scaled
+            model; NaN otherwise or when marginals are off/failed).
+        pose_covariances: 6x6 marginal covariance per view (rotation first,
+            gtsam tangent at the estimate), conditioned on the gauge priors.
+        report: per-level iterations, costs, valid fractions, timings.
+    """
+
+    status: str
+    view_status: List[str]
+    T_ref_view: List[np.ndarray]
+    primitives: PrimitiveSet
+    depth: np.ndarray
+    camera: PinholeCamera
+    log_scale_std: np.ndarray
+    pose_covariances: List[Optional[np.ndarray]]
+    brightness: List[np.ndarray]
+    report: dict
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def point_cloud(self, image: Optional[np.ndarray] = None) -> PointCloud:
+        """Reference-frame point cloud of the solved primitives."""
+        return self.primitives.point_cloud(image)
+
+
+def _prepare_image(image: np.ndarray, camera: PinholeCamera, work_cam: PinholeCamera,
+                   name: str) -> np.ndarray:
+    img = to_float_image(camera.check_image(image, name))
+    grey = to_gray(img)
+    if work_cam.shape != camera.shape:
+        grey = cv2.resize(grey, work_cam.size, interpolation=cv2.INTER_AREA)
+    return grey.astype(np.float32)
+
+
+def _level_pixels(prims: PrimitiveSet, stride: int):
+    """Per primitive: entry indices whose pixel lies on the level's lattice."""
+    w = prims.camera.width
+    on = ((prims.pixels % w) % stride == 0) & ((prims.pixels // w) % stride == 0)
+    return [np.flatnonzero(on[a:b]) + a for a, b in zip(prims.offsets[:-1], prims.offsets[1:])]
+
+
+def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camera: PinholeCamera,
+                 frontend: Union[None, str, PrimitiveFrontEnd, PrimitiveSet] = None,
+                 config: SfMConfig = SfMConfig(), ref_depth: Optional[np.ndarray] = None,
+                 init_T_ref_view: Optional[Sequence[np.ndarray]] = None) -> SfMResult:
+    """Estimate the poses of unposed views and the reference's dense depth.
+
+    Args:
+        ref_image: reference image (H, W[, 3]), uint8 or float [0, 1].
+        view_images: 1..n supporting images of the same size and camera.
+        camera: intrinsics of all images (undistorted).
+        frontend: a :class:`PrimitiveFrontEnd`, a front-end name (default
+            ``"classical"`` at 320x240), or ready :class:`PrimitiveSet` of the
+            reference image.
+        config: :class:`SfMConfig`.
+        ref_depth: depth of the reference, only for depth-using (oracle /
+            RGB-D) front-ends; its scales are discarded unless
+            ``config.reset_scales`` is False.
+        init_T_ref_view: optional initial poses (e.g. from
+            :func:`spgeo.twoview.estimate_relative_pose`); identity by default.
+    Returns:
+        :class:`SfMResult` (check ``status``).
+    """
+    t_start = time.perf_counter()
+    views = list(view_images)
+    if not views:
+        raise ValueError("few_view_sfm needs at least one supporting view")
+    camera.check_image(ref_image, "reference image")
+    for j, im in enumerate(views):
+        camera.check_image(im, f"view {j + 1}")
+    # ---- primitives of the reference
+    if isinstance(frontend, PrimitiveSet):
+        prims = frontend
+    else:
+        fe = frontend if isinstance(frontend, PrimitiveFrontEnd) else make_frontend(
+            frontend or "classical", FrontEndConfig(working_size=(320, 240)))
+        prims = fe.primify(ref_image, camera, ref_depth if fe.uses_depth else None)
+    if len(prims) == 0:
+        raise ValueError("the front-end produced no primitive")
+    cam = prims.camera
+    if config.reset_scales:
+        prims = prims.with_log_scales(np.zeros(len(prims)))
+    t_front = time.perf_counter()
+    ref_grey = _prepare_image(ref_image, camera, cam, "reference image")
+    view_greys = [_prepare_image(im, camera, cam, f"view {j + 1}") for j, im in enumerate(views)]
+    ref_pyr = gaussian_pyramid(ref_grey, cam, config.levels)
+    view_pyrs = [gaussian_pyramid(g, cam, config.levels) for g in view_greys]
+    n_levels = len(ref_pyr)
+    rays_all = cam.rays().reshape(-1, 3)[prims.pixels]
+
+    # ---- initial values
+    init_report: Dict[str, object] = {"method": "given" if init_T_ref_view is not None
+                                      else config.init}
+    if init_T_ref_view is None and config.init == "twoview":
+        init_T_ref_view, prims = _twoview_init(ref_image, views, camera, prims, init_report)
+    values = gtsam.Values()
+    values.insert(pose_key(0), gtsam.Pose3())
+    for j in range(len(views)):
+        T0 = np.eye(4) if init_T_ref_view is None else np.asarray(init_T_ref_view[j], float)
+        values.insert(pose_key(j + 1), gtsam.Pose3(T0))
+        if config.brightness:
+            values.insert(brightness_key(j + 1), np.zeros(2))
+    if config.shape_model == "scaled":
+        for i in range(len(prims)):
+            values.insert(scale_key(i), np.array([prims.log_scales[i]]))
+    else:
+        for i in range(len(prims)):
+            values.insert(scale_key(i), PlanarShape.fronto_parallel(np.exp(prims.log_scales[i])))
+
+    report: Dict[str, object] = {"levels": [], "n_primitives": len(prims),
+                                 "n_views": len(views), "shape_model": config.shape_model,
+                                 "init": init_report}
+    graph = None
+    stages = [(lvl, False) for lvl in reversed(range(n_levels))]
+    any_identity = init_T_ref_view is None or any(
+        np.allclose(T, np.eye(4)) for T in init_T_ref_view)
+    if config.rotation_first and any_identity:
+        stages.insert(0, (n_levels - 1, True))
+    for lvl, rotation_only in stages:
+        graph = _build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
+        if rotation_only:
+            _hold_translation_and_shape(graph, values, len(views), len(prims))
+        params = gtsam.LevenbergMarquardtParams()
+        iters = config.max_iterations[min(n_levels - 1 - lvl, len(config.max_iterations) - 1)]
+        params.setMaxIterations(int(iters))
+        params.setlambdaInitial(config.lm_lambda_initial)
+        params.setRelativeErrorTol(config.relative_error_tol)
+        params.setAbsoluteErrorTol(1e-9)
+        t0 = time.perf_counter()
+        err0 = graph.error(values)
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        values = opt.optimize()
+        err1 = graph.error(values)
+        report["levels"].append({"level": lvl, "rotation_only": rotation_only,
+                                 "factors": graph.size(), "iterations": opt.iterations(),
+                                 "initial_cost": err0, "final_cost": err1,
+                                 "seconds": time.perf_counter() - t0})
+        log.debug("level %d%s: %d factors, %d its, cost %.4g -> %.4g", lvl,
+                  " (rotation only)" if rotation_only else "", graph.size(),
+                  opt.iterations(), err0, err1)
+    t_opt = time.perf_counter()
+
+    # ---- results
+    T_ref_view = [values.atPose3(pose_key(j + 1)).matrix() for j in range(len(views))]
+    brightness = [values.atVector(brightness_key(j + 1)) if config.brightness else np.zeros(2)
+                  for j in range(len(views))]
+    if config.shape_model == "scaled":
+        s = np.array([values.atVector(scale_key(i))[0] for i in range(len(prims))])
+        solved = prims.with_log_scales(s)
+    else:
+        thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
+        rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
+        bad = ~(rho > 1e-9)
+        rho = np.where(bad, np.nan, rho)
+        logz = -np.log(rho)
+        # primitives whose plane goes behind the camera keep their median depth there
+        med = np.array([np.nanmedian(logz[a:b]) if np.any(np.isfinite(logz[a:b])) else 0.0
+                        for a, b in zip(prims.offsets[:-1], prims.offsets[1:])])
+        logz = np.where(np.isfinite(logz), logz, med[prims.primitive_ids])
+        solved = PrimitiveSet(cam, prims.pixels, prims.offsets, logz, prims.anchors,
+                              scores=prims.scores, normals=prims.normals, meta=prims.meta)
+        anchor_ld = logz[np.searchsorted(prims.primitive_ids * cam.width * cam.height + prims.pixels,
+                                         np.arange(len(prims)) * cam.width * cam.height + prims.anchors)]
+        solved.log_scales = anchor_ld
+    depth = solved.depth_map()
+
+    status, view_status, valid_frac = _assess(solved, T_ref_view, view_pyrs, values, config,
+                                              report)
+    log_std = np.full(len(prims), np.nan)
+    covs: List[Optional[np.ndarray]] = [None] * len(views)
+    if config.marginals and status != "diverged":
+        try:
+            marg = gtsam.Marginals(graph, values)
+            for j in range(len(views)):
+                covs[j] = marg.marginalCovariance(pose_key(j + 1))
+            if config.shape_model == "scaled":
+                log_std = np.array([np.sqrt(marg.marginalCovariance(scale_key(i))[0, 0])
+                                    for i in range(len(prims))])
+        except RuntimeError as exc:  # indeterminant system: report, do not crash
+            log.warning("marginals failed: %s", exc)
+            report["marginals_error"] = str(exc)
+    report.update({"valid_fraction": valid_frac, "seconds_frontend": t_front - t_start,
+                   "seconds_optimise": t_opt - t_front,
+                   "seconds_total": time.perf_counter() - t_start,
+                   "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
+    return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
+                     brightness, report)
+
+
+def _triangulate(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np.ndarray,
+                 pts_tgt: np.ndarray) -> np.ndarray:
+    """Reference-frame depths (units of ``|t|``) of matched pixels; NaN if behind
+    either camera."""
+    T_tr = invert_pose(T_ref_tgt)
+    Kinv = camera.K_inv
+    x1 = (np.c_[pts_ref, np.ones(len(pts_ref))] @ Kinv.T)[:, :2].T
+    x2 = (np.c_[pts_tgt, np.ones(len(pts_tgt))] @ Kinv.T)[:, :2].T
+    P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
+    P2 = T_tr[:3]
+    Xh = cv2.triangulatePoints(P1, P2, x1.astype(np.float64), x2.astype(np.float64))
+    X = (Xh[:3] / Xh[3]).T
+    z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
+    return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
+
+
+def _twoview_init(ref_image, views, camera: PinholeCamera, prims: PrimitiveSet, report: dict):
+    """Initial poses (and log-scales) from feature-based two-view geometry."""
+    from .twoview import estimate_relative_pose
+
+    cam = prims.camera
+    sx, sy = cam.width / camera.width, cam.height / camera.height
+    results = [estimate_relative_pose(ref_image, v, camera) for v in views]
+    report["twoview_status"] = [r.status for r in results]
+    poses = [np.eye(4) if r.T_ref_tgt is None else r.T_ref_tgt.copy() for r in results]
+    ok = [j for j, r in enumerate(results) if r.ok]
+    if not ok:
+        log.info("two-view initialisation failed for every view; starting at identity")
+        return [p if results[j].status == "low_parallax" else np.eye(4)
+                for j, p in enumerate(poses)], prims
+    # sparse reference depth from the view with the most inliers (its baseline = 1)
+    best = max(ok, key=lambda j: results[j].num_inliers)
+    r = results[best]
+    z = _triangulate(r.T_ref_tgt, camera, r.points_ref, r.points_tgt)
+    sparse = np.full(cam.shape, np.nan)
+    u = np.round((r.points_ref[:, 0] + 0.5) * sx - 0.5).astype(int)
+    v = np.round((r.points_ref[:, 1] + 0.5) * sy - 0.5).astype(int)
+    keep = np.isfinite(z) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    sparse[v[keep], u[keep]] = z[keep]
+    s, n = prims.fit_log_scales(sparse)
+    if np.any(np.isfinite(s)):
+        s = np.where(np.isfinite(s), s, np.nanmedian(s))
+        prims = prims.with_log_scales(s)
+    report["twoview_points"] = int(keep.sum())
+    report["primitives_with_points"] = int(np.sum(n > 0))
+    # other views: translation magnitude from their own triangulation vs the map
+    depth_map = prims.depth_map()
+    for j in ok:
+        if j == best:
+            continue
+        rj = results[j]
+        zj = _triangulate(rj.T_ref_tgt, camera, rj.points_ref, rj.points_tgt)
+        uj = np.clip(np.round((rj.points_ref[:, 0] + 0.5) * sx - 0.5).astype(int), 0, cam.width - 1)
+        vj = np.clip(np.round((rj.points_ref[:, 1] + 0.5) * sy - 0.5).astype(int), 0, cam.height - 1)
+        ratio = depth_map[vj, uj] / zj
+        ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+        if ratio.size >= 5:
+            poses[j][:3, 3] *= float(np.median(ratio))
+    return poses, prims
+
+
+def _hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                                n_views: int, n_prims: int) -> None:
+    """Tight priors that keep view translations and primitive shapes at their
+    current values (rotation-only stage)."""
+    sig = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e3, 1e3, 1e3, 1e-6, 1e-6, 1e-6]))
+    for j in range(n_views):
+        k = pose_key(j + 1)
+        graph.add(gtsam.PriorFactorPose3(k, values.atPose3(k), sig))
+    for i in range(n_prims):
+        theta = values.atVector(scale_key(i))
+        graph.add(gtsam.PriorFactorVector(scale_key(i), theta,
+                                          gtsam.noiseModel.Isotropic.Sigma(theta.size, 1e-6)))
+
+
+def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
+                 values: gtsam.Values, config: SfMConfig) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorPose3(pose_key(0), gtsam.Pose3(),
+                                      gtsam.noiseModel.Isotropic.Sigma(6, config.ref_prior_sigma)))
+    n_views = len(view_pyrs)
+    if config.brightness:
+        bsig = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.brightness_prior_sigma, float))
+        for j in range(n_views):
+            graph.add(gtsam.PriorFactorVector(brightness_key(j + 1), np.zeros(2), bsig))
+    if config.shape_model == "scaled":
+        ssig = gtsam.noiseModel.Isotropic.Sigma(1, 1.0 / np.sqrt(config.scale_prior_weight))
+        for i in range(len(prims)):
+            graph.add(gtsam.PriorFactorVector(scale_key(i), np.array([prims.log_scales[i]]), ssig))
+    else:
+        big = 1.0 / np.sqrt(config.scale_prior_weight)
+        psig = gtsam.noiseModel.Diagonal.Sigmas(np.array([config.planar_prior_sigma,
+                                                          config.planar_prior_sigma, big]))
+        for i in range(len(prims)):
+            theta0 = values.atVector(scale_key(i)).copy()
+            graph.add(gtsam.PriorFactorVector(scale_key(i), np.array([0.0, 0.0, theta0[2]]), psig))
+    stride = 2 ** lvl
+    ref_img = ref_pyr.images[lvl]
+    w = prims.camera.width
+    for i, ent in enumerate(_level_pixels(prims, stride)):
+        if ent.size < config.min_level_pixels:
+            continue
+        pix = prims.pixels[ent]
+        ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
+        rays = rays_all[ent]
+        shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
+                 else PlanarShape(rays))
+        for j in range(n_views):
+            f = PrimitivePhotometricFactor(
+                pose_key(0), pose_key(j + 1), scale_key(i), shape, ref_int,
+                view_pyrs[j].images[lvl], view_pyrs[j].cameras[lvl],
+                brightness_key(j + 1) if config.brightness else None, config.photometric,
+                n_pixels=ent.size)
+            graph.add(f.factor)
+    return graph
+
+
+def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, values,
+            config: SfMConfig, report: dict):
+    """Status flags: diverged (non-finite), low parallax, low overlap."""
+    finite = all(np.all(np.isfinite(T)) for T in T_ref_view) and np.all(
+        np.isfinite(solved.log_scales))
+    cam = solved.camera
+    w = cam.width
+    uv = np.stack([solved.pixels % w, solved.pixels // w], -1).astype(float)
+    X = cam.unproject(uv, np.exp(solved.scaled_log_depth()))
+    med_depth = float(np.median(X[:, 2])) if finite else np.nan
+    view_status, valid_frac = [], []
+    for T in T_ref_view:
+        if not finite:
+            view_status.append("diverged")
+            valid_frac.append(0.0)
+            continue
+        T_v_r = invert_pose(T)
+        Y = X @ T_v_r[:3, :3].T + T_v_r[:3, 3]
+        uvv, z = cam.project(Y)
+        frac = float(np.mean(cam.in_image(uvv) & (z > 0)))
+        valid_frac.append(frac)
+        parallax = np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)
+        if parallax < config.min_parallax:
+            view_status.append("low_parallax")
+        elif frac < config.min_valid_fraction:
+            view_status.append("low_overlap")
+        else:
+            view_status.append("ok")
+    report["parallax"] = [float(np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)) if finite
+                          else None for T in T_ref_view]
+    report["rotation_deg"] = [rotation_angle_deg(T) if finite else None for T in T_ref_view]
+    order = ("diverged", "low_parallax", "low_overlap")
+    status = next((s for s in order if s in view_status), "ok")
+    return status, view_status, valid_frac
