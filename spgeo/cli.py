@@ -12,10 +12,19 @@ __all__ = ["main", "build_parser"]
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import DemoConfig, run_demo
 
-    res = run_demo(DemoConfig(out_dir=args.out, synthetic_seed=args.seed))
+    res = run_demo(DemoConfig(out_dir=args.out, synthetic_seed=args.seed, sfm=not args.no_sfm))
+    print("== SuperPrimitives: shape accuracy")
     print(res.table())
     print("median rel. error: depth after fitting one scale per primitive to ground truth "
           "(synthetic: rendered depth; TUM: Kinect depth)")
+    if res.sfm_rows:
+        print("\n== Few-view SfM (reference + 2 unposed views), rotation error vs ground truth")
+        print(res.sfm_table())
+        print("depth err: median relative error of the reference depth after median scaling; "
+              "'depth' front-end = normals from depth (oracle)")
+    for title, table in res.extra_tables.items():
+        print(f"\n== {title}")
+        print(table)
     for name, path in res.files.items():
         print(f"wrote {name}: {path}")
     return 0
@@ -29,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="run the offline demo on embedded data")
     p.add_argument("--out", default="spgeo-demo", help="output folder (default: spgeo-demo)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
+    p.add_argument("--no-sfm", action="store_true", help="skip the few-view SfM part")
     p.set_defaults(func=_cmd_demo)
     from .models import add_cli as add_models_cli
 

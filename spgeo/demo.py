@@ -33,6 +33,7 @@ class DemoConfig:
         synthetic_size: ``(width, height)`` of the synthetic render (pixels).
         tum_frame: index of the bundled TUM fr1_desk frame (0..8).
         working_size: integration grid (the authors used 320x240).
+        sfm: also run few-view SfM (synthetic view set and bundled TUM frames).
     """
 
     out_dir: str = "spgeo-demo"
@@ -40,6 +41,7 @@ class DemoConfig:
     synthetic_size: Tuple[int, int] = (320, 240)
     tum_frame: int = 4
     working_size: Tuple[int, int] = (320, 240)
+    sfm: bool = True
 
 
 @dataclass
@@ -54,9 +56,33 @@ class DemoRow:
 
 
 @dataclass
+class SfMRow:
+    scene: str
+    frontend: str
+    status: str
+    rotation_errors_deg: List[float]
+    twoview_rotation_errors_deg: List[float]
+    median_scaled_depth_error: float
+    seconds: float
+
+
+@dataclass
 class DemoResult:
     rows: List[DemoRow]
     files: Dict[str, str] = field(default_factory=dict)
+    sfm_rows: List[SfMRow] = field(default_factory=list)
+    extra_tables: Dict[str, str] = field(default_factory=dict)
+
+    def sfm_table(self) -> str:
+        lines = [f"{'scene':12s} {'front-end':22s} {'status':8s} {'rot.err deg (spgeo)':>22s} "
+                 f"{'rot.err deg (SIFT 2-view)':>26s} {'depth err':>9s} {'time s':>7s}"]
+        for r in self.sfm_rows:
+            fmt = lambda xs: ", ".join(f"{x:.2f}" for x in xs)  # noqa: E731
+            lines.append(f"{r.scene:12s} {r.frontend:22s} {r.status:8s} "
+                         f"{fmt(r.rotation_errors_deg):>22s} "
+                         f"{fmt(r.twoview_rotation_errors_deg):>26s} "
+                         f"{r.median_scaled_depth_error:9.4f} {r.seconds:7.1f}")
+        return "\n".join(lines)
 
     def table(self) -> str:
         lines = [f"{'scene':12s} {'front-end':24s} {'depth?':6s} {'prims':>5s} {'cover':>6s} "
@@ -168,7 +194,70 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
         cloud = cloud.transformed(frame.T_world_cam)
     cloud.save_ply(out / "tum_primitives.ply")
     files["tum_ply"] = str(out / "tum_primitives.ply")
-    return DemoResult(rows, files)
+    result = DemoResult(rows, files)
+    if config.sfm:
+        _demo_sfm(config, scene, cam, seq, result)
+    return result
+
+
+def _rotation_errors(T_est: List[np.ndarray], T_gt: List[np.ndarray]) -> List[float]:
+    from .geometry import rotation_angle_deg
+
+    return [rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(T_est, T_gt)]
+
+
+def _demo_sfm(config: DemoConfig, scene, cam: PinholeCamera, seq, result: DemoResult) -> None:
+    """Few-view SfM: a synthetic view set (7.5 deg, 5% baseline) and the bundled
+    TUM frames 0 (reference), 4 and 8, against ground truth and SIFT two-view."""
+    from . import synthetic
+    from .geometry import relative_pose
+    from .sfm import SfMConfig, few_view_sfm
+    from .twoview import estimate_relative_pose
+    from .viz import colorize_depth, save_png, side_by_side
+
+    T_ref, T_views = synthetic.make_view_set(scene, cam, 2, 7.5, 0.05, config.synthetic_seed)
+    ref = scene.render(cam, T_ref, supersample=2)
+    views = [scene.render(cam, T, supersample=2) for T in T_views]
+    cases = [("synthetic", ref.rgb, [v.rgb for v in views], cam, ref.depth,
+              [relative_pose(T_ref, T) for T in T_views])]
+    tum_ref, tum_views = seq[0], [seq[4], seq[8]]
+    cases.append(("tum_fr1_desk", tum_ref.image, [v.image for v in tum_views], tum_ref.camera,
+                  tum_ref.depth, [relative_pose(tum_ref.T_world_cam, v.T_world_cam)
+                                  for v in tum_views]))
+    fe_cfg = FrontEndConfig(working_size=config.working_size)
+    for scene_name, ref_img, view_imgs, camera, ref_depth, gt in cases:
+        twoview = [estimate_relative_pose(ref_img, v, camera) for v in view_imgs]
+        tv_err = _rotation_errors([r.T_ref_tgt if r.T_ref_tgt is not None else np.eye(4)
+                                   for r in twoview], gt)
+        for fe in (make_frontend("classical", fe_cfg), make_frontend("depth", fe_cfg)):
+            t0 = time.perf_counter()
+            res = few_view_sfm(ref_img, view_imgs, camera, fe, SfMConfig(marginals=False),
+                               ref_depth=ref_depth if fe.uses_depth else None)
+            dt = time.perf_counter() - t0
+            gt_d = _resize_nearest(ref_depth, res.camera.size)
+            ok = np.isfinite(res.depth) & np.isfinite(gt_d) & (gt_d > 0)
+            med = float("nan")
+            if ok.any():
+                k = np.median(gt_d[ok] / res.depth[ok])
+                med = float(np.median(np.abs(res.depth[ok] * k / gt_d[ok] - 1)))
+            result.sfm_rows.append(SfMRow(scene_name, fe.name, res.status,
+                                          _rotation_errors(res.T_ref_view, gt), tv_err, med, dt))
+            if fe.name == "classical":
+                k = np.nanmedian(gt_d[ok] / res.depth[ok]) if ok.any() else 1.0
+                lo, hi = np.nanpercentile(gt_d[gt_d > 0], [2, 98]) if np.any(gt_d > 0) else (None, None)
+                pic = side_by_side([cv2_resize_safe(ref_img, res.camera.size),
+                                    colorize_depth(res.depth * k, lo, hi), colorize_depth(gt_d, lo, hi)],
+                                   ["reference", "SfM depth (median-scaled)", "ground truth"])
+                path = Path(config.out_dir) / f"{scene_name}_sfm.png"
+                save_png(path, pic)
+                result.files[f"{scene_name}_sfm_png"] = str(path)
+
+
+def _resize_nearest(depth: np.ndarray, size: Tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    d = np.asarray(depth, np.float32)
+    return d if d.shape[::-1] == tuple(size) else cv2.resize(d, size, interpolation=cv2.INTER_NEAREST)
 
 
 def cv2_resize_safe(image: np.ndarray, size: Optional[Tuple[int, int]] = None) -> np.ndarray:
