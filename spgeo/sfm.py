@@ -27,6 +27,8 @@ import gtsam
 from .camera import PinholeCamera
 from .factors.photometric import (PhotometricConfig, PlanarShape, PrimitivePhotometricFactor,
                                   ScaledShape)
+from .factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
+                             pose_gauge_prior)
 from .frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from .geometry import invert_pose, rotation_angle_deg
 from .images import gaussian_pyramid, to_float_image, to_gray
@@ -411,24 +413,19 @@ def _hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam
 def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
                  values: gtsam.Values, config: SfMConfig) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.PriorFactorPose3(pose_key(0), gtsam.Pose3(),
-                                      gtsam.noiseModel.Isotropic.Sigma(6, config.ref_prior_sigma)))
+    graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
     n_views = len(view_pyrs)
     if config.brightness:
-        bsig = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.brightness_prior_sigma, float))
         for j in range(n_views):
-            graph.add(gtsam.PriorFactorVector(brightness_key(j + 1), np.zeros(2), bsig))
+            graph.add(brightness_prior(brightness_key(j + 1), config.brightness_prior_sigma))
     if config.shape_model == "scaled":
-        ssig = gtsam.noiseModel.Isotropic.Sigma(1, 1.0 / np.sqrt(config.scale_prior_weight))
         for i in range(len(prims)):
-            graph.add(gtsam.PriorFactorVector(scale_key(i), np.array([prims.log_scales[i]]), ssig))
+            graph.add(log_scale_prior(scale_key(i), prims.log_scales[i], config.scale_prior_weight))
     else:
-        big = 1.0 / np.sqrt(config.scale_prior_weight)
-        psig = gtsam.noiseModel.Diagonal.Sigmas(np.array([config.planar_prior_sigma,
-                                                          config.planar_prior_sigma, big]))
         for i in range(len(prims)):
-            theta0 = values.atVector(scale_key(i)).copy()
-            graph.add(gtsam.PriorFactorVector(scale_key(i), np.array([0.0, 0.0, theta0[2]]), psig))
+            c0 = values.atVector(scale_key(i))[2]
+            graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
+                                         1.0 / np.sqrt(config.scale_prior_weight)))
     stride = 2 ** lvl
     ref_img = ref_pyr.images[lvl]
     w = prims.camera.width

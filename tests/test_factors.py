@@ -166,3 +166,24 @@ def test_points_behind_a_camera_cost_a_penalty_not_zero():
     assert flipped > good and flipped > 0.01
     lin = f.factor.linearize(vals)
     assert np.all(lin.jacobian()[0] == 0)                   # constant penalty, no gradient
+
+
+def test_priors_weights_and_gauge():
+    from spgeo.factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
+                                      pose_gauge_prior)
+
+    vals = gtsam.Values()
+    vals.insert(S_, np.array([2.0]))
+    # the paper's weight: cost weight * (s - s0)^2 (gtsam's error is 0.5 * |r / sigma|^2)
+    assert log_scale_prior(S_, 0.0).error(vals) == pytest.approx(0.5 * 1e-5 * 4.0)
+    assert log_scale_prior(S_, 2.0).error(vals) == 0.0
+    with pytest.raises(ValueError):
+        log_scale_prior(S_, 0.0, weight=0.0)
+    vals.insert(X_, gtsam.Pose3(pose([0.01, 0, 0], [0, 0, 0])))
+    assert pose_gauge_prior(X_).error(vals) > 1e6              # tight gauge
+    vals.insert(B_, np.array([0.3, 0.0]))
+    assert brightness_prior(B_).error(vals) == pytest.approx(0.5)
+    vals.insert(X1, gtsam.Pose3())
+    k = gtsam.symbol("p", 0)
+    vals.insert(k, np.array([0.2, 0.0, 0.5]))
+    assert planar_slope_prior(k, 0.5, slope_sigma=0.2).error(vals) == pytest.approx(0.5)
