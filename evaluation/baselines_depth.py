@@ -1,0 +1,236 @@
+"""Depth-completion baselines that use the sparse depth only (no image).
+
+They run on exactly the inputs :func:`spgeo.completion.complete_depth` gets, so
+every completion table shows how much the SuperPrimitives add:
+
+* :func:`linear_interpolation_completion`: Delaunay triangulation of the sparse
+  points, linear interpolation inside their convex hull, nearest sparse point
+  outside it.
+* :func:`ip_basic_completion`: the morphological completion of Ku, Harakeh and
+  Waslander, *In Defense of Classical Image Processing: Fast Depth Completion on
+  the CPU* (CRV 2018, "IP-Basic"), with its steps and kernels, plus a final
+  fill for inputs far sparser than the LiDAR it was designed for
+  (:class:`IPBasicConfig`).
+
+:func:`oracle_frontend` (ground-truth segments and normals) is the *oracle*
+upper bound of the primitive pipeline; label its rows "oracle".
+
+Sparse depth maps are (H, W) metres with 0 or NaN = missing (the VOID
+convention is 0); negative or infinite values raise ``ValueError``.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Tuple
+
+import cv2
+import numpy as np
+
+from spgeo.completion import check_sparse_depth, linear_fill, nearest_fill
+
+__all__ = ["check_sparse_depth", "sparse_points", "linear_interpolation_completion",
+           "nearest_fill", "IPBasicConfig", "ip_basic_completion", "diamond_kernel",
+           "OracleNormals", "oracle_frontend"]
+
+log = logging.getLogger(__name__)
+
+
+def sparse_points(sparse_depth: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """``(uv (K, 2) float, depth (K,))`` of the valid points of a sparse map
+    (u = column, v = row), in raster order."""
+    d = check_sparse_depth(sparse_depth)
+    v, u = np.nonzero(d > 0)
+    return np.stack([u, v], 1).astype(np.float64), d[v, u]
+
+
+def linear_interpolation_completion(sparse_depth: np.ndarray, space: str = "depth"
+                                    ) -> np.ndarray:
+    """Dense depth from sparse points alone: Delaunay-linear inside the convex
+    hull of the points, nearest point outside it.
+
+    Args:
+        sparse_depth: (H, W) metres, 0 / NaN = missing.
+        space: interpolate ``"depth"`` (default), ``"inverse"`` depth (exact for
+            planes seen through a pinhole) or ``"log"`` depth.
+    Returns:
+        (H, W) float64 metres, finite and > 0 everywhere.
+    """
+    d = check_sparse_depth(sparse_depth)
+    if space not in ("depth", "inverse", "log"):
+        raise ValueError(f"space must be 'depth', 'inverse' or 'log', got {space!r}")
+    h, w = d.shape
+    v, u = np.nonzero(d > 0)
+    z = d[v, u]
+    val = {"depth": z, "inverse": 1.0 / z, "log": np.log(z)}[space]
+    out = linear_fill(np.stack([u, v], 1), val, (h, w))
+    out[v, u] = val
+    out = nearest_fill(out, np.isfinite(out))
+    if space == "inverse":
+        return 1.0 / out
+    if space == "log":
+        return np.exp(out)
+    return out
+
+
+def diamond_kernel(size: int) -> np.ndarray:
+    """(size, size) uint8 diamond (L1 ball) structuring element, ``size`` odd."""
+    size = int(size)
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"diamond_kernel: size must be odd and >= 1, got {size}")
+    r = size // 2
+    y, x = np.mgrid[-r:r + 1, -r:r + 1]
+    return (np.abs(x) + np.abs(y) <= r).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class IPBasicConfig:
+    """Options of :func:`ip_basic_completion` (defaults: IP-Basic's "fast" variant).
+
+    Attributes:
+        max_depth: inversion constant ``D``: depths are stored as ``D - d`` so
+            that dilation (a max filter) keeps the *closest* point; must exceed
+            every sparse depth (raised automatically to 1.05 x the largest).
+            Default 10 m (indoor; IP-Basic used 100 m for KITTI).
+        dilation_size: the first dilation's diamond kernel size, default 5.
+        closing_size: full kernel of the hole-closing, default 5.
+        small_fill_size: full kernel of the small-hole fill, default 7.
+        extend_to_top: copy each column's top-most value up to the image top
+            (IP-Basic's step for LiDAR, which does not reach the top rows),
+            default False (pointless for image-wide sparse points).
+        large_fill_size: full kernel of the large-hole fill, default 31
+            (IP-Basic runs it only with ``extrapolate``; sparse inputs always
+            need it).
+        median_size: median blur kernel (3 or 5; 0 = off), default 5.
+        blur: ``"bilateral"`` (default; d=5, sigmaColor=0.5, sigmaSpace=2.0 on
+            the inverted depth as in IP-Basic), ``"gaussian"`` (5x5) or ``"none"``;
+            applied to filled pixels only (IP-Basic's Gaussian branch does this,
+            its bilateral branch filters the whole map).
+        final_fill: IP-Basic stops after the large fill; with 150 points in a
+            640x480 image (a 45-pixel spacing) holes remain, so by default they
+            are filled by repeating the large-kernel dilation (at most
+            ``max_extra_iterations`` times) and then with the nearest value.
+            ``False`` leaves them at 0.
+        max_extra_iterations: see ``final_fill``, default 20.
+    """
+
+    max_depth: float = 10.0
+    dilation_size: int = 5
+    closing_size: int = 5
+    small_fill_size: int = 7
+    extend_to_top: bool = False
+    large_fill_size: int = 31
+    median_size: int = 5
+    blur: str = "bilateral"
+    final_fill: bool = True
+    max_extra_iterations: int = 20
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.max_depth) and self.max_depth > 0):
+            raise ValueError(f"IPBasicConfig: max_depth must be finite and > 0, "
+                             f"got {self.max_depth}")
+        for name in ("dilation_size", "closing_size", "small_fill_size", "large_fill_size"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1 or v % 2 == 0:
+                raise ValueError(f"IPBasicConfig: {name} must be an odd integer >= 1, got {v}")
+        if self.median_size not in (0, 3, 5):
+            raise ValueError(f"IPBasicConfig: median_size must be 0, 3 or 5, "
+                             f"got {self.median_size}")
+        if self.blur not in ("bilateral", "gaussian", "none"):
+            raise ValueError(f"IPBasicConfig: blur must be 'bilateral', 'gaussian' or 'none', "
+                             f"got {self.blur!r}")
+        if int(self.max_extra_iterations) < 0:
+            raise ValueError("IPBasicConfig: max_extra_iterations must be >= 0")
+
+
+def ip_basic_completion(sparse_depth: np.ndarray, config: IPBasicConfig = IPBasicConfig()
+                        ) -> np.ndarray:
+    """IP-Basic morphological depth completion (Ku et al. 2018), see :class:`IPBasicConfig`.
+
+    Steps: invert (``D - d``) -> dilate (diamond) -> close -> fill empty pixels
+    from a 7x7 dilation -> (extend to top) -> fill from a 31x31 dilation ->
+    median blur -> bilateral/Gaussian blur (valid pixels only) -> final fill
+    -> re-invert.  Returns (H, W) float64 metres (> 0 wherever filled).
+    """
+    d = check_sparse_depth(sparse_depth)
+    cfg = config
+    big = max(float(cfg.max_depth), 1.05 * float(d.max()))
+    valid0 = d > 0
+    inv = np.where(valid0, big - d, 0.0).astype(np.float32)
+    # IP-Basic treats 0 as empty; a point exactly at max depth would become 0
+    inv[valid0] = np.maximum(inv[valid0], 1e-6)
+
+    def full(n: int) -> np.ndarray:
+        return np.ones((n, n), np.uint8)
+
+    def fill_from(img: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        dil = cv2.dilate(img, kernel)
+        empty = img <= 0
+        out = img.copy()
+        out[empty] = dil[empty]
+        return out
+
+    x = cv2.dilate(inv, diamond_kernel(cfg.dilation_size))
+    x = cv2.morphologyEx(x, cv2.MORPH_CLOSE, full(cfg.closing_size))
+    x = fill_from(x, full(cfg.small_fill_size))
+    if cfg.extend_to_top:
+        h = x.shape[0]
+        has = x > 0
+        top = np.where(has.any(0), has.argmax(0), h)
+        rows = np.arange(h)[:, None]
+        cols = np.arange(x.shape[1])
+        topval = x[np.minimum(top, h - 1), cols]
+        above = (rows < top[None, :]) & (top[None, :] < h)
+        x = np.where(above, topval[None, :], x)
+    x = fill_from(x, full(cfg.large_fill_size))
+    if cfg.median_size:
+        med = cv2.medianBlur(x, cfg.median_size)
+        x = np.where(x > 0, med, x).astype(np.float32)
+    if cfg.blur == "bilateral":
+        bl = cv2.bilateralFilter(x, 5, 0.5, 2.0)
+        x = np.where(x > 0, bl, x).astype(np.float32)
+    elif cfg.blur == "gaussian":
+        bl = cv2.GaussianBlur(x, (5, 5), 0)
+        x = np.where(x > 0, bl, x).astype(np.float32)
+    if cfg.final_fill:
+        for _ in range(int(cfg.max_extra_iterations)):
+            if np.all(x > 0):
+                break
+            x = fill_from(x, full(cfg.large_fill_size))
+        if not np.all(x > 0):
+            x = nearest_fill(x.astype(np.float64), x > 0).astype(np.float32)
+    out = np.where(x > 0, big - x.astype(np.float64), 0.0)
+    return out
+
+
+# ----------------------------------------------------------------- oracle front-end
+class OracleNormals:
+    """**Oracle** normal estimator for evaluation: returns given (e.g. rendered
+    ground-truth) camera-frame normals, resized with nearest neighbour to the
+    front-end's working camera.  ``uses_depth = True`` marks it as not
+    monocular, so :func:`spgeo.completion.complete_depth` only accepts it with
+    an explicit ``frontend_depth`` and flags the result ``uses_depth``."""
+
+    uses_depth = True
+
+    def __init__(self, normals: np.ndarray) -> None:
+        normals = np.asarray(normals, dtype=np.float32)
+        if normals.ndim != 3 or normals.shape[2] != 3:
+            raise ValueError(f"normals must be (H, W, 3), got {normals.shape}")
+        self.normals = normals
+
+    def estimate(self, image, camera, depth=None) -> np.ndarray:
+        n = self.normals
+        if n.shape[:2] != camera.shape:
+            n = cv2.resize(n, camera.size, interpolation=cv2.INTER_NEAREST)
+        return n
+
+
+def oracle_frontend(surface_ids: np.ndarray, normals: np.ndarray, working_size=None):
+    """ORACLE front-end (evaluation only): ground-truth segments
+    (:class:`spgeo.frontend.LabelSegmenter` of ``surface_ids``, -1 unlabelled)
+    and ground-truth normals (:class:`OracleNormals`).  Name ``"oracle"``."""
+    from spgeo.frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd
+
+    return PrimitiveFrontEnd(LabelSegmenter(surface_ids), OracleNormals(normals),
+                             FrontEndConfig(working_size=working_size), name="oracle")

@@ -1,0 +1,552 @@
+"""VOID depth-completion protocol (Wong et al., RA-L 2020): reader, metrics,
+runner, and a writer of synthetic sets in the same layout.
+
+Release layout (from the official README of ``alexklwong/void-dataset``)::
+
+    void_release/
+      void_150/ | void_500/ | void_1500/          # 150 / 500 / 1500 sparse points
+        data/<sequence>/
+          image/<timestamp>.png                  # RGB, 640x480
+          sparse_depth/<timestamp>.png           # uint16, metres * 256, 0 = missing
+          validity_map/<timestamp>.png           # uint16, 256 where a sparse point, else 0
+          ground_truth/<timestamp>.png           # uint16, metres * 256, 0 = missing
+          absolute_pose/<timestamp>.txt
+          K.txt                                  # 3x3 intrinsics (numpy text)
+        {train,test}_{image,sparse_depth,validity_map,ground_truth,absolute_pose,intrinsics}.txt
+
+The list files hold one path per line relative to ``void_release``
+(``void_150/data/<sequence>/image/<timestamp>.png``, the intrinsics lists point
+at the sequence's ``K.txt``).  Encodings follow the official
+``src/data_utils.py`` (``load_depth``: uint16 PNG / 256, ``<= 0`` missing;
+``load_validity_map``: values {0, 256}).  The images are used with ``K.txt`` as
+they are (the published evaluations do not undistort).
+
+Protocol (DESIGN.md §5; the evaluation code of the VOID authors' KBNet /
+VOICED): per image, pixels with ground truth ``0.2 < gt < 5.0`` m; MAE and RMSE
+in millimetres, iMAE and iRMSE in 1/km; each metric averaged over the images.
+The test set is 800 images per density.  The paper's zero-shot SuperPrimitive
+result on VOID-150 (:data:`PAPER_VOID150`): MAE 109.0, RMSE 204.15,
+iMAE 47.32, iRMSE 83.40.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import cv2
+import numpy as np
+
+from spgeo.camera import PinholeCamera
+from spgeo.completion import CompletionConfig, complete_depth
+from spgeo.images import load_image, to_float_image, to_gray
+
+from .baselines_depth import IPBasicConfig, ip_basic_completion, linear_interpolation_completion
+from .metrics import depth_metrics
+
+__all__ = [
+    "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
+    "write_void_depth", "void_metrics", "VOIDResult", "run_void", "keypoint_sparse_depth",
+    "write_synthetic_void", "METHOD_NAMES", "make_method",
+]
+
+log = logging.getLogger(__name__)
+
+PathLike = Union[str, os.PathLike]
+
+#: Sparse-point densities of the release (folder ``void_<split>``).
+VOID_SPLITS = ("150", "500", "1500")
+#: Paper (Mazur et al. CVPR 2024, zero-shot) on the VOID-150 test set.
+PAPER_VOID150 = {"mae_mm": 109.0, "rmse_mm": 204.15, "imae_per_km": 47.32, "irmse_per_km": 83.40}
+#: Evaluation range of the ground truth (metres, exclusive).
+MIN_DEPTH, MAX_DEPTH = 0.2, 5.0
+_KINDS = ("image", "sparse_depth", "validity_map", "ground_truth", "intrinsics")
+METRIC_KEYS = ("mae_mm", "rmse_mm", "imae_per_km", "irmse_per_km")
+
+
+# ----------------------------------------------------------------- depth files
+def read_void_depth(path: PathLike) -> np.ndarray:
+    """A VOID 16-bit depth PNG as float64 metres (value / 256; 0 = missing)."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"VOID depth file not found: {path}")
+    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ValueError(f"cannot decode depth PNG {path}")
+    if raw.ndim != 2 or raw.dtype != np.uint16:
+        raise ValueError(f"{path}: expected a single-channel 16-bit PNG (depth * 256), got "
+                         f"dtype {raw.dtype} shape {raw.shape}")
+    return raw.astype(np.float64) / 256.0
+
+
+def write_void_depth(path: PathLike, depth: np.ndarray) -> None:
+    """Write metres as a VOID 16-bit PNG (``round(depth * 256)``; NaN / <= 0 /
+    beyond 255.99 m -> 0 = missing)."""
+    d = np.asarray(depth, dtype=np.float64)
+    ok = np.isfinite(d) & (d > 0) & (d * 256.0 <= 65535)
+    raw = np.where(ok, np.rint(np.where(ok, d, 0) * 256.0), 0).astype(np.uint16)
+    if not cv2.imwrite(os.fspath(path), raw):
+        raise OSError(f"could not write {path}")
+
+
+# ----------------------------------------------------------------- reader
+@dataclass
+class VOIDSample:
+    """One VOID test item.
+
+    Attributes:
+        name: ``<sequence>/<timestamp>``.
+        image: float32 (H, W, 3) RGB in [0, 1].
+        sparse_depth: float64 (H, W) metres, 0 = missing.
+        validity_map: bool (H, W), True at sparse points.
+        ground_truth: float64 (H, W) metres, 0 = missing.
+        camera: intrinsics from ``K.txt``.
+        paths: source file of each kind.
+    """
+
+    name: str
+    image: np.ndarray
+    sparse_depth: np.ndarray
+    validity_map: np.ndarray
+    ground_truth: np.ndarray
+    camera: PinholeCamera
+    paths: Dict[str, str] = field(default_factory=dict)
+
+
+def _read_list(path: Path) -> List[str]:
+    if not path.is_file():
+        raise FileNotFoundError(f"VOID list file not found: {path}")
+    return [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
+
+
+class VOIDDataset:
+    """Lazy random-access reader of one VOID density and subset.
+
+    Args:
+        root: the ``void_release`` folder (holding ``void_150/`` ...) or a
+            ``void_<split>`` folder itself.
+        split: ``"150"``, ``"500"`` or ``"1500"`` (an int is accepted).
+        subset: ``"test"`` (default) or ``"train"``.
+
+    ``validity_map`` and ``intrinsics`` lists are optional: without them the
+    validity is ``sparse_depth > 0`` and ``K.txt`` is taken from the sequence
+    folder (``image/..``).  Raises ``FileNotFoundError`` for a missing root or
+    list file and ``ValueError`` for lists of different lengths or entries
+    whose file names do not match.
+    """
+
+    def __init__(self, root: PathLike, split: Union[str, int] = "150",
+                 subset: str = "test") -> None:
+        split = str(split)
+        if split not in VOID_SPLITS:
+            raise ValueError(f"VOID split must be one of {VOID_SPLITS}, got {split!r}")
+        if subset not in ("test", "train"):
+            raise ValueError(f"VOID subset must be 'test' or 'train', got {subset!r}")
+        root = Path(root)
+        if not root.is_dir():
+            raise FileNotFoundError(f"VOID root not found: {root}")
+        folder = f"void_{split}"
+        if (root / folder).is_dir():
+            self.split_dir = root / folder
+        elif root.name == folder:
+            self.split_dir = root
+        else:
+            raise FileNotFoundError(f"{root} holds no {folder}/ folder (expected the void_release "
+                                    f"layout)")
+        self.split, self.subset = split, subset
+        self.release_dir = self.split_dir.parent
+        lists: Dict[str, List[str]] = {}
+        for kind in _KINDS:
+            p = self.split_dir / f"{subset}_{kind}.txt"
+            if p.is_file():
+                lists[kind] = _read_list(p)
+            elif kind in ("image", "sparse_depth", "ground_truth"):
+                raise FileNotFoundError(f"VOID list file not found: {p}")
+        n = len(lists["image"])
+        for kind, entries in lists.items():
+            if len(entries) != n:
+                raise ValueError(f"VOID {folder}/{subset}_{kind}.txt has {len(entries)} entries, "
+                                 f"{subset}_image.txt has {n}")
+        for kind in ("sparse_depth", "validity_map", "ground_truth"):
+            if kind in lists:
+                bad = [i for i, (a, b) in enumerate(zip(lists["image"], lists[kind]))
+                       if os.path.basename(a) != os.path.basename(b)]
+                if bad:
+                    raise ValueError(f"VOID lists disagree: entry {bad[0]} of {subset}_image.txt "
+                                     f"and {subset}_{kind}.txt name different files")
+        self.lists = lists
+        self.name = f"VOID-{split} {subset}"
+
+    def __len__(self) -> int:
+        return len(self.lists["image"])
+
+    def resolve(self, entry: str) -> Path:
+        """File of a list entry: relative to ``void_release`` (official), to the
+        density folder, absolute, or any prefix ending in ``void_<split>/``."""
+        p = Path(entry)
+        cands = [p] if p.is_absolute() else []
+        cands += [self.release_dir / entry, self.split_dir / entry]
+        key = f"void_{self.split}/"
+        if key in entry.replace(os.sep, "/"):
+            cands.append(self.split_dir / entry.replace(os.sep, "/").split(key, 1)[1])
+        for c in cands:
+            if c.is_file():
+                return c
+        raise FileNotFoundError(f"VOID file of list entry {entry!r} not found (tried "
+                                f"{', '.join(str(c) for c in cands)})")
+
+    def __getitem__(self, i: int) -> VOIDSample:
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"VOID index {i} out of range for {n} samples")
+        i %= n
+        paths = {k: self.resolve(v[i]) for k, v in self.lists.items()}
+        img_path = paths["image"]
+        if "intrinsics" not in paths:
+            paths["intrinsics"] = img_path.parent.parent / "K.txt"
+            if not paths["intrinsics"].is_file():
+                raise FileNotFoundError(f"VOID intrinsics not found: {paths['intrinsics']}")
+        image = load_image(img_path)
+        if image.ndim == 2:
+            image = np.repeat(image[..., None], 3, axis=2)
+        h, w = image.shape[:2]
+        try:
+            K = np.loadtxt(paths["intrinsics"], dtype=np.float64)
+        except ValueError as exc:
+            raise ValueError(f"malformed intrinsics file {paths['intrinsics']}: {exc}") from None
+        if K.shape != (3, 3):
+            raise ValueError(f"{paths['intrinsics']}: expected a 3x3 matrix, got shape {K.shape}")
+        cam = PinholeCamera.from_K(K, w, h)
+        sparse = read_void_depth(paths["sparse_depth"])
+        gt = read_void_depth(paths["ground_truth"])
+        if "validity_map" in paths:
+            validity = read_void_depth(paths["validity_map"]) > 0
+        else:
+            validity = sparse > 0
+        for what, arr in (("sparse depth", sparse), ("ground truth", gt),
+                          ("validity map", validity)):
+            if arr.shape != (h, w):
+                raise ValueError(f"VOID sample {img_path}: {what} is {arr.shape[::-1]}, image is "
+                                 f"{(w, h)}")
+        sparse = np.where(validity, sparse, 0.0)
+        seq = img_path.parent.parent.name
+        return VOIDSample(f"{seq}/{img_path.stem}", image, sparse, validity, gt, cam,
+                          {k: str(v) for k, v in paths.items()})
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+
+# ----------------------------------------------------------------- metrics
+def void_metrics(pred: np.ndarray, gt: np.ndarray, min_depth: float = MIN_DEPTH,
+                 max_depth: float = MAX_DEPTH) -> Dict[str, float]:
+    """VOID metrics of one image: ``mae_mm``, ``rmse_mm``, ``imae_per_km``,
+    ``irmse_per_km`` on pixels with ``min_depth < gt < max_depth`` (metres),
+    plus ``n_pixels`` and ``coverage`` (fraction of those pixels predicted)."""
+    m = depth_metrics(pred, gt, min_depth=min_depth, max_depth=max_depth)
+    if m["n_pixels"] == 0:
+        return {k: float("nan") for k in METRIC_KEYS} | {"n_pixels": 0, "coverage": 0.0}
+    return {"mae_mm": 1e3 * m["mae_m"], "rmse_mm": 1e3 * m["rmse_m"],
+            "imae_per_km": m["imae_per_km"], "irmse_per_km": m["irmse_per_km"],
+            "n_pixels": m["n_pixels"], "coverage": m["coverage"]}
+
+
+# ----------------------------------------------------------------- methods
+#: Built-in method names of :func:`run_void` / :func:`make_method`.
+METHOD_NAMES = ("spgeo", "spgeo-joint", "spgeo-onnx", "linear", "ip_basic")
+
+Method = Callable[[np.ndarray, np.ndarray, PinholeCamera], np.ndarray]
+
+
+def make_method(name: str, config: CompletionConfig = CompletionConfig()) -> Method:
+    """A completion function ``f(image, sparse_depth, camera) -> depth`` by name:
+
+    * ``"spgeo"``: :func:`spgeo.completion.complete_depth`, classical front-end;
+    * ``"spgeo-joint"``: the same with ``method="joint"`` (GTSAM);
+    * ``"spgeo-onnx"``: the ONNX front-end (needs ``spgeo models fetch``);
+    * ``"linear"``: :func:`linear_interpolation_completion`;
+    * ``"ip_basic"``: :func:`ip_basic_completion`.
+
+    Front-ends are built once per image size and reused.
+    """
+    import dataclasses
+
+    from spgeo.completion import working_size_for
+    from spgeo.frontend import FrontEndConfig, make_frontend
+
+    if name == "linear":
+        return lambda image, sparse, camera: linear_interpolation_completion(sparse)
+    if name == "ip_basic":
+        return lambda image, sparse, camera: ip_basic_completion(sparse, IPBasicConfig())
+    if name not in ("spgeo", "spgeo-joint", "spgeo-onnx"):
+        raise ValueError(f"unknown completion method {name!r}; choose from {METHOD_NAMES}")
+    fe_name = "onnx" if name == "spgeo-onnx" else "classical"
+    cfg = dataclasses.replace(config, method="joint") if name == "spgeo-joint" else config
+    cache: Dict[Tuple[int, int], object] = {}
+
+    def run(image, sparse, camera):
+        fe = cache.get(camera.size)
+        if fe is None:
+            fe = make_frontend(fe_name, FrontEndConfig(
+                working_size=working_size_for(camera, cfg.working_width)))
+            cache[camera.size] = fe
+        return complete_depth(image, sparse, camera, fe, cfg).depth
+
+    return run
+
+
+# ----------------------------------------------------------------- runner
+@dataclass
+class VOIDResult:
+    """Per-image metrics of every method on a VOID split.
+
+    Attributes:
+        split, subset: what was evaluated.
+        names: evaluated sample names.
+        per_image: method -> metric -> (n_images,) array.
+        seconds: method -> (n_images,) run time per image.
+    """
+
+    split: str
+    subset: str
+    names: List[str]
+    per_image: Dict[str, Dict[str, np.ndarray]]
+    seconds: Dict[str, np.ndarray]
+
+    def mean(self) -> Dict[str, Dict[str, float]]:
+        """method -> metric -> mean over images (the protocol's number)."""
+        return {m: {k: float(np.nanmean(v[k])) for k in METRIC_KEYS}
+                | {"seconds": float(np.mean(self.seconds[m]))}
+                for m, v in self.per_image.items()}
+
+    def table(self, with_paper: bool = True) -> str:
+        """Markdown table (MAE, RMSE in mm; iMAE, iRMSE in 1/km)."""
+        rows = [f"VOID-{self.split} {self.subset}, {len(self.names)} images, GT in "
+                f"({MIN_DEPTH}, {MAX_DEPTH}) m",
+                "| method | MAE [mm] | RMSE [mm] | iMAE [1/km] | iRMSE [1/km] | s/image |",
+                "|---|---:|---:|---:|---:|---:|"]
+        for m, v in self.mean().items():
+            rows.append(f"| {m} | {v['mae_mm']:.1f} | {v['rmse_mm']:.1f} | "
+                        f"{v['imae_per_km']:.2f} | {v['irmse_per_km']:.2f} | {v['seconds']:.2f} |")
+        if with_paper and self.split == "150":
+            p = PAPER_VOID150
+            rows.append(f"| paper (SuperPrimitive, zero-shot, 800 images) | {p['mae_mm']:.1f} | "
+                        f"{p['rmse_mm']:.2f} | {p['imae_per_km']:.2f} | "
+                        f"{p['irmse_per_km']:.2f} | |")
+        return "\n".join(rows)
+
+
+def run_void(root: PathLike, split: Union[str, int] = "150",
+             methods: Union[Sequence[str], Dict[str, Method]] = ("spgeo", "linear", "ip_basic"),
+             max_images: Optional[int] = None, subset: str = "test",
+             config: CompletionConfig = CompletionConfig(), progress: bool = True) -> VOIDResult:
+    """Run completion methods on a VOID split and collect the protocol's metrics.
+
+    Args:
+        root: ``void_release`` (or ``void_<split>``) folder.
+        split: ``"150"`` (the paper's), ``"500"`` or ``"1500"``.
+        methods: built-in names (:data:`METHOD_NAMES`) or a dict name ->
+            ``f(image, sparse_depth, camera) -> depth``.
+        max_images: evaluate only the first N images (None: all, 800 for test).
+        config: :class:`CompletionConfig` of the spgeo methods.
+        progress: show a tqdm progress bar.
+    """
+    from tqdm import tqdm
+
+    ds = VOIDDataset(root, split, subset)
+    n = len(ds) if max_images is None else min(len(ds), int(max_images))
+    if n <= 0:
+        raise ValueError(f"nothing to evaluate in {ds.name} (max_images={max_images})")
+    if isinstance(methods, dict):
+        fns = dict(methods)
+    else:
+        if isinstance(methods, str):
+            methods = [methods]
+        fns = {m: make_method(m, config) for m in methods}
+    if not fns:
+        raise ValueError("run_void: no method given")
+    per = {m: {k: np.full(n, np.nan) for k in METRIC_KEYS} for m in fns}
+    secs = {m: np.zeros(n) for m in fns}
+    names: List[str] = []
+    for i in tqdm(range(n), desc=ds.name, disable=not progress):
+        s = ds[i]
+        names.append(s.name)
+        for m, fn in fns.items():
+            t0 = time.perf_counter()
+            pred = fn(s.image, s.sparse_depth, s.camera)
+            secs[m][i] = time.perf_counter() - t0
+            met = void_metrics(pred, s.ground_truth)
+            for k in METRIC_KEYS:
+                per[m][k][i] = met[k]
+    return VOIDResult(str(split), subset, names, per, secs)
+
+
+# ----------------------------------------------------------------- sparse sampling
+def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 150,
+                          rel_noise: float = 0.01, seed: int = 0, fast_threshold: int = 10
+                          ) -> np.ndarray:
+    """Sparse depth at image keypoints, the way VIO gives it (VOID's points are
+    tracked corners).
+
+    FAST corners (OpenCV, non-maximum suppression) with valid depth are
+    spread over the image by keeping the strongest corner per grid cell
+    (cells sized for about ``2 * n_points`` cells), then the ``n_points``
+    strongest of those (more from the remaining corners if too few cells are
+    occupied).  Depths get multiplicative Gaussian noise
+    ``d * (1 + rel_noise * N(0, 1))``.  The FAST threshold is lowered (to 5,
+    then 1) when too few corners are found.  Deterministic in ``seed``.
+
+    Returns (H, W) float64 metres, 0 = missing.
+    """
+    img = to_float_image(image)
+    grey = np.rint(255 * (to_gray(img) if img.ndim == 3 else img)).astype(np.uint8)
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.shape != grey.shape:
+        raise ValueError(f"depth shape {depth.shape} != image shape {grey.shape}")
+    if int(n_points) < 1:
+        raise ValueError(f"n_points must be >= 1, got {n_points}")
+    if rel_noise < 0 or not np.isfinite(rel_noise):
+        raise ValueError(f"rel_noise must be finite and >= 0, got {rel_noise}")
+    h, w = grey.shape
+    ok = np.isfinite(depth) & (depth > 0)
+    u = v = resp = np.zeros(0)
+    for thr in sorted({int(fast_threshold), 5, 1}, reverse=True):
+        det = cv2.FastFeatureDetector_create(threshold=thr, nonmaxSuppression=True)
+        kps = det.detect(grey, None)
+        if kps:
+            pts = np.array([kp.pt for kp in kps])
+            resp = np.array([kp.response for kp in kps])
+            u = np.clip(np.rint(pts[:, 0]), 0, w - 1).astype(np.int64)
+            v = np.clip(np.rint(pts[:, 1]), 0, h - 1).astype(np.int64)
+            keep = ok[v, u]
+            u, v, resp = u[keep], v[keep], resp[keep]
+        if u.size >= n_points:
+            break
+    if u.size == 0:
+        raise ValueError("keypoint_sparse_depth: no keypoint with valid depth")
+    # unique pixels, strongest first (stable on ties: raster order)
+    flat = v * w + u
+    order = np.lexsort((flat, -resp))
+    flat, resp = flat[order], resp[order]
+    _, first = np.unique(flat, return_index=True)
+    first = np.sort(first)
+    flat, resp = flat[first], resp[first]
+    cell = max(1.0, np.sqrt(h * w / (2.0 * n_points)))
+    cu = ((flat % w) / cell).astype(np.int64)
+    cv_ = ((flat // w) / cell).astype(np.int64)
+    cid = cv_ * (int(w / cell) + 1) + cu
+    _, best = np.unique(cid, return_index=True)  # first = strongest per cell
+    best = np.sort(best)
+    chosen = best[:n_points]
+    if chosen.size < n_points:
+        rest = np.setdiff1d(np.arange(flat.size), chosen, assume_unique=True)
+        chosen = np.concatenate([chosen, rest[:n_points - chosen.size]])
+    if chosen.size < n_points:
+        log.debug("keypoint_sparse_depth: only %d keypoints with depth (asked %d)", chosen.size,
+                  n_points)
+    sel = flat[chosen]
+    rng = np.random.default_rng(seed)
+    out = np.zeros(h * w)
+    d = depth.reshape(-1)[sel]
+    out[sel] = np.maximum(d * (1.0 + rel_noise * rng.standard_normal(sel.size)), 1e-3)
+    return out.reshape(h, w)
+
+
+# ----------------------------------------------------------------- synthetic writer
+def write_synthetic_void(root: PathLike, splits: Sequence[Union[str, int]] = ("150",),
+                         n_sequences: int = 2, frames_per_sequence: int = 2,
+                         width: int = 640, height: int = 480, rel_noise: float = 0.01,
+                         seed: int = 0, subset: str = "test") -> Path:
+    """Write a small synthetic data set in the VOID release layout under
+    ``root`` (which plays ``void_release``) and return ``root``.
+
+    Each sequence is a procedural room (:mod:`spgeo.synthetic`, seed
+    ``seed + i``) seen along a hand-held trajectory; every density folder
+    gets the same images and ground truth and its own sparse points
+    (:func:`keypoint_sparse_depth`: ``int(split)`` FAST keypoints, 1 %
+    multiplicative noise by default).  Depths are stored as uint16 metres*256,
+    validity maps as {0, 256}, intrinsics as ``K.txt``, poses (camera-to-world
+    4x4) in ``absolute_pose/``, and ``<subset>_*.txt`` lists with paths
+    relative to ``root`` — the official layout, so :class:`VOIDDataset` and
+    :func:`run_void` read it unchanged.
+    """
+    from spgeo import synthetic
+
+    root = Path(root)
+    splits = [str(s) for s in splits]
+    for s in splits:
+        if s not in VOID_SPLITS:
+            raise ValueError(f"VOID split must be one of {VOID_SPLITS}, got {s!r}")
+    if n_sequences < 1 or frames_per_sequence < 1:
+        raise ValueError("n_sequences and frames_per_sequence must be >= 1")
+    cam = synthetic.default_camera(width, height)
+    lists = {s: {k: [] for k in _KINDS + ("absolute_pose",)} for s in splits}
+    for q in range(n_sequences):
+        scene = synthetic.SyntheticScene.generate(seed=seed + q)
+        poses = synthetic.make_trajectory(10 * frames_per_sequence, seed=seed + q)[::10]
+        seq = f"synthetic{q}"
+        for f, T in enumerate(poses):
+            view = scene.render(cam, T)
+            stamp = f"{1552625653.0 + q * 1000 + f / 3.0:.4f}"
+            rgb8 = np.rint(255 * view.rgb).astype(np.uint8)
+            gt = np.where(np.isfinite(view.depth), view.depth, 0.0)
+            for s in splits:
+                base = root / f"void_{s}" / "data" / seq
+                for sub in ("image", "sparse_depth", "validity_map", "ground_truth",
+                            "absolute_pose"):
+                    (base / sub).mkdir(parents=True, exist_ok=True)
+                sparse = keypoint_sparse_depth(view.rgb, view.depth, int(s), rel_noise,
+                                               seed=seed * 7919 + q * 101 + f)
+                # quantise like the files, so validity and stored depth agree
+                sparse = np.where(np.rint(sparse * 256) > 0, sparse, 0.0)
+                if not cv2.imwrite(str(base / "image" / f"{stamp}.png"),
+                                   cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR)):
+                    raise OSError(f"could not write {base / 'image' / stamp}.png")
+                write_void_depth(base / "sparse_depth" / f"{stamp}.png", sparse)
+                cv2.imwrite(str(base / "validity_map" / f"{stamp}.png"),
+                            np.where(sparse > 0, 256, 0).astype(np.uint16))
+                write_void_depth(base / "ground_truth" / f"{stamp}.png", gt)
+                np.savetxt(base / "absolute_pose" / f"{stamp}.txt", T)
+                np.savetxt(base / "K.txt", cam.K)
+                rel = f"void_{s}/data/{seq}"
+                L = lists[s]
+                L["image"].append(f"{rel}/image/{stamp}.png")
+                L["sparse_depth"].append(f"{rel}/sparse_depth/{stamp}.png")
+                L["validity_map"].append(f"{rel}/validity_map/{stamp}.png")
+                L["ground_truth"].append(f"{rel}/ground_truth/{stamp}.png")
+                L["absolute_pose"].append(f"{rel}/absolute_pose/{stamp}.txt")
+                L["intrinsics"].append(f"{rel}/K.txt")
+    for s in splits:
+        for kind, entries in lists[s].items():
+            (root / f"void_{s}" / f"{subset}_{kind}.txt").write_text(
+                "\n".join(entries) + "\n", encoding="utf-8")
+    log.info("wrote synthetic VOID set (%d sequences x %d frames, splits %s) to %s",
+             n_sequences, frames_per_sequence, splits, root)
+    return root
+
+
+# ----------------------------------------------------------------- script
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.void VOID_RELEASE [--split 150] [--max-images N]
+    [--methods spgeo linear ip_basic]``: print the protocol table."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description="VOID depth-completion protocol")
+    ap.add_argument("root", help="void_release folder (or void_<split>)")
+    ap.add_argument("--split", default="150", choices=VOID_SPLITS)
+    ap.add_argument("--subset", default="test", choices=("test", "train"))
+    ap.add_argument("--max-images", type=int, default=None)
+    ap.add_argument("--methods", nargs="+", default=["spgeo", "linear", "ip_basic"],
+                    choices=METHOD_NAMES)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    res = run_void(args.root, args.split, args.methods, args.max_images, args.subset)
+    print(res.table())
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
