@@ -135,8 +135,12 @@ class SfMResult:
     """Output of :func:`few_view_sfm`.
 
     Attributes:
-        status: ``"ok"`` or the first problem found: ``"low_parallax"``,
-            ``"low_overlap"``, ``"diverged"``.
+        status: ``"ok"`` or the first problem found, in this order:
+            ``"diverged"`` (non-finite result), ``"unverified"`` (the two-view
+            feature check found too few matches or a degenerate geometry for a
+            view, which then started at identity: often no overlap, and the
+            photometric result is not trusted), ``"low_parallax"``,
+            ``"low_overlap"``.
         view_status: status per supporting view.
         T_ref_view: 4x4 pose of each supporting view in the reference camera
             (camera-to-reference), translation in the map's (unknown) scale.
@@ -314,6 +318,16 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
 
     status, view_status, valid_frac = _assess(solved, T_ref_view, view_pyrs, values, config,
                                               report)
+    # a view the feature check could not pose (too few matches / degenerate) most
+    # likely shares little with the reference: photometric alignment from
+    # identity can then "converge" to a wrong pose, so it is not reported ok
+    tv = init_report.get("twoview_status")
+    if tv is not None:
+        for j, st in enumerate(tv):
+            if st in ("too_few_matches", "degenerate") and view_status[j] == "ok":
+                view_status[j] = "unverified"
+        order = ("diverged", "unverified", "low_parallax", "low_overlap")
+        status = next((s_ for s_ in order if s_ in view_status), "ok")
     log_std = np.full(len(prims), np.nan)
     covs: List[Optional[np.ndarray]] = [None] * len(views)
     if config.marginals and status != "diverged":
