@@ -1,0 +1,804 @@
+"""ScanNet few-view SfM protocol (DESIGN.md §5): reader, runner, synthetic writer.
+
+Layout (what ScanNet's ``SensReader/python/reader.py`` writes with
+``--export_depth_images --export_color_images --export_poses
+--export_intrinsics``; see ``SensorData.export_*`` in github.com/ScanNet/ScanNet)::
+
+    <root>/<scene_id>/
+      color/<frame>.jpg                 8-bit RGB JPEG, 1296x968 in ScanNet
+      depth/<frame>.png                 uint16 millimetres (depth shift 1000), 0 = none; 640x480
+      pose/<frame>.txt                  4x4 camera-to-world; every entry -inf where tracking failed
+      intrinsic/intrinsic_color.txt     4x4, K of the colour camera (top-left 3x3)
+      intrinsic/intrinsic_depth.txt     4x4, K of the depth camera
+      intrinsic/extrinsic_{color,depth}.txt   (not used)
+
+``<frame>`` is the frame number without zero padding (``0.jpg``, ``1.jpg`` ...;
+with ``--frame_skip k`` only multiples of ``k`` exist).  Poses are written with
+``%f`` (6 decimals, float32 source) and are projected onto SE(3).
+
+:class:`ScanNetScene` returns :class:`~spgeo.frame.Frame` s whose colour image is
+resized to the depth resolution (``cv2.INTER_AREA``) with the colour intrinsics
+resized to match (:meth:`PinholeCamera.resized`), so image and depth share one
+pixel grid.  ScanNet's depth is the structure sensor's, calibrated to the colour
+camera but not re-rendered into it: the alignment is as good as ScanNet's
+calibration (``intrinsics="depth"`` uses the depth camera's K instead).
+
+Protocol (:func:`run_scannet_sfm`): a reference every ``stride``-th frame
+(default 200), supporting views at the first available frame offsets of
+``offsets`` (default +-10, +-20, +-30 frames), ``n = 1..max_views`` of them;
+a set is discarded when a reference or view pose is invalid, fewer than
+``max_views`` views exist, or it is *near-static* (some view moved less than
+``min_translation`` AND rotated less than ``min_rotation_deg`` relative to the
+reference).  :func:`spgeo.sfm.few_view_sfm` runs per set, per ``n`` and per
+initialisation (the paper's ``"identity"`` and the library default
+``"twoview"``); its depth is median-scaled to the ground truth (valid in
+``[min_depth, max_depth]``, default 0.1-10 m) and scored with iMAE / iRMSE
+(1/km), abs-rel, delta < 1.25 at the SfM working resolution (ground truth
+resampled by nearest neighbour), beside a median-scaled constant-depth
+baseline; poses with rotation and translation-direction errors (degrees).
+
+:func:`write_synthetic_scannet` writes a procedural room (:mod:`spgeo.synthetic`)
+in this layout (JPEG colour at a different resolution than depth) so the
+reader and runner are tested end to end.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import cv2
+import numpy as np
+
+from spgeo.camera import PinholeCamera
+from spgeo.datasets.common import (FrameSelection, FrameSequence, config_from_kwargs,
+                                   nearest_rigid, read_depth_png, read_rgb, select_frames)
+from spgeo.frame import Frame
+from spgeo.frontend import PrimitiveFrontEnd
+from spgeo.geometry import relative_pose, rotation_angle_deg
+from spgeo.sfm import SfMConfig, few_view_sfm
+
+from .metrics import depth_metrics
+from .pose_metrics import relative_pose_errors
+
+__all__ = [
+    "ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
+    "ScanNetProtocolConfig", "ViewSet", "select_view_sets", "ScanNetSfMResult",
+    "run_scannet_sfm", "evaluate_depth", "resize_depth_nearest", "write_synthetic_scannet",
+    "main",
+]
+
+log = logging.getLogger(__name__)
+
+PathLike = Union[str, os.PathLike]
+
+_FRAME_RE = re.compile(r"^(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)
+_INTRINSICS = ("color", "depth")
+
+
+# =================================================================== reader
+def read_scannet_matrix(path: PathLike) -> np.ndarray:
+    """A ScanNet 4x4 text matrix (pose or intrinsics) as float64; non-finite
+    entries (``-inf`` of invalid poses) are kept.  Raises ``FileNotFoundError``
+    or ``ValueError`` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ScanNet matrix file not found: {path}")
+    try:
+        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
+    except ValueError as exc:
+        raise ValueError(f"malformed ScanNet matrix file {path}: {exc}") from None
+    if values.size != 16:
+        raise ValueError(f"malformed ScanNet matrix file {path}: expected 16 numbers (4x4), "
+                         f"got {values.size}")
+    return values.reshape(4, 4)
+
+
+def _camera_from_4x4(path: Path, width: int, height: int) -> PinholeCamera:
+    M = read_scannet_matrix(path)
+    if not np.all(np.isfinite(M[:3, :3])):
+        raise ValueError(f"intrinsics file {path} contains non-finite values")
+    try:
+        return PinholeCamera.from_K(M[:3, :3], width, height)
+    except ValueError as exc:
+        raise ValueError(f"invalid intrinsics in {path}: {exc}") from None
+
+
+def _image_size(path: Path) -> Tuple[int, int]:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError(f"cannot decode image file: {path}")
+    return int(img.shape[1]), int(img.shape[0])
+
+
+@dataclass
+class ScanNetConfig:
+    """Options of :class:`ScanNetScene`.
+
+    Attributes:
+        image_size: ``(width, height)`` of the returned images and depth maps;
+            default None = the depth resolution (640x480 in ScanNet), so colour
+            is resized onto the depth grid.
+        intrinsics: ``"color"`` (default): the colour camera's K
+            (``intrinsic_color.txt``) resized to ``image_size``; ``"depth"``:
+            the depth camera's K (``intrinsic_depth.txt``) resized likewise.
+        load_depth: read the depth maps (default True).
+        depth_scale: raw depth units per metre (default 1000: millimetres, the
+            SensReader's depth shift).
+        frames: selection by frame number (``"A:B[:S]"``, slice, range or list;
+            default None = all).
+    """
+
+    image_size: Optional[Tuple[int, int]] = None
+    intrinsics: str = "color"
+    load_depth: bool = True
+    depth_scale: float = 1000.0
+    frames: FrameSelection = None
+
+
+@dataclass
+class _Record:
+    number: int
+    timestamp: float
+    color_path: Path
+    depth_path: Path
+    pose_path: Path
+
+
+class ScanNetScene(FrameSequence):
+    """Lazy reader of one exported ScanNet scene (see the module docstring).
+
+    ``Frame.timestamp`` is the frame number (ScanNet exports carry no times),
+    ``Frame.T_world_cam`` is None where the pose is invalid (non-finite).
+    Raises ``FileNotFoundError`` naming the missing folder or file.
+    """
+
+    def __init__(self, path: PathLike, config: Optional[ScanNetConfig] = None, **kwargs) -> None:
+        super().__init__()
+        cfg = config_from_kwargs(ScanNetConfig, config, kwargs, "ScanNetScene")
+        if cfg.intrinsics not in _INTRINSICS:
+            raise ValueError(f"ScanNetConfig.intrinsics must be one of {_INTRINSICS}, "
+                             f"got {cfg.intrinsics!r}")
+        if not (np.isfinite(cfg.depth_scale) and cfg.depth_scale > 0):
+            raise ValueError(f"ScanNetConfig.depth_scale must be > 0, got {cfg.depth_scale}")
+        self.config = cfg
+        root = Path(path).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"ScanNet scene folder not found: {root}")
+        self.root = root
+        self._name = root.resolve().name
+        self._undistort = False
+        need = ["color", "pose", "intrinsic"] + (["depth"] if cfg.load_depth else [])
+        for sub in need:
+            if not (root / sub).is_dir():
+                raise FileNotFoundError(f"ScanNet scene {root}: folder not found: {root / sub} "
+                                        "(expected the SensReader export layout)")
+        found: Dict[int, Path] = {}
+        for p in (root / "color").iterdir():
+            m = _FRAME_RE.match(p.name)
+            if m:
+                n = int(m.group(1))
+                if n in found:
+                    raise ValueError(f"{root / 'color'}: frame {n} has two images "
+                                     f"({found[n].name}, {p.name})")
+                found[n] = p
+        if not found:
+            raise FileNotFoundError(f"no <frame>.jpg images in {root / 'color'}")
+        numbers = sorted(found)
+        keep = select_frames(numbers, cfg.frames)
+        self._records: List[_Record] = [
+            _Record(numbers[k], float(numbers[k]), found[numbers[k]],
+                    root / "depth" / f"{numbers[k]}.png", root / "pose" / f"{numbers[k]}.txt")
+            for k in keep]
+
+        # sizes: colour from the first image, depth from the first depth map
+        self.color_size = _image_size(self._records[0].color_path)
+        depth_file = self._records[0].depth_path
+        if depth_file.is_file():
+            self.depth_size: Optional[Tuple[int, int]] = _image_size(depth_file)
+        elif cfg.load_depth:
+            raise FileNotFoundError(f"ScanNet depth file not found: {depth_file}")
+        else:
+            self.depth_size = None
+        size = cfg.image_size or self.depth_size or self.color_size
+        size = (int(size[0]), int(size[1]))
+        intr = root / "intrinsic"
+        self.color_camera = _camera_from_4x4(intr / "intrinsic_color.txt", *self.color_size)
+        self.depth_camera = (_camera_from_4x4(intr / "intrinsic_depth.txt", *self.depth_size)
+                             if self.depth_size is not None
+                             and (intr / "intrinsic_depth.txt").is_file() else None)
+        if cfg.intrinsics == "depth":
+            if self.depth_camera is None:
+                raise FileNotFoundError(f"ScanNet intrinsics file not found: "
+                                        f"{intr / 'intrinsic_depth.txt'}")
+            base = self.depth_camera
+        else:
+            base = self.color_camera
+        self._raw_camera = base if base.size == size else base.resized(*size)
+
+    @property
+    def scene_id(self) -> str:
+        return self._name
+
+    def frame_position(self, number: int) -> int:
+        """Position in the selection of frame number ``number`` (``ValueError`` if absent)."""
+        for i, r in enumerate(self._records):
+            if r.number == int(number):
+                return i
+        raise ValueError(f"ScanNet scene {self._name}: no frame number {number}")
+
+    def _read_pose(self, rec: _Record) -> Optional[np.ndarray]:
+        if not rec.pose_path.is_file():
+            log.warning("ScanNet: pose file missing: %s", rec.pose_path)
+            return None
+        T = read_scannet_matrix(rec.pose_path)
+        if not np.all(np.isfinite(T)):
+            log.debug("ScanNet: invalid (non-finite) pose in %s", rec.pose_path)
+            return None
+        try:
+            return nearest_rigid(T, str(rec.pose_path))
+        except ValueError as exc:
+            raise ValueError(f"invalid pose file {rec.pose_path}: {exc}") from None
+
+    def ground_truth(self) -> List[Optional[np.ndarray]]:
+        """Camera-to-world poses of the selection (None where invalid), reading
+        only the pose files."""
+        return [self._read_pose(r) for r in self._records]
+
+    def _load(self, index: int, rec: _Record) -> Frame:
+        cam = self._raw_camera
+        image = read_rgb(rec.color_path)
+        if image.shape[:2] != cam.shape:
+            image = np.clip(cv2.resize(image, cam.size, interpolation=cv2.INTER_AREA), 0.0, 1.0)
+        depth = None
+        if self.config.load_depth:
+            depth = read_depth_png(rec.depth_path, self.config.depth_scale)
+            if depth.shape != cam.shape:
+                depth = resize_depth_nearest(depth, cam.size)
+        meta = {"dataset": "scannet", "scene": self._name, "index": index,
+                "frame_number": rec.number, "rgb_path": str(rec.color_path),
+                "depth_path": str(rec.depth_path) if depth is not None else None,
+                "pose_path": str(rec.pose_path), "timestamp_is_frame_number": True,
+                "color_size": self.color_size, "depth_size": self.depth_size}
+        return Frame(image=np.ascontiguousarray(image, dtype=np.float32), camera=cam,
+                     timestamp=rec.timestamp, depth=depth, T_world_cam=self._read_pose(rec),
+                     name=str(rec.number), meta=meta)
+
+
+def list_scenes(root: PathLike) -> List[Path]:
+    """Scene folders (holding ``color/``) under ``root``, sorted; ``[root]`` if
+    ``root`` is itself a scene.  Raises ``FileNotFoundError`` if there is none."""
+    root = Path(root).expanduser()
+    if not root.is_dir():
+        raise FileNotFoundError(f"ScanNet root folder not found: {root}")
+    if (root / "color").is_dir():
+        return [root]
+    scenes = sorted(p for p in root.iterdir() if p.is_dir() and (p / "color").is_dir())
+    if not scenes:
+        raise FileNotFoundError(f"no ScanNet scene folders (<scene_id>/color/) in {root}")
+    return scenes
+
+
+def resize_depth_nearest(depth: np.ndarray, size: Tuple[int, int]) -> np.ndarray:
+    """Nearest-neighbour resampling of a depth map to ``size = (width, height)``
+    with pixel centres aligned (``cv2.resize`` / :meth:`PinholeCamera.resized`
+    convention): output pixel ``i`` takes input pixel ``floor((i + 0.5) * in / out)``.
+    Never mixes depths across edges."""
+    depth = np.asarray(depth)
+    h, w = depth.shape
+    W, H = int(size[0]), int(size[1])
+    cols = np.minimum(((np.arange(W) + 0.5) * (w / W)).astype(np.int64), w - 1)
+    rows = np.minimum(((np.arange(H) + 0.5) * (h / H)).astype(np.int64), h - 1)
+    return depth[rows[:, None], cols[None, :]]
+
+
+# ================================================================ protocol
+@dataclass(frozen=True)
+class ScanNetProtocolConfig:
+    """Options of :func:`run_scannet_sfm` (DESIGN.md §5).
+
+    Attributes:
+        stride: a reference every ``stride``-th frame number, default 200.
+        start: first reference frame number, default 0.
+        offsets: frame offsets of candidate supporting views, in order of
+            preference; the first ``max_views`` that exist with a valid pose
+            are used, default (10, -10, 20, -20, 30, -30) (ScanNet is 30 fps).
+        max_views: evaluate ``n = 1..max_views`` supporting views (the first
+            ``n`` of the set), default 3.
+        min_translation: metres; with ``min_rotation_deg``: a set is
+            near-static (discarded) when some view moved less than this AND
+            rotated less than ``min_rotation_deg`` relative to the reference,
+            default 0.03 m (about 1 % of a ScanNet median depth, the SfM's
+            low-parallax level).
+        min_rotation_deg: see ``min_translation``, default 1.5 degrees.
+        min_depth, max_depth: ground-truth depths scored (metres, exclusive),
+            default 0.1 and 10.
+        inits: SfM initialisations to run: ``"identity"`` (the paper: poses
+            at identity, log-scales 0) and ``"twoview"`` (the library default),
+            default both.
+        frontend: front-end name (``"classical"`` default, ``"depth"`` = oracle
+            normals from the ground-truth depth, ``"onnx"``).
+        working_size: ``(width, height)`` the front-end and SfM work at,
+            default (320, 240) (the authors').
+        sfm: base :class:`SfMConfig` (``init`` is replaced per run); default
+            ``SfMConfig(marginals=False)`` (covariances are not scored).
+        max_samples: stop after this many view sets (None: all).
+        progress: tqdm progress bar over the view sets.
+    """
+
+    stride: int = 200
+    start: int = 0
+    offsets: Tuple[int, ...] = (10, -10, 20, -20, 30, -30)
+    max_views: int = 3
+    min_translation: float = 0.03
+    min_rotation_deg: float = 1.5
+    min_depth: float = 0.1
+    max_depth: float = 10.0
+    inits: Tuple[str, ...] = ("identity", "twoview")
+    frontend: str = "classical"
+    working_size: Tuple[int, int] = (320, 240)
+    sfm: SfMConfig = field(default_factory=lambda: SfMConfig(marginals=False))
+    max_samples: Optional[int] = None
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if int(self.stride) < 1:
+            raise ValueError(f"stride must be >= 1, got {self.stride}")
+        if int(self.max_views) < 1:
+            raise ValueError(f"max_views must be >= 1, got {self.max_views}")
+        offs = [int(o) for o in self.offsets]
+        if not offs or 0 in offs or len(set(offs)) != len(offs):
+            raise ValueError(f"offsets must be distinct non-zero frame offsets, got {self.offsets}")
+        if len(offs) < int(self.max_views):
+            raise ValueError(f"{len(offs)} offsets cannot give max_views={self.max_views} views")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, "
+                             f"{self.max_depth}")
+        if self.min_translation < 0 or self.min_rotation_deg < 0:
+            raise ValueError("min_translation and min_rotation_deg must be >= 0")
+        if not self.inits or any(i not in ("identity", "twoview") for i in self.inits):
+            raise ValueError(f"inits must be a non-empty subset of ('identity', 'twoview'), "
+                             f"got {self.inits}")
+        if self.max_samples is not None and int(self.max_samples) < 1:
+            raise ValueError(f"max_samples must be >= 1 or None, got {self.max_samples}")
+        if len(self.working_size) != 2 or min(self.working_size) < 16:
+            raise ValueError(f"working_size must be (width, height) >= 16 px, "
+                             f"got {self.working_size}")
+
+
+@dataclass
+class ViewSet:
+    """One protocol sample: a reference frame and its ordered supporting views.
+
+    Attributes:
+        scene: scene id.
+        ref: reference frame number.
+        views: supporting frame numbers (``max_views`` of them, preference order).
+        T_ref_view_gt: ground-truth ``T_ref_view`` (camera-to-reference) per view.
+        gt_translation: metres moved by each view relative to the reference.
+        gt_rotation_deg: rotation of each view relative to the reference.
+    """
+
+    scene: str
+    ref: int
+    views: Tuple[int, ...]
+    T_ref_view_gt: List[np.ndarray]
+    gt_translation: List[float]
+    gt_rotation_deg: List[float]
+
+
+def select_view_sets(frame_numbers: Sequence[int], poses: Mapping[int, Optional[np.ndarray]],
+                     config: ScanNetProtocolConfig = ScanNetProtocolConfig(),
+                     scene: str = "") -> Tuple[List[ViewSet], List[Dict[str, object]]]:
+    """The protocol's view sets of one scene.
+
+    Args:
+        frame_numbers: frame numbers that exist.
+        poses: frame number -> camera-to-world pose, None (or non-finite) = invalid.
+        config: :class:`ScanNetProtocolConfig` (stride, start, offsets,
+            max_views, near-static thresholds).
+        scene: scene id stored in the sets.
+    Returns:
+        ``(sets, skipped)``; ``skipped`` holds one dict per discarded reference
+        (``scene``, ``ref``, ``reason``).
+    """
+    available = set(int(n) for n in frame_numbers)
+
+    def valid(n: int) -> bool:
+        T = poses.get(n)
+        return n in available and T is not None and bool(np.all(np.isfinite(T)))
+
+    sets: List[ViewSet] = []
+    skipped: List[Dict[str, object]] = []
+    for ref in sorted(available):
+        if ref < config.start or (ref - config.start) % config.stride:
+            continue
+        if not valid(ref):
+            skipped.append({"scene": scene, "ref": ref, "reason": "invalid reference pose"})
+            continue
+        views = [ref + o for o in config.offsets if valid(ref + int(o))][:config.max_views]
+        if len(views) < config.max_views:
+            skipped.append({"scene": scene, "ref": ref,
+                            "reason": f"only {len(views)} of {config.max_views} supporting "
+                                      "views with a valid pose"})
+            continue
+        T_gt = [relative_pose(poses[ref], poses[v]) for v in views]
+        trans = [float(np.linalg.norm(T[:3, 3])) for T in T_gt]
+        rot = [rotation_angle_deg(T) for T in T_gt]
+        static = [t < config.min_translation and r < config.min_rotation_deg
+                  for t, r in zip(trans, rot)]
+        if any(static):
+            k = static.index(True)
+            skipped.append({"scene": scene, "ref": ref,
+                            "reason": f"near-static: view {views[k]} moved {trans[k]:.3f} m, "
+                                      f"{rot[k]:.2f} deg"})
+            continue
+        sets.append(ViewSet(scene, ref, tuple(views), T_gt, trans, rot))
+    return sets, skipped
+
+
+def evaluate_depth(pred: np.ndarray, gt: np.ndarray, min_depth: float = 0.1,
+                   max_depth: float = 10.0) -> Dict[str, float]:
+    """Median-scale ``pred`` to ``gt`` and score it.
+
+    The scale is ``median(gt / pred)`` over pixels where both are valid and
+    ``min_depth < gt < max_depth``; metrics are :func:`depth_metrics` of the
+    scaled prediction (``imae_per_km``, ``irmse_per_km``, ``abs_rel`` = mean
+    relative error, ``median_rel``, ``delta_1.25``, ``coverage``) plus
+    ``scale``.  All NaN (``coverage`` 0) when no pixel is valid.
+    """
+    pred = np.asarray(pred, np.float64)
+    gt = np.asarray(gt, np.float64)
+    if pred.shape != gt.shape:
+        raise ValueError(f"prediction shape {pred.shape} != ground-truth shape {gt.shape}")
+    ok = (np.isfinite(pred) & (pred > 0) & np.isfinite(gt) & (gt > min_depth)
+          & (gt < max_depth))
+    keys = ("imae_per_km", "irmse_per_km", "abs_rel", "median_rel", "delta_1.25", "scale")
+    if not ok.any():
+        return {k: float("nan") for k in keys} | {"coverage": 0.0, "n_pixels": 0}
+    scale = float(np.median(gt[ok] / pred[ok]))
+    m = depth_metrics(pred * scale, gt, min_depth=min_depth, max_depth=max_depth)
+    return {"imae_per_km": m["imae_per_km"], "irmse_per_km": m["irmse_per_km"],
+            "abs_rel": m["mean_rel"], "median_rel": m["median_rel"],
+            "delta_1.25": m["delta_1.25"], "scale": scale, "coverage": m["coverage"],
+            "n_pixels": m["n_pixels"]}
+
+
+_SUMMARY_KEYS = ("imae_per_km", "irmse_per_km", "abs_rel", "delta_1.25", "coverage",
+                 "rot_err_mean_deg", "tdir_err_mean_deg", "seconds")
+_CONST_KEYS = ("imae_per_km", "irmse_per_km", "abs_rel", "delta_1.25", "coverage")
+
+
+def _nanmean(values) -> float:
+    a = np.asarray([np.nan if v is None else v for v in values], float)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else float("nan")
+
+
+@dataclass
+class ScanNetSfMResult:
+    """Output of :func:`run_scannet_sfm`.
+
+    Attributes:
+        rows: one dict per SfM run: ``scene``, ``ref``, ``views``, ``n_views``,
+            ``init``, ``status`` (SfM status, or ``"error"`` with ``error``),
+            ``view_status``, the :func:`evaluate_depth` metrics, the
+            constant-depth baseline's ``const_imae_per_km``,
+            ``const_irmse_per_km``, ``const_abs_rel``, per-view
+            ``rot_err_deg`` / ``tdir_err_deg`` and their means
+            ``rot_err_mean_deg`` / ``tdir_err_mean_deg``, ground-truth motion
+            ``gt_translation`` / ``gt_rotation_deg``, ``seconds``.
+        skipped: discarded references with the reason.
+        config: the protocol configuration.
+    """
+
+    rows: List[Dict[str, object]]
+    skipped: List[Dict[str, object]]
+    config: ScanNetProtocolConfig
+
+    @property
+    def n_sets(self) -> int:
+        return len({(r["scene"], r["ref"]) for r in self.rows})
+
+    def summary(self) -> List[Dict[str, object]]:
+        """Means per (init, number of supporting views), NaN-metrics of failed
+        runs left out (``n_error`` counts them); ``n_ok`` counts SfM status ok.
+        A row ``init = "constant depth"`` (n_views 0) gives the median-scaled
+        constant-depth baseline on the same references."""
+        out: List[Dict[str, object]] = []
+        for init in self.config.inits:
+            for n in range(1, self.config.max_views + 1):
+                rs = [r for r in self.rows if r["init"] == init and r["n_views"] == n]
+                if not rs:
+                    continue
+                row: Dict[str, object] = {"init": init, "n_views": n, "n_runs": len(rs),
+                                          "n_ok": sum(r["status"] == "ok" for r in rs),
+                                          "n_error": sum(r["status"] == "error" for r in rs)}
+                for k in _SUMMARY_KEYS:
+                    row[k] = _nanmean(r.get(k) for r in rs)
+                out.append(row)
+        refs: Dict[Tuple[str, int], Dict[str, object]] = {}
+        for r in self.rows:
+            refs.setdefault((r["scene"], r["ref"]), r)
+        if refs:
+            rs = list(refs.values())
+            row = {"init": "constant depth", "n_views": 0, "n_runs": len(rs), "n_ok": len(rs),
+                   "n_error": 0}
+            for k in _SUMMARY_KEYS:
+                row[k] = (_nanmean(r.get("const_" + k) for r in rs) if k in _CONST_KEYS
+                          else float("nan"))
+            out.append(row)
+        return out
+
+    def table(self) -> str:
+        """Markdown table of :meth:`summary` (iMAE / iRMSE in 1/km, errors in degrees)."""
+        c = self.config
+        lines = [f"ScanNet few-view SfM: {self.n_sets} view sets (reference every {c.stride} "
+                 f"frames, offsets {list(c.offsets)}), {len(self.skipped)} discarded, front-end "
+                 f"{c.frontend} at {c.working_size[0]}x{c.working_size[1]}, depth median-scaled, "
+                 f"GT in ({c.min_depth}, {c.max_depth}) m",
+                 "| init | views | runs | ok | iMAE [1/km] | iRMSE [1/km] | abs-rel | d<1.25 | "
+                 "rot err [deg] | t-dir err [deg] | s/run |",
+                 "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+
+        def f(x, d=2):
+            return "-" if x is None or not np.isfinite(x) else f"{x:.{d}f}"
+
+        for r in self.summary():
+            lines.append(f"| {r['init']} | {r['n_views'] or '-'} | {r['n_runs']} | {r['n_ok']} | "
+                         f"{f(r['imae_per_km'])} | {f(r['irmse_per_km'])} | "
+                         f"{f(r['abs_rel'], 3)} | {f(r['delta_1.25'], 3)} | "
+                         f"{f(r['rot_err_mean_deg'])} | {f(r['tdir_err_mean_deg'])} | "
+                         f"{f(r['seconds'], 1)} |")
+        return "\n".join(lines)
+
+    def to_dict(self) -> Dict[str, object]:
+        """JSON-friendly dict (config, summary, rows, skipped)."""
+        cfg = dataclasses.asdict(self.config)
+        cfg["sfm"] = repr(self.config.sfm)
+        return {"config": cfg, "summary": self.summary(), "rows": self.rows,
+                "skipped": self.skipped}
+
+
+def _pose_errors(T_est: Sequence[np.ndarray], T_gt: Sequence[np.ndarray]):
+    rot, tdir = [], []
+    for Te, Tg in zip(T_est, T_gt):
+        if not np.all(np.isfinite(Te)):
+            rot.append(float("nan"))
+            tdir.append(float("nan"))
+            continue
+        e = relative_pose_errors(Te, Tg)
+        rot.append(float(e["rotation_error_deg"]))
+        tdir.append(float(e["translation_direction_error_deg"]))
+    return rot, tdir
+
+
+def run_scannet_sfm(root: PathLike, scenes: Optional[Sequence[str]] = None,
+                    config: ScanNetProtocolConfig = ScanNetProtocolConfig(),
+                    frontend: Optional[PrimitiveFrontEnd] = None,
+                    scene_config: Optional[ScanNetConfig] = None
+                    ) -> ScanNetSfMResult:
+    """Run the few-view SfM protocol on exported ScanNet scenes.
+
+    Args:
+        root: folder holding ``<scene_id>/`` folders (or one scene folder).
+        scenes: scene ids to evaluate (default: every scene under ``root``).
+        config: :class:`ScanNetProtocolConfig`.
+        frontend: a ready :class:`~spgeo.frontend.PrimitiveFrontEnd` to use
+            instead of ``config.frontend`` at ``config.working_size``.
+        scene_config: reader options (:class:`ScanNetConfig`), default: images
+            at the depth resolution with the colour intrinsics.
+    Returns:
+        :class:`ScanNetSfMResult` (``table()`` prints the protocol table).
+    Raises:
+        FileNotFoundError: a missing root, scene, or scene sub-folder (named).
+    """
+    from tqdm import tqdm
+
+    from spgeo.frontend import FrontEndConfig, make_frontend
+
+    root = Path(root).expanduser()
+    if scenes:
+        if not root.is_dir():
+            raise FileNotFoundError(f"ScanNet root folder not found: {root}")
+        scene_dirs = []
+        for s in scenes:
+            p = root / s
+            if not p.is_dir():
+                raise FileNotFoundError(f"ScanNet scene folder not found: {p}")
+            scene_dirs.append(p)
+    else:
+        scene_dirs = list_scenes(root)
+    readers = [ScanNetScene(p, scene_config or ScanNetConfig()) for p in scene_dirs]
+
+    all_sets: List[Tuple[ScanNetScene, ViewSet]] = []
+    skipped: List[Dict[str, object]] = []
+    for rd in readers:
+        poses = dict(zip(rd.frame_numbers, rd.ground_truth()))
+        sets, skip = select_view_sets(rd.frame_numbers, poses, config, rd.scene_id)
+        all_sets += [(rd, s) for s in sets]
+        skipped += skip
+    if config.max_samples is not None:
+        all_sets = all_sets[:int(config.max_samples)]
+    log.info("ScanNet protocol: %d view sets, %d references discarded", len(all_sets),
+             len(skipped))
+    if not all_sets:
+        raise ValueError(f"no usable view set in {[str(p) for p in scene_dirs]} "
+                         f"(stride {config.stride}, offsets {config.offsets}); discarded: "
+                         f"{skipped[:5]}")
+
+    fe = frontend or make_frontend(config.frontend,
+                                   FrontEndConfig(working_size=tuple(config.working_size)))
+    rows: List[Dict[str, object]] = []
+    for rd, vs in tqdm(all_sets, desc="ScanNet SfM", disable=not config.progress):
+        ref = rd[rd.frame_position(vs.ref)]
+        views = [rd[rd.frame_position(v)] for v in vs.views]
+        if ref.depth is None:
+            raise ValueError(f"scene {vs.scene}: the protocol needs depth (load_depth=True)")
+        const_done: Dict[Tuple[int, int], Dict[str, float]] = {}
+        for n in range(1, config.max_views + 1):
+            for init in config.inits:
+                row: Dict[str, object] = {
+                    "scene": vs.scene, "ref": vs.ref, "views": list(vs.views[:n]), "n_views": n,
+                    "init": init, "gt_translation": vs.gt_translation[:n],
+                    "gt_rotation_deg": vs.gt_rotation_deg[:n]}
+                t0 = time.perf_counter()
+                try:
+                    res = few_view_sfm(ref.image, [v.image for v in views[:n]], ref.camera, fe,
+                                       dataclasses.replace(config.sfm, init=init),
+                                       ref_depth=ref.depth)
+                except (ValueError, RuntimeError) as exc:
+                    log.warning("SfM failed on %s ref %d (%d views, %s): %s", vs.scene, vs.ref,
+                                n, init, exc)
+                    row.update(status="error", error=str(exc),
+                               seconds=time.perf_counter() - t0)
+                    rows.append(row)
+                    continue
+                row["seconds"] = time.perf_counter() - t0
+                row["status"] = res.status
+                row["view_status"] = list(res.view_status)
+                gt = resize_depth_nearest(ref.depth, res.camera.size)
+                row.update(evaluate_depth(res.depth, gt, config.min_depth, config.max_depth))
+                key = res.camera.size
+                if key not in const_done:
+                    ok = np.isfinite(gt) & (gt > config.min_depth) & (gt < config.max_depth)
+                    const = np.full(gt.shape, float(np.median(gt[ok])) if ok.any() else np.nan)
+                    const_done[key] = evaluate_depth(const, gt, config.min_depth,
+                                                     config.max_depth)
+                for k in _CONST_KEYS:
+                    row["const_" + k] = const_done[key][k]
+                rot, tdir = _pose_errors(res.T_ref_view, vs.T_ref_view_gt[:n])
+                row["rot_err_deg"], row["tdir_err_deg"] = rot, tdir
+                row["rot_err_mean_deg"] = _nanmean(rot)
+                row["tdir_err_mean_deg"] = _nanmean(tdir)
+                rows.append(row)
+                log.debug("%s ref %d n=%d %s: %s iMAE %.2f rot %.2f deg", vs.scene, vs.ref, n,
+                          init, res.status, row["imae_per_km"], row["rot_err_mean_deg"])
+    return ScanNetSfMResult(rows, skipped, config)
+
+
+# ================================================================= writer
+def _save_matrix(path: Path, M: np.ndarray) -> None:
+    """4x4 text like ``SensorData.save_mat_to_file`` (one ``%f`` row per line)."""
+    with open(path, "w", encoding="utf-8") as fh:
+        for row in np.asarray(M, np.float64):
+            fh.write(" ".join("%f" % v for v in row) + "\n")
+
+
+def write_synthetic_scannet(root: PathLike, scene_id: str = "scene0000_00", seed: int = 0,
+                            n_frames: int = 61, color_size: Tuple[int, int] = (640, 480),
+                            depth_size: Tuple[int, int] = (320, 240), frame_skip: int = 1,
+                            fps: float = 30.0, trajectory=None, supersample: int = 2,
+                            invalid_pose_frames: Sequence[int] = (), jpeg_quality: int = 95,
+                            scene=None, progress: bool = False) -> Path:
+    """Write a synthetic scene in the ScanNet export layout and return its folder.
+
+    A procedural room (:meth:`SyntheticScene.generate`, ``seed``) seen along a
+    smooth hand-held trajectory (:func:`spgeo.synthetic.make_trajectory`,
+    ``n_frames`` at ``fps``, :class:`TrajectoryConfig` ``trajectory``); frames
+    ``0, frame_skip, 2 frame_skip, ...`` are written like SensReader's
+    ``--frame_skip``: ``color/<n>.jpg`` (``color_size``, JPEG quality
+    ``jpeg_quality``, rendered with ``supersample``), ``depth/<n>.png``
+    (``depth_size``, uint16 mm, 0 = none), ``pose/<n>.txt`` (4x4
+    camera-to-world, ``-inf`` everywhere for frames in ``invalid_pose_frames``,
+    as ScanNet marks lost tracking), ``intrinsic/intrinsic_{color,depth}.txt``
+    and identity ``extrinsic_{color,depth}.txt``.  Colour and depth cameras are
+    the same view (:func:`spgeo.synthetic.default_camera` at each size), so a
+    reader that resizes colour to the depth grid must align them exactly.
+    ``scene``: a ready :class:`SyntheticScene` (skips generation);
+    ``progress``: tqdm progress bar over the frames.
+    """
+    from spgeo import synthetic
+
+    if int(n_frames) < 1 or int(frame_skip) < 1:
+        raise ValueError("n_frames and frame_skip must be >= 1")
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", scene_id):
+        raise ValueError(f"invalid scene id {scene_id!r}")
+    out = Path(root) / scene_id
+    for sub in ("color", "depth", "pose", "intrinsic"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    scene = scene if scene is not None else synthetic.SyntheticScene.generate(seed=int(seed))
+    poses = synthetic.make_trajectory(int(n_frames), int(seed),
+                                      trajectory or synthetic.TrajectoryConfig(fps=fps))
+    cam_c = synthetic.default_camera(*color_size)
+    cam_d = synthetic.default_camera(*depth_size)
+    invalid = set(int(i) for i in invalid_pose_frames)
+    numbers = list(range(0, int(n_frames), int(frame_skip)))
+    from tqdm import tqdm
+
+    for n in tqdm(numbers, desc=f"synthetic ScanNet {scene_id}", disable=not progress):
+        T = poses[n]
+        view = scene.render(cam_c, T, supersample=supersample)
+        bgr = cv2.cvtColor(np.clip(np.rint(view.rgb * 255), 0, 255).astype(np.uint8),
+                           cv2.COLOR_RGB2BGR)
+        if not cv2.imwrite(str(out / "color" / f"{n}.jpg"), bgr,
+                           [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]):
+            raise OSError(f"could not write {out / 'color' / f'{n}.jpg'}")
+        d = scene.render_depth(cam_d, T)
+        d16 = np.clip(np.rint(np.nan_to_num(d * 1000.0, nan=0.0)), 0, 65535).astype(np.uint16)
+        if not cv2.imwrite(str(out / "depth" / f"{n}.png"), d16):
+            raise OSError(f"could not write {out / 'depth' / f'{n}.png'}")
+        _save_matrix(out / "pose" / f"{n}.txt", np.full((4, 4), -np.inf) if n in invalid else T)
+    for name, cam in (("color", cam_c), ("depth", cam_d)):
+        K4 = np.eye(4)
+        K4[:3, :3] = cam.K
+        _save_matrix(out / "intrinsic" / f"intrinsic_{name}.txt", K4)
+        _save_matrix(out / "intrinsic" / f"extrinsic_{name}.txt", np.eye(4))
+    log.info("wrote synthetic ScanNet scene %s (%d frames) to %s", scene_id, len(numbers), out)
+    return out
+
+
+# ================================================================= script
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.scannet ROOT [--scenes ...] [--max-views 3]
+    [--stride 200] [--frontend classical] [--max-samples N]``: print the table."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description="ScanNet few-view SfM protocol (SuperPrimitive)")
+    ap.add_argument("root", help="folder of exported ScanNet scenes (<scene_id>/color, depth, "
+                                 "pose, intrinsic)")
+    ap.add_argument("--scenes", nargs="+", default=None, help="scene ids (default: all)")
+    ap.add_argument("--max-views", type=int, default=3)
+    ap.add_argument("--stride", type=int, default=200)
+    ap.add_argument("--offsets", type=int, nargs="+", default=[10, -10, 20, -20, 30, -30])
+    ap.add_argument("--frontend", default="classical", choices=("classical", "depth", "onnx"))
+    ap.add_argument("--working-size", type=int, nargs=2, default=[320, 240],
+                    metavar=("W", "H"))
+    ap.add_argument("--inits", nargs="+", default=["identity", "twoview"],
+                    choices=("identity", "twoview"))
+    ap.add_argument("--max-samples", type=int, default=None)
+    ap.add_argument("--json", default=None, help="also write rows and summary to this file")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    try:
+        cfg = ScanNetProtocolConfig(stride=args.stride, offsets=tuple(args.offsets),
+                                    max_views=args.max_views, frontend=args.frontend,
+                                    working_size=tuple(args.working_size),
+                                    inits=tuple(args.inits), max_samples=args.max_samples)
+        res = run_scannet_sfm(args.root, args.scenes, cfg)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}")
+        return 2
+    print(res.table())
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump(res.to_dict(), fh, indent=1, default=_json_default)
+    return 0
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
