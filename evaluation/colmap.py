@@ -341,7 +341,6 @@ def run_colmap_fewview(images: Sequence[ImageInput], camera: PinholeCamera,
         missing files.
     """
     import cv2
-    import pycolmap
 
     from spgeo.twoview import _quiet_colmap
 

@@ -58,7 +58,8 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.datasets.common import (FrameSelection, FrameSequence, config_from_kwargs,
-                                   nearest_rigid, read_depth_png, read_rgb, select_frames)
+                                   read_depth_png, read_pose_file, read_rgb,
+                                   select_frames)
 from spgeo.frame import Frame
 from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
@@ -234,17 +235,7 @@ class ScanNetScene(FrameSequence):
         raise ValueError(f"ScanNet scene {self._name}: no frame number {number}")
 
     def _read_pose(self, rec: _Record) -> Optional[np.ndarray]:
-        if not rec.pose_path.is_file():
-            log.warning("ScanNet: pose file missing: %s", rec.pose_path)
-            return None
-        T = read_scannet_matrix(rec.pose_path)
-        if not np.all(np.isfinite(T)):
-            log.debug("ScanNet: invalid (non-finite) pose in %s", rec.pose_path)
-            return None
-        try:
-            return nearest_rigid(T, str(rec.pose_path))
-        except ValueError as exc:
-            raise ValueError(f"invalid pose file {rec.pose_path}: {exc}") from None
+        return read_pose_file(rec.pose_path, "ScanNet", read_scannet_matrix)
 
     def ground_truth(self) -> List[Optional[np.ndarray]]:
         """Camera-to-world poses of the selection (None where invalid), reading

@@ -15,9 +15,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence
-
-import numpy as np
+from typing import Callable, Dict, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
 from spgeo.evaluation.colmap import colmap_estimator, compare_on_dataset

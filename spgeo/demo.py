@@ -7,7 +7,6 @@ Everything here is offline: no model download, no data outside the package.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

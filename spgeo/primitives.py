@@ -385,13 +385,12 @@ class PrimitiveSet:
         if r.size:
             # grouped median: sort by (id, residual) and pick middle elements
             order = np.lexsort((r, ids))
-            ids_s, r_s = ids[order], r[order]
+            r_s = r[order]
             starts = np.concatenate([[0], np.cumsum(n_points)[:-1]])
             has = n_points >= max(1, min_points)
             lo = starts + (n_points - 1) // 2
             hi = starts + n_points // 2
             s[has] = 0.5 * (r_s[lo[has]] + r_s[hi[has]])
-            del ids_s
         return s, n_points
 
     # ------------------------------------------------------------ subsets / io

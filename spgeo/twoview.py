@@ -699,9 +699,9 @@ def _opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config:
         H = None
     if H is not None and np.all(np.isfinite(H)):
         try:
-            n, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
+            _, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
         except cv2.error:
-            n, Rs, ts = 0, [], []
+            Rs, ts = [], []
         for R, t in zip(Rs, ts):
             if np.linalg.norm(t) > 1e-9:
                 candidates.append((np.asarray(R, float), np.asarray(t, float).ravel()))

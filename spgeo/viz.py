@@ -1,7 +1,7 @@
 """Pictures for notebooks and the demo: segments, normals and depth as uint8 RGB."""
 from __future__ import annotations
 
-from typing import Optional, Sequence, Tuple
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np

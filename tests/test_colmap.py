@@ -26,7 +26,6 @@ import math
 import numpy as np
 import pytest
 
-from spgeo.camera import PinholeCamera
 from spgeo.frame import Frame
 from spgeo.geometry import invert_pose, relative_pose, so3_exp
 from spgeo.evaluation.colmap import (ColmapConfig, colmap_estimator, compare_fewview,

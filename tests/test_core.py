@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from analytic import plane, sphere
+from analytic import sphere
 from spgeo import PinholeCamera, PrimitiveSet
 from spgeo import geometry as geo
 from spgeo.images import (gaussian_pyramid, load_image, sample_bilinear, scharr_gradients,

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from spgeo import synthetic
-from spgeo.frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
+from spgeo.frontend import LabelSegmenter, PrimitiveFrontEnd, make_frontend
 from spgeo.geometry import relative_pose, rotation_angle_deg
 from spgeo.sfm import SfMConfig, few_view_sfm
 

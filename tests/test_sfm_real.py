@@ -6,7 +6,6 @@ the closing notes); COLMAP on the same frames is measured in test_colmap.py.
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from spgeo.evaluation.sfm_real import run_case, spgeo_estimator
 

@@ -312,6 +312,27 @@ def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.nd
     return out
 
 
+
+def read_pose_file(path: PathLike, dataset: str, read_matrix) -> Optional[np.ndarray]:
+    """A 4x4 camera-to-world pose file -> rigid 4x4, or None (with a log line)
+    when the file is missing or holds non-finite values (invalid poses).
+
+    ``read_matrix(path)`` parses the file (raising ``FileNotFoundError`` /
+    ``ValueError`` naming it); a matrix too far from rigid raises ``ValueError``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        logger.warning("%s: pose file missing: %s", dataset, path)
+        return None
+    T = read_matrix(path)
+    if not np.all(np.isfinite(T)):
+        logger.debug("%s: invalid (non-finite) pose in %s", dataset, path)
+        return None
+    try:
+        return nearest_rigid(T, str(path))
+    except ValueError as exc:
+        raise ValueError(f"invalid pose file {path}: {exc}") from None
+
 def check_selection_files(paths: Sequence[Path], what: str) -> None:
     """Raise ``FileNotFoundError`` naming the first listed file that does not exist."""
     for p in paths:

@@ -31,7 +31,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..frame import Frame
 from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     nearest_rigid, read_depth_png, read_rgb, select_frames)
+                     read_depth_png, read_pose_file, read_rgb,
+                     select_frames)
 
 __all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
            "read_matrix_file"]
@@ -143,17 +144,7 @@ class SevenScenesSequence(FrameSequence):
                                          root / f"{stem}.pose.txt", stem))
 
     def _read_pose(self, rec: _Record) -> Optional[np.ndarray]:
-        if not rec.pose_path.is_file():
-            logger.warning("7-Scenes: pose file missing: %s", rec.pose_path)
-            return None
-        T = read_matrix_file(rec.pose_path, (4, 4))
-        if not np.all(np.isfinite(T)):
-            logger.warning("7-Scenes: non-finite pose in %s, frame has no pose", rec.pose_path)
-            return None
-        try:
-            return nearest_rigid(T, str(rec.pose_path))
-        except ValueError as exc:
-            raise ValueError(f"invalid pose file {rec.pose_path}: {exc}") from None
+        return read_pose_file(rec.pose_path, "7-Scenes", lambda p: read_matrix_file(p, (4, 4)))
 
     def ground_truth(self) -> List[Optional[np.ndarray]]:
         """Camera-to-world poses of the selection (reads only the pose files)."""
