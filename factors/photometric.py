@@ -66,7 +66,11 @@ class PhotometricConfig:
             its optical axis, in the map's units) are invalid (default 1e-3).
         normalise: ``"valid"`` (default): the per-primitive mean runs over the
             pixels valid in the target; ``"all"``: over all of the
-            primitive's pixels (then leaving the image lowers the cost).
+            primitive's pixels (then leaving the image lowers the cost);
+            ``"none"``: no mean, every pixel weighted ``1 / pixel_sigma`` (a
+            per-pixel noise model: covariances in physical units).
+        pixel_sigma: per-pixel photometric noise std (intensity units) used by
+            ``normalise="none"``.
         behind_penalty: photometric error (intensity units) charged to a pixel
             whose point lies behind the reference or target camera (default
             0.5, about the largest plausible photometric error).
@@ -76,6 +80,7 @@ class PhotometricConfig:
     huber_delta: float = 0.04
     min_depth: float = 1e-3
     normalise: str = "valid"
+    pixel_sigma: float = 0.02
     behind_penalty: float = 0.5
 
     def __post_init__(self) -> None:
@@ -83,9 +88,11 @@ class PhotometricConfig:
             raise ValueError(f"PhotometricConfig.robust must be 'huber' or 'none', got {self.robust!r}")
         if not self.huber_delta > 0:
             raise ValueError("PhotometricConfig.huber_delta must be > 0")
-        if self.normalise not in ("valid", "all"):
-            raise ValueError(f"PhotometricConfig.normalise must be 'valid' or 'all', "
+        if self.normalise not in ("valid", "all", "none"):
+            raise ValueError(f"PhotometricConfig.normalise must be 'valid', 'all' or 'none', "
                              f"got {self.normalise!r}")
+        if not self.pixel_sigma > 0:
+            raise ValueError("PhotometricConfig.pixel_sigma must be > 0")
 
 
 def robust_weights(r: np.ndarray, config: PhotometricConfig) -> np.ndarray:
@@ -264,6 +271,8 @@ class PrimitivePhotometricFactor:
         r = ea * I_t + b - self.ref_intensity
         if self.config.normalise == "valid":
             scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
+        elif self.config.normalise == "none":
+            scale = 1.0 / self.config.pixel_sigma
         else:
             scale = self.scale
         w = scale * robust_weights(r, self.config) * valid

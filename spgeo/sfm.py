@@ -14,6 +14,7 @@ global scale* (exactly so when all scales start at 0, the paper's default).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -97,6 +98,11 @@ class SfMConfig:
         min_valid_fraction: a view in which fewer primitive pixels project
             inside the image is flagged ``low_overlap``.
         marginals: compute per-primitive scale stds and pose covariances.
+        max_log_scale_std: primitives whose gauge-free log-scale std exceeds
+            this (0.5: a factor 1.65 in depth) are unconstrained by the views
+            (e.g. textureless, or seen by no view): they are listed in
+            ``SfMResult.unconstrained`` and left out of ``depth`` instead of
+            reporting a depth the data does not support (needs ``marginals``).
         lm_lambda_initial: initial LM damping.
     """
 
@@ -117,6 +123,7 @@ class SfMConfig:
     min_parallax: float = 0.01
     min_valid_fraction: float = 0.3
     marginals: bool = True
+    max_log_scale_std: float = 0.5
     lm_lambda_initial: float = 1e-3
 
     def __post_init__(self) -> None:
@@ -148,10 +155,21 @@ class SfMResult:
             model: the planes' depths are baked into ``log_depth``).
         depth: (H, W) reference depth (metres up to the global scale), NaN uncovered.
         camera: the reference camera at the working resolution.
-        log_scale_std: (N,) marginal std of each primitive's log-scale (scaled
-            model; NaN otherwise or when marginals are off/failed).
+        log_scale_std: (N,) gauge-free marginal std of each primitive's
+            log-scale: conditioned on the mean log-scale, since the global scale
+            is fixed only by the weak prior and its (large) variance is shared by
+            every primitive (scaled model; NaN otherwise or when marginals are
+            off/failed).
+        unconstrained: indices of primitives whose log-scale only the prior
+            constrains (marginal std over half the prior's: no view sees them
+            usefully) or whose ``log_scale_std`` exceeds
+            ``config.max_log_scale_std``; they are not in ``depth``.
         pose_covariances: 6x6 marginal covariance per view (rotation first,
             gtsam tangent at the estimate), conditioned on the gauge priors.
+            Marginals use a per-pixel noise model whose sigma is the robust
+            (MAD) std of the photometric residuals at the solution
+            (``report["pixel_sigma"]``); pixels are treated as independent, so
+            the uncertainties are optimistic where residuals are correlated.
         report: per-level iterations, costs, valid fractions, timings.
     """
 
@@ -165,6 +183,7 @@ class SfMResult:
     pose_covariances: List[Optional[np.ndarray]]
     brightness: List[np.ndarray]
     report: dict
+    unconstrained: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def ok(self) -> bool:
@@ -263,13 +282,14 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}
     graph = None
+    builders: List[PrimitivePhotometricFactor] = []
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
     any_identity = init_T_ref_view is None or any(
         np.allclose(T, np.eye(4)) for T in init_T_ref_view)
     if config.rotation_first and any_identity:
         stages.insert(0, (n_levels - 1, True))
     for lvl, rotation_only in stages:
-        graph = _build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
+        graph, builders = _build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
         if rotation_only:
             _hold_translation_and_shape(graph, values, len(views), len(prims))
         params = gtsam.LevenbergMarquardtParams()
@@ -329,24 +349,73 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         order = ("diverged", "unverified", "low_parallax", "low_overlap")
         status = next((s_ for s_ in order if s_ in view_status), "ok")
     log_std = np.full(len(prims), np.nan)
+    prior_only = np.zeros(len(prims), dtype=bool)
     covs: List[Optional[np.ndarray]] = [None] * len(views)
     if config.marginals and status != "diverged":
         try:
-            marg = gtsam.Marginals(graph, values)
+            # per-pixel noise model with sigma from the residuals at the solution
+            # (robust MAD), so covariances are in physical units
+            res_pix = np.concatenate([b.evaluate(
+                values.atPose3(b.keys[0]).matrix(), values.atPose3(b.keys[1]).matrix(),
+                values.atVector(b.keys[2]),
+                values.atVector(b.keys[3]) if b.has_brightness else None,
+                jacobians=False)["r"] for b in builders]) if builders else np.zeros(0)
+            res_pix = res_pix[res_pix != 0]
+            sigma = float(1.4826 * np.median(np.abs(res_pix))) if res_pix.size else 0.02
+            sigma = max(sigma, 1e-3)
+            report["pixel_sigma"] = sigma
+            # the gauge prior keeps its strength relative to a median primitive
+            prior_w = config.scale_prior_weight * float(np.median(prims.sizes)) / sigma ** 2
+            pix_cfg = dataclasses.replace(config, scale_prior_weight=prior_w,
+                                          photometric=dataclasses.replace(
+                                              config.photometric, normalise="none",
+                                              pixel_sigma=sigma))
+            mgraph, _ = _build_graph(prims, rays_all, ref_pyr, view_pyrs, 0, values, pix_cfg)
+            marg = gtsam.Marginals(mgraph, values)
             for j in range(len(views)):
                 covs[j] = marg.marginalCovariance(pose_key(j + 1))
             if config.shape_model == "scaled":
-                log_std = np.array([np.sqrt(marg.marginalCovariance(scale_key(i))[0, 0])
-                                    for i in range(len(prims))])
+                log_std, prior_only = _gauge_free_scale_std(marg, len(prims),
+                                                            1.0 / np.sqrt(prior_w))
         except RuntimeError as exc:  # indeterminant system: report, do not crash
             log.warning("marginals failed: %s", exc)
             report["marginals_error"] = str(exc)
+    unconstrained = np.flatnonzero(prior_only | (log_std > config.max_log_scale_std))
+    if unconstrained.size:
+        keep = np.setdiff1d(np.arange(len(solved)), unconstrained)
+        depth = solved.subset(keep).depth_map() if keep.size else np.full(cam.shape, np.nan)
+        log.info("%d primitives unconstrained by the views (log-scale std > %.2f): not in "
+                 "the depth map", unconstrained.size, config.max_log_scale_std)
+    report["n_unconstrained"] = int(unconstrained.size)
     report.update({"valid_fraction": valid_frac, "seconds_frontend": t_front - t_start,
                    "seconds_optimise": t_opt - t_front,
                    "seconds_total": time.perf_counter() - t_start,
                    "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
     return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
-                     brightness, report)
+                     brightness, report, unconstrained)
+
+
+def _gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
+    """Std of each log-scale with the global-scale gauge removed, and a mask of
+    the scales constrained by nothing but their prior.
+
+    The joint marginal ``C`` of all log-scales carries the global scale (fixed
+    only by the weak prior) as one large shared mode.  Scales whose own std is
+    over half the prior's are constrained by the prior alone (returned in the
+    mask, raw std kept).  The others are conditioned on their mean log-scale:
+    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
+    """
+    keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
+    C = marg.jointMarginalCovariance(keys).fullMatrix()
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    con = np.flatnonzero(std <= 0.5 * prior_sigma)
+    if con.size >= 2:
+        Cc = C[np.ix_(con, con)]
+        c1 = Cc.sum(axis=1)
+        std[con] = np.sqrt(np.maximum(np.diag(Cc) - c1 ** 2 / c1.sum(), 0.0))
+    prior_only = np.ones(n, dtype=bool)
+    prior_only[con] = False
+    return std, prior_only
 
 
 def _triangulate(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np.ndarray,
@@ -425,8 +494,10 @@ def _hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam
 
 
 def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
-                 values: gtsam.Values, config: SfMConfig) -> gtsam.NonlinearFactorGraph:
+                 values: gtsam.Values, config: SfMConfig):
+    """The graph of one pyramid level; returns ``(graph, photometric factor builders)``."""
     graph = gtsam.NonlinearFactorGraph()
+    builders: List[PrimitivePhotometricFactor] = []
     graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
     n_views = len(view_pyrs)
     if config.brightness:
@@ -458,7 +529,8 @@ def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, 
                 brightness_key(j + 1) if config.brightness else None, config.photometric,
                 n_pixels=ent.size)
             graph.add(f.factor)
-    return graph
+            builders.append(f)
+    return graph, builders
 
 
 def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, values,

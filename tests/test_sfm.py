@@ -53,7 +53,8 @@ def test_depth_frontend_accuracy(seed2):
     assert max(rot_errors(res, gt)) < 0.5, rot_errors(res, gt)
     assert max(tdir_errors(res, gt)) < 5.0, tdir_errors(res, gt)
     err, cover = median_scaled_depth_error(res, ref.depth)
-    assert err < 0.03 and cover > 0.9
+    # primitives no view constrains (e.g. at the border) are left out of the depth
+    assert err < 0.03 and cover > 0.85, (err, cover)
     # uncertainty outputs: finite, positive, and pose covariance is symmetric PSD
     assert np.all(np.isfinite(res.log_scale_std)) and np.all(res.log_scale_std > 0)
     C = res.pose_covariances[0]
@@ -120,7 +121,7 @@ def test_cli_writes_documented_outputs(tmp_path, seed2):
     for Tj, G in zip(T[1:], gt):
         assert rotation_angle_deg(Tj[:3, :3].T @ G[:3, :3]) < 1.0
     depth = np.load(out / "depth.npy")
-    assert depth.shape == (240, 320) and np.isfinite(depth).mean() > 0.9
+    assert depth.shape == (240, 320) and np.isfinite(depth).mean() > 0.85
     assert (out / "cloud.ply").stat().st_size > 1000
     rep = json.loads((out / "report.json").read_text())
     assert rep["status"] == "ok" and len(rep["pose_covariances"]) == 2
@@ -129,3 +130,22 @@ def test_cli_writes_documented_outputs(tmp_path, seed2):
     save_png(small, (ref.rgb[:100, :100] * 255).astype(np.uint8))
     assert main(["sfm", "--ref", paths[0], "--views", str(small), "--intrinsics",
                  "100,100,50,50", "--out", str(out)]) == 2
+
+
+def test_unconstrained_primitives_are_flagged_not_reported():
+    """Seed 4, classical front-end: one primitive drifts ~8 log-units (a factor
+    ~2000 in depth) when nothing but the weak scale prior constrains it.  The
+    gauge-free marginals must flag it and keep it out of the depth map."""
+    ref, views, gt = view_set(4)
+    res = few_view_sfm(ref.rgb, [v.rgb for v in views], CAM, make_frontend("classical"),
+                       SfMConfig())
+    assert res.unconstrained.size > 0
+    prims = res.primitives
+    for i in res.unconstrained:
+        only_here = prims.coverage().reshape(-1)[prims[i].pixels] == 1
+        assert np.all(np.isnan(res.depth.reshape(-1)[prims[i].pixels[only_here]]))
+    d, ok = res.depth, np.isfinite(res.depth)
+    k = np.median(ref.depth[ok] / d[ok])
+    abs_rel = np.mean(np.abs(d[ok] * k / ref.depth[ok] - 1))
+    assert abs_rel < 0.15 and ok.mean() > 0.9, (abs_rel, ok.mean())   # measured 0.053, 0.97
+    assert 0 < res.report["pixel_sigma"] < 0.05
