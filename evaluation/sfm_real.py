@@ -79,19 +79,27 @@ def run_case(name: str, shared: Optional[Path] = None,
                       "spgeo depth-normals (oracle)": spgeo_estimator("depth"),
                       "colmap": colmap_estimator(),
                       "sift two-view": twoview_estimator()}
-    return compare_on_dataset(frames, estimators)
+    comp = compare_on_dataset(frames, estimators)
+    comp["view_status"] = {name: list(getattr(fn, "last_result").view_status)
+                           for name, fn in estimators.items()
+                           if getattr(fn, "last_result", None) is not None
+                           and hasattr(fn.last_result, "view_status")}
+    return comp
 
 
 def _table(name: str, comp: dict) -> str:
-    lines = [f"{name}: rotation error / translation-direction error vs ground truth (deg)"]
+    lines = [f"{name}: rotation error / translation-direction error vs ground truth (deg)"
+             " [spgeo's status of each view]"]
     for method, res in comp["vs_gt"].items():
         cells = []
-        for r in res["rows"]:
+        status = comp.get("view_status", {}).get(method)
+        for j, r in enumerate(res["rows"]):
             if not r.get("available"):
                 cells.append("   unposed   ")
             else:
                 cells.append(f"{r['rotation_error_deg']:5.2f} / "
-                             f"{r['translation_direction_error_deg']:5.1f}")
+                             f"{r['translation_direction_error_deg']:5.1f}"
+                             + (f" [{status[j]}]" if status else ""))
         lines.append(f"  {method:30s} " + "   ".join(cells) + f"   ({comp['time_s'][method]:.1f} s)")
     return "\n".join(lines)
 
