@@ -40,9 +40,9 @@ def _run(args: argparse.Namespace) -> int:
     res = few_view_sfm(ref, views, cam, args.frontend, cfg)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    # one line per image: name tx ty tz qx qy qz qw (camera-to-reference, the
+    # reference at identity, translation in the reconstruction's unknown scale)
     with open(out / "poses.txt", "w") as fh:
-        fh.write("# name tx ty tz qx qy qz qw  (camera-to-reference; reference at identity; "
-                 "translation in the reconstruction's unknown global scale)\n")
         names = [Path(args.ref).name] + [Path(p).name for p in args.views]
         for name, T in zip(names, [np.eye(4)] + res.T_ref_view):
             fh.write(name + " " + " ".join(f"{x:.9f}" for x in pose_to_tum(T)) + "\n")

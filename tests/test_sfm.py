@@ -114,7 +114,8 @@ def test_cli_writes_documented_outputs(tmp_path, seed2):
     rc = main(["sfm", "--ref", paths[0], "--views", *paths[1:], "--intrinsics",
                f"{CAM.fx},{CAM.fy},{CAM.cx},{CAM.cy}", "--out", str(out)])
     assert rc == 0
-    lines = [l.split() for l in (out / "poses.txt").read_text().splitlines() if not l.startswith("#")]
+    lines = [l.split() for l in (out / "poses.txt").read_text().splitlines()]
+    assert all(len(l) == 8 for l in lines)
     assert [l[0] for l in lines] == ["img0.png", "img1.png", "img2.png"]
     T = [pose_from_tum([float(x) for x in l[1:]]) for l in lines]
     np.testing.assert_allclose(T[0], np.eye(4), atol=1e-9)
