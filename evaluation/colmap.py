@@ -44,6 +44,7 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.geometry import invert_pose, relative_pose
+from spgeo.jsonio import json_default
 
 from .pose_metrics import compare_pose_lists, relative_pose_errors
 
@@ -760,16 +761,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if res is not None:
             payload["colmap_result"] = res.summary()
         with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(payload, fh, indent=2, default=_json_default)
+            json.dump(payload, fh, indent=2, default=json_default)
     return 0 if res is not None and res.status != "failed" else 1
 
 
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    return str(obj)
 
 
 if __name__ == "__main__":  # pragma: no cover

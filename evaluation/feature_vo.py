@@ -65,6 +65,7 @@ import numpy as np
 from spgeo.camera import PinholeCamera
 from spgeo.frame import Frame
 from spgeo.geometry import invert_pose
+from spgeo.jsonio import json_default
 
 from .trajectory import (AteResult, ate_per_frame_and_keyframes, status_path_for, write_status,
                          write_tum)
@@ -857,17 +858,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     else:
         print("no ground-truth poses: ATE not computed")
     with open(out / "report.json", "w", encoding="utf-8") as fh:
-        json.dump(report, fh, indent=2, default=_json_default)
+        json.dump(report, fh, indent=2, default=json_default)
     print(f"wrote {out / 'trajectory.txt'}")
     return 0
 
 
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    return str(obj)
 
 
 if __name__ == "__main__":  # pragma: no cover

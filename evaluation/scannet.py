@@ -63,6 +63,7 @@ from spgeo.datasets.common import (FrameSelection, FrameSequence, config_from_kw
 from spgeo.frame import Frame
 from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
+from spgeo.jsonio import json_default
 from spgeo.sfm import SfMConfig, few_view_sfm
 
 from .metrics import depth_metrics
@@ -779,16 +780,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(res.table())
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(res.to_dict(), fh, indent=1, default=_json_default)
+            json.dump(res.to_dict(), fh, indent=1, default=json_default)
     return 0
 
 
-def _json_default(obj):
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    return str(obj)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .jsonio import json_default
+
 __all__ = ["add_sfm_cli", "parse_intrinsics"]
 
 
@@ -60,7 +62,7 @@ def _run(args: argparse.Namespace) -> int:
               "pose_covariances": [None if c is None else c.tolist() for c in res.pose_covariances],
               **{k: v for k, v in res.report.items()}}
     with open(out / "report.json", "w") as fh:
-        json.dump(report, fh, indent=2, default=_jsonable)
+        json.dump(report, fh, indent=2, default=json_default)
     print(f"status: {res.status}  ({', '.join(res.view_status)})")
     print(f"wrote {out / 'poses.txt'}, depth.npy, cloud.ply, report.json")
     return 0 if res.ok else 3
@@ -73,12 +75,6 @@ def _resized(img, size):
                                                                   interpolation=cv2.INTER_AREA)
 
 
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    return str(x)
 
 
 def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
