@@ -257,9 +257,9 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     ct = c * t
     b = np.bincount(P, weights=ct, minlength=m_tot) - np.bincount(Q, weights=ct, minlength=m_tot)
 
-    # Connected components of the edge graph (each needs one pinned value).
-    adj = sp.csr_matrix((np.ones(n_edges), (P, Q)), shape=(m_tot, m_tot))
-    n_comp, comp = csgraph.connected_components(adj, directed=False)
+    # Connected components of the edge graph (each needs one pinned value); L's
+    # off-diagonal pattern is the edge graph (weights c^2 >= min_abs_m^2 > 0).
+    n_comp, comp = csgraph.connected_components(L, directed=False)
     if anchors is None:
         anchor_pix = pix[offsets[:-1]]
     else:
