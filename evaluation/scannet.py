@@ -58,7 +58,7 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.datasets.common import (FrameSelection, FrameSequence, config_from_kwargs,
-                                   read_depth_png, read_pose_file, read_rgb,
+                                   index_frame_files, read_depth_png, read_pose_file, read_rgb,
                                    select_frames)
 from spgeo.frame import Frame
 from spgeo.frontend import PrimitiveFrontEnd
@@ -181,15 +181,7 @@ class ScanNetScene(FrameSequence):
             if not (root / sub).is_dir():
                 raise FileNotFoundError(f"ScanNet scene {root}: folder not found: {root / sub} "
                                         "(expected the SensReader export layout)")
-        found: Dict[int, Path] = {}
-        for p in (root / "color").iterdir():
-            m = _FRAME_RE.match(p.name)
-            if m:
-                n = int(m.group(1))
-                if n in found:
-                    raise ValueError(f"{root / 'color'}: frame {n} has two images "
-                                     f"({found[n].name}, {p.name})")
-                found[n] = p
+        found = index_frame_files(root / "color", _FRAME_RE, "images")
         if not found:
             raise FileNotFoundError(f"no <frame>.jpg images in {root / 'color'}")
         numbers = sorted(found)

@@ -76,6 +76,22 @@ def parse_frame_range(spec: str) -> slice:
     return slice(start, stop, step)
 
 
+def index_frame_files(folder: Path, pattern: "re.Pattern", what: str) -> Dict[int, Path]:
+    """Files of ``folder`` whose name matches ``pattern`` (group 1 = frame
+    number) -> ``{frame number: path}``.  Two files for one number raise
+    ``ValueError`` naming both."""
+    found: Dict[int, Path] = {}
+    for p in folder.iterdir():
+        m = pattern.match(p.name)
+        if m:
+            n = int(m.group(1))
+            if n in found:
+                raise ValueError(f"{folder}: frame {n} has two {what} "
+                                 f"({found[n].name}, {p.name})")
+            found[n] = p
+    return found
+
+
 def select_frames(numbers: Sequence[int], selection: FrameSelection) -> List[int]:
     """Positions (into ``numbers``) of the frames chosen by ``selection``.
 

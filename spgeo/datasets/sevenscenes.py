@@ -31,7 +31,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..frame import Frame
 from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     read_depth_png, read_pose_file, read_rgb,
+                     index_frame_files, read_depth_png, read_pose_file, read_rgb,
                      select_frames)
 
 __all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
@@ -109,15 +109,7 @@ class SevenScenesSequence(FrameSequence):
         self._name = root.resolve().name
         self._undistort = bool(cfg.undistort)
 
-        found = {}
-        for p in root.iterdir():
-            m = _COLOR_RE.match(p.name)
-            if m:
-                n = int(m.group(1))
-                if n in found:
-                    raise ValueError(f"{root}: frame {n} has two colour images "
-                                     f"({found[n].name}, {p.name})")
-                found[n] = p
+        found = index_frame_files(root, _COLOR_RE, "colour images")
         if not found:
             subs = sorted(q.name for q in root.iterdir() if q.is_dir() and q.name.startswith("seq"))
             hint = f" (pass one of its sequence folders: {subs})" if subs else ""
