@@ -42,6 +42,7 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.completion import CompletionConfig, complete_depth
+from spgeo.datasets.common import read_depth_png
 from spgeo.images import load_image, to_float_image, to_gray
 
 from .baselines_depth import IPBasicConfig, ip_basic_completion, linear_interpolation_completion
@@ -70,16 +71,7 @@ METRIC_KEYS = ("mae_mm", "rmse_mm", "imae_per_km", "irmse_per_km")
 # ----------------------------------------------------------------- depth files
 def read_void_depth(path: PathLike) -> np.ndarray:
     """A VOID 16-bit depth PNG as float64 metres (value / 256; 0 = missing)."""
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"VOID depth file not found: {path}")
-    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot decode depth PNG {path}")
-    if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise ValueError(f"{path}: expected a single-channel 16-bit PNG (depth * 256), got "
-                         f"dtype {raw.dtype} shape {raw.shape}")
-    return raw.astype(np.float64) / 256.0
+    return np.nan_to_num(read_depth_png(path, 256.0, dtype=np.float64), nan=0.0)
 
 
 def write_void_depth(path: PathLike, depth: np.ndarray) -> None:

@@ -14,6 +14,8 @@ import os
 
 import numpy as np
 
+from .datasets.common import read_depth_png
+
 __all__ = ["add_complete_cli", "read_sparse_depth", "write_depth_png_mm", "parse_intrinsics"]
 
 
@@ -30,8 +32,6 @@ def parse_intrinsics(text: str):
 
 def read_sparse_depth(path: str) -> np.ndarray:
     """Sparse depth in metres from a 16-bit PNG in mm (0 = missing) or a ``.npy`` in metres."""
-    import cv2
-
     if not os.path.isfile(path):
         raise FileNotFoundError(f"sparse depth file not found: {path}")
     if path.lower().endswith(".npy"):
@@ -40,13 +40,7 @@ def read_sparse_depth(path: str) -> np.ndarray:
         except Exception as exc:
             raise ValueError(f"cannot read {path}: {exc}") from None
         return np.asarray(d, dtype=np.float64)
-    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot decode sparse depth image {path}")
-    if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise ValueError(f"{path}: sparse depth PNG must be single-channel 16-bit (mm), got "
-                         f"dtype {raw.dtype} shape {raw.shape}")
-    return raw.astype(np.float64) / 1000.0
+    return np.nan_to_num(read_depth_png(path, 1000.0, dtype=np.float64), nan=0.0)
 
 
 def write_depth_png_mm(path: str, depth: np.ndarray) -> None:

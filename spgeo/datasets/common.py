@@ -269,8 +269,8 @@ def read_rgb(path: PathLike, camera: Optional[PinholeCamera] = None) -> np.ndarr
 
 
 def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera] = None,
-                   invalid_values: Sequence[int] = (0,)) -> np.ndarray:
-    """Read a uint16 depth PNG as float32 metres (``raw / scale``), NaN where invalid.
+                   invalid_values: Sequence[int] = (0,), dtype=np.float32) -> np.ndarray:
+    """Read a uint16 depth PNG as metres (``raw / scale``, in ``dtype``), NaN where invalid.
 
     ``invalid_values`` are raw values meaning "no measurement" (0 by default).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
@@ -283,13 +283,13 @@ def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera]
     raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise ValueError(f"cannot decode depth file: {path}")
-    if raw.ndim != 2 or raw.dtype not in (np.uint16, np.uint8):
-        raise ValueError(f"depth file {path} must be a single-channel uint16 image, got "
-                         f"shape {raw.shape} dtype {raw.dtype}")
+    if raw.ndim != 2 or raw.dtype != np.uint16:
+        raise ValueError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
+                         f"got shape {raw.shape} dtype {raw.dtype}")
     if camera is not None and raw.shape != camera.shape:
         raise ValueError(f"depth file {path} has shape {raw.shape}, expected "
                          f"({camera.height}, {camera.width}) for {camera!r}")
-    depth = raw.astype(np.float32) / np.float32(scale)
+    depth = raw.astype(dtype) / np.asarray(scale, dtype=dtype)
     invalid = np.isin(raw, np.asarray(invalid_values, dtype=raw.dtype))
     depth[invalid] = np.nan
     return depth
