@@ -58,8 +58,8 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.datasets.common import (FrameSelection, FrameSequence, config_from_kwargs,
-                                   index_frame_files, read_depth_png, read_pose_file, read_rgb,
-                                   select_frames)
+                                   index_frame_files, read_depth_png, read_matrix_file,
+                                   read_pose_file, read_rgb, select_frames)
 from spgeo.frame import Frame
 from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
@@ -89,17 +89,7 @@ def read_scannet_matrix(path: PathLike) -> np.ndarray:
     """A ScanNet 4x4 text matrix (pose or intrinsics) as float64; non-finite
     entries (``-inf`` of invalid poses) are kept.  Raises ``FileNotFoundError``
     or ``ValueError`` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"ScanNet matrix file not found: {path}")
-    try:
-        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
-    except ValueError as exc:
-        raise ValueError(f"malformed ScanNet matrix file {path}: {exc}") from None
-    if values.size != 16:
-        raise ValueError(f"malformed ScanNet matrix file {path}: expected 16 numbers (4x4), "
-                         f"got {values.size}")
-    return values.reshape(4, 4)
+    return read_matrix_file(path, (4, 4))
 
 
 def _camera_from_4x4(path: Path, width: int, height: int) -> PinholeCamera:

@@ -76,6 +76,21 @@ def parse_frame_range(spec: str) -> slice:
     return slice(start, stop, step)
 
 
+def read_matrix_file(path: PathLike, shape) -> np.ndarray:
+    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    try:
+        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
+    except ValueError as exc:
+        raise ValueError(f"malformed matrix file {path}: {exc}") from None
+    if values.size != int(np.prod(shape)):
+        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
+                         f"({shape[0]}x{shape[1]}), got {values.size}")
+    return values.reshape(shape)
+
+
 def index_frame_files(folder: Path, pattern: "re.Pattern", what: str) -> Dict[int, Path]:
     """Files of ``folder`` whose name matches ``pattern`` (group 1 = frame
     number) -> ``{frame number: path}``.  Two files for one number raise

@@ -31,8 +31,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..frame import Frame
 from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     index_frame_files, read_depth_png, read_pose_file, read_rgb,
-                     select_frames)
+                     index_frame_files, read_depth_png, read_matrix_file, read_pose_file,
+                     read_rgb, select_frames)
 
 __all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
            "read_matrix_file"]
@@ -67,21 +67,6 @@ class SevenScenesConfig:
     load_pose: bool = True
     frames: FrameSelection = None
     depth_scale: float = 1000.0
-
-
-def read_matrix_file(path: PathLike, shape) -> np.ndarray:
-    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"file not found: {path}")
-    try:
-        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
-    except ValueError as exc:
-        raise ValueError(f"malformed matrix file {path}: {exc}") from None
-    if values.size != int(np.prod(shape)):
-        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
-                         f"({shape[0]}x{shape[1]}), got {values.size}")
-    return values.reshape(shape)
 
 
 @dataclass
