@@ -281,7 +281,6 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     report: Dict[str, object] = {"levels": [], "n_primitives": len(prims),
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}
-    graph = None
     builders: List[PrimitivePhotometricFactor] = []
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
     any_identity = init_T_ref_view is None or any(
@@ -336,18 +335,8 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         solved.log_scales = anchor_ld
     depth = solved.depth_map()
 
-    status, view_status, valid_frac = _assess(solved, T_ref_view, view_pyrs, values, config,
-                                              report)
-    # a view the feature check could not pose (too few matches / degenerate) most
-    # likely shares little with the reference: photometric alignment from
-    # identity can then "converge" to a wrong pose, so it is not reported ok
-    tv = init_report.get("twoview_status")
-    if tv is not None:
-        for j, st in enumerate(tv):
-            if st in ("too_few_matches", "degenerate") and view_status[j] == "ok":
-                view_status[j] = "unverified"
-        order = ("diverged", "unverified", "low_parallax", "low_overlap")
-        status = next((s_ for s_ in order if s_ in view_status), "ok")
+    status, view_status, valid_frac = _assess(solved, T_ref_view, config, report,
+                                              init_report.get("twoview_status"))
     log_std = np.full(len(prims), np.nan)
     prior_only = np.zeros(len(prims), dtype=bool)
     covs: List[Optional[np.ndarray]] = [None] * len(views)
@@ -533,9 +522,15 @@ def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, 
     return graph, builders
 
 
-def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, values,
-            config: SfMConfig, report: dict):
-    """Status flags: diverged (non-finite), low parallax, low overlap."""
+def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: SfMConfig,
+            report: dict, twoview_status: Optional[Sequence[str]] = None):
+    """Status flags: diverged (non-finite), unverified, low parallax, low overlap.
+
+    A view the two-view feature check could not pose (too few matches /
+    degenerate) most likely shares little with the reference: photometric
+    alignment from identity can then "converge" to a wrong pose, so it is
+    ``unverified`` rather than ``ok``.
+    """
     finite = all(np.all(np.isfinite(T)) for T in T_ref_view) and np.all(
         np.isfinite(solved.log_scales))
     cam = solved.camera
@@ -544,7 +539,7 @@ def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, value
     X = cam.unproject(uv, np.exp(solved.scaled_log_depth()))
     med_depth = float(np.median(X[:, 2])) if finite else np.nan
     view_status, valid_frac = [], []
-    for T in T_ref_view:
+    for j, T in enumerate(T_ref_view):
         if not finite:
             view_status.append("diverged")
             valid_frac.append(0.0)
@@ -555,7 +550,10 @@ def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, value
         frac = float(np.mean(cam.in_image(uvv) & (z > 0)))
         valid_frac.append(frac)
         parallax = np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)
-        if parallax < config.min_parallax:
+        if twoview_status is not None and twoview_status[j] in ("too_few_matches",
+                                                                 "degenerate"):
+            view_status.append("unverified")
+        elif parallax < config.min_parallax:
             view_status.append("low_parallax")
         elif frac < config.min_valid_fraction:
             view_status.append("low_overlap")
@@ -564,6 +562,6 @@ def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], view_pyrs, value
     report["parallax"] = [float(np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)) if finite
                           else None for T in T_ref_view]
     report["rotation_deg"] = [rotation_angle_deg(T) if finite else None for T in T_ref_view]
-    order = ("diverged", "low_parallax", "low_overlap")
+    order = ("diverged", "unverified", "low_parallax", "low_overlap")
     status = next((s for s in order if s in view_status), "ok")
     return status, view_status, valid_frac
