@@ -1,51 +1,39 @@
-"""Run spgeo's monocular VO (first version) on a data set and report Sim(3) ATE.
+"""Run spgeo's monocular VO on a data set and report Sim(3) ATE (evaluation
+wrapper over :mod:`spgeo.vo_runner`; ``spgeo vo`` is the user-facing command).
 
     python -m spgeo.evaluation.vo_run --dataset 7scenes PATH --frames 0:100 \\
-        [--resolution 160x120] [--frontend classical|depth] [--out DIR]
+        [--resolution 160x120] [--frontend classical|depth|onnx] [--out DIR]
 
 The ``depth`` front-end reads the sensor depth (oracle normals and initial
-scales); ``classical`` never reads depth.  ATE is per-frame, Sim(3)-aligned
-(evo), over the frames not flagged 'lost'.
+scales); ``classical`` and ``onnx`` never read depth.  ATE is Sim(3)-aligned
+(evo), per-frame and keyframe-only, over the frames not flagged 'lost'.
 """
 from __future__ import annotations
 
 import argparse
-import time
-from typing import Optional, Sequence, Tuple
+from typing import Iterable, List, Optional, Sequence, Tuple
 
-import cv2
 import numpy as np
-from tqdm import tqdm
 
-from spgeo.datasets import open_dataset
-from spgeo.evaluation.trajectory import ate_sim3
 from spgeo.frame import Frame
-from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.odometry import Odometry, OdometryConfig
+from spgeo.vo_runner import VORunConfig, parse_resolution, run_dataset, run_odometry
 
 __all__ = ["run_vo", "main"]
 
 
-def run_vo(frames, resolution: Tuple[int, int] = (160, 120), frontend: str = "classical",
-           config: OdometryConfig = OdometryConfig(), progress: bool = True):
-    """VO over a frame sequence resized to ``resolution``; returns
-    ``(odometry, ground-truth poses (or None per frame), frames per second)``."""
-    frames = list(frames)
-    if not frames:
-        raise ValueError("run_vo: no frames")
-    cam = frames[0].camera.resized(*resolution)
-    fe = make_frontend(frontend, FrontEndConfig(working_size=resolution))
-    vo = Odometry(cam, config, fe)
-    gt = []
-    t0 = time.perf_counter()
-    for f in tqdm(frames, disable=not progress, desc="vo", unit="frame"):
-        img = cv2.resize(f.image, resolution, interpolation=cv2.INTER_AREA)
-        depth = None
-        if fe.uses_depth and f.depth is not None:
-            depth = cv2.resize(f.depth, resolution, interpolation=cv2.INTER_NEAREST)
-        vo.track(Frame(img, cam, f.timestamp, depth, f.T_world_cam, f.name))
-        gt.append(f.T_world_cam)
-    return vo, gt, len(frames) / (time.perf_counter() - t0)
+def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (160, 120),
+           frontend: str = "classical", config: OdometryConfig = OdometryConfig(),
+           progress: bool = True) -> Tuple[Odometry, List[Optional[np.ndarray]], float]:
+    """VO over a frame sequence resized to ``resolution`` (width, height pixels).
+
+    Returns ``(odometry, ground-truth camera-to-world poses (None per frame
+    without), frames per wall-clock second)``; see
+    :func:`spgeo.vo_runner.run_odometry` (which this wraps) for the details.
+    """
+    run = run_odometry(frames, VORunConfig(resolution=tuple(resolution), frontend=frontend,
+                                           odometry=config, progress=progress))
+    return run.odometry, run.gt_poses, run.fps
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -54,22 +42,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True)
     ap.add_argument("--frames", default=None, help="A:B[:S] frame numbers")
     ap.add_argument("--resolution", default="160x120", help="WxH (default 160x120)")
-    ap.add_argument("--frontend", default="classical", choices=["classical", "depth"])
+    ap.add_argument("--frontend", default="classical", choices=["classical", "depth", "onnx"])
     ap.add_argument("--out", default=None, help="write trajectory.txt, keyframes.txt, report.json")
     args = ap.parse_args(argv)
-    w, h = (int(x) for x in args.resolution.lower().split("x"))
-    seq = open_dataset(args.dataset[0], args.dataset[1], frames=args.frames)
-    vo, gt, fps = run_vo(seq, (w, h), args.frontend)
-    r = vo.result()
+    try:
+        cfg = VORunConfig(resolution=parse_resolution(args.resolution), frontend=args.frontend)
+        run = run_dataset(args.dataset[0], args.dataset[1], frames=args.frames, config=cfg)
+    except (ValueError, FileNotFoundError) as exc:
+        ap.error(str(exc))
+    ate = run.ate()
     if args.out:
-        vo.save(args.out)
-    ok = np.array([s != "lost" for s in r.statuses])
-    print(f"{len(r.statuses)} frames, {int((~ok).sum())} lost, {int(np.sum(r.is_keyframe))} "
-          f"keyframes, {fps:.1f} FPS (front-end {args.frontend}, {w}x{h})")
-    if all(T is not None for T in gt):
-        a = ate_sim3((r.timestamps[ok], r.poses[ok]), (r.timestamps, np.array(gt)))
-        print(f"Sim(3) ATE per-frame: {a.rmse:.3f} m = {a.rmse_percent_of_length:.1f}% of "
-              f"{a.trajectory_length:.2f} m")
+        run.save(args.out, ate=ate)
+    for line in run.summary_lines(ate):
+        print(line)
     return 0
 
 

@@ -49,7 +49,7 @@ from spgeo.camera import PinholeCamera
 
 __all__ = [
     "PhotometricConfig", "ShapeModel", "ScaledShape", "PlanarShape",
-    "PrimitivePhotometricFactor", "robust_weights",
+    "PrimitivePhotometricFactor", "PhotometricFactorGroup", "photometric_rows", "robust_weights",
 ]
 
 
@@ -111,7 +111,8 @@ class ShapeModel:
     dim: int = 0
 
     def points(self, theta: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(X (K, 3), dX/dtheta (K, 3, dim), valid (K,))``."""
+        """``(X (K, 3), dX/dtheta (K, 3, dim), valid (K,))``; ``theta`` is one
+        ``(dim,)`` vector or one per pixel, ``(K, dim)`` (batched primitives)."""
         raise NotImplementedError
 
 
@@ -128,7 +129,7 @@ class ScaledShape(ShapeModel):
             raise ValueError("ScaledShape: rays must be (K, 3) and log_depth (K,)")
 
     def points(self, theta):
-        z = np.exp(self.log_depth + float(theta[0]))
+        z = np.exp(self.log_depth + np.asarray(theta, dtype=np.float64)[..., 0])
         X = self.rays * z[:, None]
         return X, X[:, :, None], np.ones(z.size, dtype=bool)
 
@@ -148,7 +149,7 @@ class PlanarShape(ShapeModel):
         self.min_inverse_depth = float(min_inverse_depth)
 
     def points(self, theta):
-        rho = self.rays @ np.asarray(theta, dtype=np.float64)
+        rho = np.sum(self.rays * np.asarray(theta, dtype=np.float64), axis=-1)
         valid = rho > self.min_inverse_depth
         inv = np.where(valid, 1.0 / np.where(valid, rho, 1.0), 0.0)
         X = self.rays * inv[:, None]
@@ -193,6 +194,83 @@ def _sample_with_gradient(img: np.ndarray, u: np.ndarray, v: np.ndarray):
     gu = np.where(valid, (p01 - p00) * (1 - av) + (p11 - p10) * av, 0.0)
     gv = np.where(valid, bot - top, 0.0)
     return val, valid, gu, gv
+
+
+def photometric_rows(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
+                     T_world_ref: np.ndarray, T_world_tgt: np.ndarray, target_image: np.ndarray,
+                     camera: PinholeCamera, ref_intensity: np.ndarray,
+                     brightness: Optional[np.ndarray], config: PhotometricConfig,
+                     ids: Optional[np.ndarray], n_groups: int, group_pixels: np.ndarray,
+                     jacobians: bool = True) -> dict:
+    """The factor's rows for the reference points ``X`` (K, 3) of one or many
+    primitives (the module docstring's model).
+
+    ``ids`` (K,) gives each row's primitive (``None``: all rows are one
+    primitive) among ``n_groups``; ``group_pixels`` (n_groups,) is each
+    primitive's ``|Omega|`` for ``normalise="all"``.  Rows of different
+    primitives never mix: the result for one primitive is the same whether it
+    is evaluated alone or in a batch (tested).
+    """
+    R_wt, R_wr = T_world_tgt[:3, :3], T_world_ref[:3, :3]
+    R = R_wt.T @ R_wr                                   # R_tgt_ref
+    t = R_wt.T @ (T_world_ref[:3, 3] - T_world_tgt[:3, 3])
+    Y = X @ R.T + t
+    Yx, Yy, z = Y[:, 0], Y[:, 1], Y[:, 2]
+    behind = ~shape_valid | (z <= config.min_depth)
+    valid = ~behind
+    inv_z = np.where(valid, 1.0 / np.where(valid, z, 1.0), 0.0)
+    cam = camera
+    u = np.where(valid, cam.fx * Yx * inv_z + cam.cx, -1.0)
+    v = cam.fy * Yy * inv_z + cam.cy
+    I_t, inside, gu, gv = _sample_with_gradient(target_image, u, v)
+    valid &= inside
+    if brightness is not None:
+        a, b = float(brightness[0]), float(brightness[1])
+    else:
+        a, b = 0.0, 0.0
+    ea = np.exp(-a)
+    r = ea * I_t + b - ref_intensity
+    if config.normalise == "valid":
+        if ids is None:
+            scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
+        else:
+            cnt = np.bincount(ids, weights=(valid | behind), minlength=n_groups)
+            scale = (1.0 / np.sqrt(np.maximum(cnt, 1.0)))[ids]
+    elif config.normalise == "none":
+        scale = 1.0 / config.pixel_sigma
+    else:
+        per = 1.0 / np.sqrt(np.asarray(group_pixels, dtype=np.float64))
+        scale = per[0] if ids is None else per[ids]
+    w = scale * robust_weights(r, config) * valid
+    e = w * r
+    if behind.any():
+        pen = config.behind_penalty
+        e = np.where(behind, scale * robust_weights(np.array([pen]), config)[0] * pen, e)
+    out = {"e": e, "r": np.where(valid, r, 0.0), "valid": valid, "behind": behind, "weights": w}
+    if not jacobians:
+        return out
+    wg = w * ea * inv_z
+    du = wg * gu * cam.fx
+    dv = wg * gv * cam.fy
+    dz = -(du * Yx + dv * Yy) * inv_z
+    g = np.empty((du.size, 3))                         # de/dY
+    g[:, 0], g[:, 1], g[:, 2] = du, dv, dz
+    gR = g @ R                                         # R^T g per row
+    J_ref = np.empty((du.size, 6))
+    _cross_into(X, gR, J_ref[:, :3])
+    J_ref[:, 3:] = gR
+    J_tgt = np.empty((du.size, 6))
+    _cross_into(g, Y, J_tgt[:, :3])
+    J_tgt[:, 3:] = -g
+    out["J_ref"] = J_ref
+    out["J_tgt"] = J_tgt
+    out["J_shape"] = np.einsum("ki,kij->kj", gR, dX)
+    if brightness is not None:
+        J_b = np.empty((du.size, 2))
+        J_b[:, 0] = -w * ea * I_t
+        J_b[:, 1] = w
+        out["J_brightness"] = J_b
+    return out
 
 
 class PrimitivePhotometricFactor:
@@ -240,7 +318,7 @@ class PrimitivePhotometricFactor:
         self.config = config
         self.keys = [ref_key, tgt_key, shape_key] + ([brightness_key] if brightness_key is not None else [])
         self.has_brightness = brightness_key is not None
-        self.scale = 1.0 / np.sqrt(float(n_pixels if n_pixels is not None else k))
+        self.n_pixels = float(n_pixels if n_pixels is not None else k)
         self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(k), self.keys, self._error)
 
     # --------------------------------------------------------------- core
@@ -249,63 +327,11 @@ class PrimitivePhotometricFactor:
         """Residuals ``e`` (K,), validity, photometric errors ``r`` and, if asked,
         the Jacobians ``J_ref`` (K, 6), ``J_tgt`` (K, 6), ``J_shape`` (K, dim),
         ``J_brightness`` (K, 2)."""
-        R_wt, R_wr = T_world_tgt[:3, :3], T_world_ref[:3, :3]
-        R = R_wt.T @ R_wr                                   # R_tgt_ref
-        t = R_wt.T @ (T_world_ref[:3, 3] - T_world_tgt[:3, 3])
-        X, dX, valid = self.shape.points(np.asarray(theta, dtype=np.float64))
-        Y = X @ R.T + t
-        Yx, Yy, z = Y[:, 0], Y[:, 1], Y[:, 2]
-        behind = ~valid | (z <= self.config.min_depth)
-        valid = ~behind
-        inv_z = np.where(valid, 1.0 / np.where(valid, z, 1.0), 0.0)
-        cam = self.camera
-        u = np.where(valid, cam.fx * Yx * inv_z + cam.cx, -1.0)
-        v = cam.fy * Yy * inv_z + cam.cy
-        I_t, inside, gu, gv = _sample_with_gradient(self.target_image, u, v)
-        valid &= inside
-        if self.has_brightness:
-            a, b = float(brightness[0]), float(brightness[1])
-        else:
-            a, b = 0.0, 0.0
-        ea = np.exp(-a)
-        r = ea * I_t + b - self.ref_intensity
-        if self.config.normalise == "valid":
-            scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
-        elif self.config.normalise == "none":
-            scale = 1.0 / self.config.pixel_sigma
-        else:
-            scale = self.scale
-        w = scale * robust_weights(r, self.config) * valid
-        e = w * r
-        if behind.any():
-            pen = self.config.behind_penalty
-            e = np.where(behind, scale * robust_weights(np.array([pen]), self.config)[0] * pen, e)
-        out = {"e": e, "r": np.where(valid, r, 0.0), "valid": valid, "behind": behind,
-               "weights": w}
-        if not jacobians:
-            return out
-        wg = w * ea * inv_z
-        du = wg * gu * cam.fx
-        dv = wg * gv * cam.fy
-        dz = -(du * Yx + dv * Yy) * inv_z
-        g = np.empty((du.size, 3))                         # de/dY
-        g[:, 0], g[:, 1], g[:, 2] = du, dv, dz
-        gR = g @ R                                         # R^T g per row
-        J_ref = np.empty((du.size, 6))
-        _cross_into(X, gR, J_ref[:, :3])
-        J_ref[:, 3:] = gR
-        J_tgt = np.empty((du.size, 6))
-        _cross_into(g, Y, J_tgt[:, :3])
-        J_tgt[:, 3:] = -g
-        out["J_ref"] = J_ref
-        out["J_tgt"] = J_tgt
-        out["J_shape"] = np.einsum("ki,kij->kj", gR, dX)
-        if self.has_brightness:
-            J_b = np.empty((du.size, 2))
-            J_b[:, 0] = -w * ea * I_t
-            J_b[:, 1] = w
-            out["J_brightness"] = J_b
-        return out
+        X, dX, shape_valid = self.shape.points(np.asarray(theta, dtype=np.float64))
+        return photometric_rows(X, dX, shape_valid, T_world_ref, T_world_tgt, self.target_image,
+                                self.camera, self.ref_intensity,
+                                brightness if self.has_brightness else None, self.config,
+                                None, 1, np.array([self.n_pixels]), jacobians)
 
     def _error(self, this: gtsam.CustomFactor, values: gtsam.Values,
                H: Optional[List[np.ndarray]]) -> np.ndarray:
@@ -322,3 +348,155 @@ class PrimitivePhotometricFactor:
             if self.has_brightness:
                 H[3] = res["J_brightness"]
         return res["e"]
+
+
+class PhotometricFactorGroup:
+    """The per-primitive factors of one (reference frame, target frame) pair,
+    evaluated together.
+
+    Factor ``i`` is exactly the :class:`PrimitivePhotometricFactor` of
+    primitive ``i`` (same keys, residuals and Jacobians: tested); the group
+    only shares the work.  When gtsam linearises (or evaluates) the graph it
+    calls every factor with the same ``Values``: the first call evaluates all
+    primitives in one vectorised pass and caches the result, the others read
+    their rows.  A cached result is reused only if the poses, the brightness
+    and the calling factor's own shape variable are bit-identical to the ones
+    it was computed with (a primitive's rows depend on nothing else), so a
+    stale cache can never be served.
+
+    Args:
+        ref_key, tgt_key: keys of ``T_world_ref`` / ``T_world_tgt`` (Pose3).
+        shape_keys: (N,) key of each primitive's shape variable.
+        shape: one :class:`ScaledShape` / :class:`PlanarShape` over the
+            concatenated pixels of all N primitives.
+        offsets: (N + 1,) primitive ``i`` owns rows ``offsets[i]:offsets[i+1]``
+            (each non-empty).
+        ref_intensity: (K,) reference intensities in [0, 1], concatenated.
+        target_image, target_camera, brightness_key, config: as for
+            :class:`PrimitivePhotometricFactor` (one brightness for the pair).
+        n_pixels: (N,) ``|Omega|`` per primitive for ``normalise="all"``
+            (default: the row counts).
+
+        chunk: primitives per gtsam factor (default 1: one factor per
+            primitive).  With ``chunk = c`` factor ``j`` stacks the rows of
+            primitives ``j c .. j c + c - 1`` (keys: the two poses, their
+            ``c`` shape variables, the brightness): the cost, and the linear
+            system gtsam builds from it, are the same sum over primitives
+            (tested).  gtsam's Python ``CustomFactor`` copies the whole
+            ``Values`` for every callback, so a window with thousands of
+            per-primitive factors and hundreds of keys spends most of its
+            time copying; chunks of 8-16 cut that 8-16 times.
+
+    ``factors`` lists the gtsam.CustomFactor objects (add them all).
+    """
+
+    def __init__(self, ref_key: int, tgt_key: int, shape_keys, shape: ShapeModel,
+                 offsets: np.ndarray, ref_intensity: np.ndarray, target_image: np.ndarray,
+                 target_camera: PinholeCamera, brightness_key: Optional[int] = None,
+                 config: PhotometricConfig = PhotometricConfig(),
+                 n_pixels: Optional[np.ndarray] = None, chunk: int = 1) -> None:
+        self.shape_keys = [int(k) for k in shape_keys]
+        self.offsets = np.asarray(offsets, dtype=np.int64).reshape(-1)
+        n = len(self.shape_keys)
+        sizes = np.diff(self.offsets)
+        if n == 0 or self.offsets.size != n + 1 or self.offsets[0] != 0 or np.any(sizes < 1):
+            raise ValueError("PhotometricFactorGroup: offsets must be (N+1,) from 0 with every "
+                             "primitive non-empty, N = len(shape_keys) >= 1")
+        self.ref_intensity = np.asarray(ref_intensity, dtype=np.float64).reshape(-1)
+        k = int(self.offsets[-1])
+        if self.ref_intensity.size != k or shape.rays.shape[0] != k:
+            raise ValueError(f"PhotometricFactorGroup: {k} rows in offsets, "
+                             f"{self.ref_intensity.size} intensities, {shape.rays.shape[0]} rays")
+        if not np.all(np.isfinite(self.ref_intensity)):
+            raise ValueError("reference intensities contain NaN or inf")
+        img = np.asarray(target_image)
+        if img.ndim != 2 or img.shape != target_camera.shape:
+            raise ValueError(f"target image must be (H, W) matching the camera "
+                             f"{target_camera.shape}, got {img.shape}")
+        if ref_key == tgt_key:
+            raise ValueError("reference and target keys must differ")
+        self.ref_key, self.tgt_key = int(ref_key), int(tgt_key)
+        self.brightness_key = brightness_key
+        self.shape = shape
+        self.target_image = img
+        self.camera = target_camera
+        self.config = config
+        self.ids = np.repeat(np.arange(n), sizes)
+        self.n_pixels = (sizes.astype(np.float64) if n_pixels is None
+                         else np.asarray(n_pixels, dtype=np.float64).reshape(n))
+        self._cache: Optional[dict] = None
+        self.n_batch_evaluations = 0
+        if int(chunk) < 1:
+            raise ValueError("PhotometricFactorGroup: chunk must be >= 1")
+        self.chunks = [np.arange(a, min(a + int(chunk), n)) for a in range(0, n, int(chunk))]
+        self.factors = []
+        for j, prims in enumerate(self.chunks):
+            keys = [self.ref_key, self.tgt_key] + [self.shape_keys[i] for i in prims]
+            if brightness_key is not None:
+                keys.append(int(brightness_key))
+            rows = int(sizes[prims].sum())
+            noise = gtsam.noiseModel.Unit.Create(rows)
+            self.factors.append(gtsam.CustomFactor(
+                noise, keys, lambda this, v, H, j=j: self._error(j, v, H)))
+
+    def __len__(self) -> int:
+        return len(self.shape_keys)
+
+    def evaluate(self, T_world_ref: np.ndarray, T_world_tgt: np.ndarray, thetas: np.ndarray,
+                 brightness: Optional[np.ndarray] = None, jacobians: bool = True) -> dict:
+        """All rows at once; ``thetas`` is (N, dim).  Same keys as
+        :meth:`PrimitivePhotometricFactor.evaluate`, concatenated in primitive order."""
+        thetas = np.asarray(thetas, dtype=np.float64).reshape(len(self), -1)
+        X, dX, shape_valid = self.shape.points(thetas[self.ids])
+        br = brightness if self.brightness_key is not None else None
+        return photometric_rows(X, dX, shape_valid, T_world_ref, T_world_tgt, self.target_image,
+                                self.camera, self.ref_intensity, br, self.config, self.ids,
+                                len(self), self.n_pixels, jacobians)
+
+    def _read_thetas(self, values: gtsam.Values, prims: np.ndarray,
+                     own: np.ndarray) -> np.ndarray:
+        """All shape variables from ``values`` (a key gtsam left out keeps a
+        stale entry: its rows are never served, the cache checks each
+        caller's own variables)."""
+        thetas = np.zeros((len(self), own.shape[1]))
+        for i, key in enumerate(self.shape_keys):
+            if values.exists(key):
+                thetas[i] = values.atVector(key)
+        thetas[prims] = own
+        return thetas
+
+    def _error(self, j: int, values: gtsam.Values, H: Optional[List[np.ndarray]]) -> np.ndarray:
+        prims = self.chunks[j]
+        T_wr = values.atPose3(self.ref_key).matrix()
+        T_wt = values.atPose3(self.tgt_key).matrix()
+        own = np.array([values.atVector(self.shape_keys[i]) for i in prims], dtype=np.float64)
+        br = (np.asarray(values.atVector(self.brightness_key), dtype=np.float64)
+              if self.brightness_key is not None else None)
+        c = self._cache
+        hit = (c is not None and (H is None or c["jacobians"])
+               and np.array_equal(c["thetas"][prims], own)
+               and np.array_equal(c["T_wr"], T_wr) and np.array_equal(c["T_wt"], T_wt)
+               and (br is None or np.array_equal(c["br"], br)))
+        if not hit:
+            thetas = self._read_thetas(values, prims, own)
+            res = self.evaluate(T_wr, T_wt, thetas, br, jacobians=H is not None)
+            self.n_batch_evaluations += 1
+            c = self._cache = {"T_wr": T_wr, "T_wt": T_wt, "br": br, "thetas": thetas,
+                               "jacobians": H is not None, "res": res}
+        res = c["res"]
+        a, b = self.offsets[prims[0]], self.offsets[prims[-1] + 1]
+        if H is not None:
+            H[0] = res["J_ref"][a:b]
+            H[1] = res["J_tgt"][a:b]
+            J_s = res["J_shape"]
+            for m, i in enumerate(prims):
+                if prims.size == 1:
+                    H[2] = J_s[a:b]
+                    break
+                blk = np.zeros((b - a, J_s.shape[1]))
+                lo, hi = self.offsets[i] - a, self.offsets[i + 1] - a
+                blk[lo:hi] = J_s[self.offsets[i]:self.offsets[i + 1]]
+                H[2 + m] = blk
+            if self.brightness_key is not None:
+                H[2 + prims.size] = res["J_brightness"][a:b]
+        return res["e"][a:b]

@@ -12,7 +12,8 @@ __all__ = ["main", "build_parser"]
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import DemoConfig, run_demo
 
-    res = run_demo(DemoConfig(out_dir=args.out, synthetic_seed=args.seed, sfm=not args.no_sfm))
+    res = run_demo(DemoConfig(out_dir=args.out, synthetic_seed=args.seed, sfm=not args.no_sfm,
+                              vo=not args.no_vo))
     print("== SuperPrimitives: shape accuracy")
     print(res.table())
     print("median rel. error: depth after fitting one scale per primitive to ground truth "
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="spgeo-demo", help="output folder (default: spgeo-demo)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
     p.add_argument("--no-sfm", action="store_true", help="skip the few-view SfM part")
+    p.add_argument("--no-vo", action="store_true", help="skip the monocular VO part")
     p.set_defaults(func=_cmd_demo)
     from .models import add_cli as add_models_cli
 
@@ -49,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .cli_sfm import add_sfm_cli  # spgeo sfm (few-view SfM)
 
     add_sfm_cli(sub)
+    from .cli_vo import add_vo_cli  # spgeo vo (visual odometry)
+
+    add_vo_cli(sub)
     return ap
 
 

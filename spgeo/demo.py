@@ -1,6 +1,9 @@
 """``spgeo demo``: primify embedded data (a synthetic scene and the bundled TUM
 fr1_desk frames), integrate, and report shape accuracy against ground truth
-after one scale per primitive; writes a picture and a point cloud.
+after one scale per primitive; writes a picture and a point cloud.  Optional
+parts: few-view SfM, depth completion and visual odometry
+(:func:`run_vo_demo`: a rendered hand-held synthetic sequence and the 9
+bundled TUM frames, Sim(3) ATE against ground truth).
 
 Everything here is offline: no model download, no data outside the package.
 """
@@ -19,7 +22,8 @@ from .frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_fr
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DemoConfig", "DemoRow", "DemoResult", "run_demo"]
+__all__ = ["DemoConfig", "DemoRow", "DemoResult", "VORow", "VODemoResult", "run_demo",
+           "run_vo_demo"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,17 @@ class DemoConfig:
         working_size: integration grid (the authors used 320x240).
         sfm: also run few-view SfM (synthetic view set and bundled TUM frames).
         completion: also run zero-shot depth completion.
+        vo: also run the visual odometry (:func:`run_vo_demo`; default True).
+        vo_frames: frames of the rendered synthetic VO sequence (default 60,
+            i.e. 2 s at 30 fps of hand-held motion, about 0.7 m for seed 0).
+        vo_size: ``(width, height)`` of the VO input frames and front-end
+            working size (pixels; default 160x120).
+        vo_frontends: front-ends run on the synthetic VO sequence (default
+            ``("classical", "depth")``: monocular, and normals/initial scales
+            from the rendered depth as an oracle).
+        vo_tum: also run VO on the 9 bundled TUM fr1_desk frames (default True).
+        vo_tum_frontends: front-ends run on those frames (default
+            ``("classical",)``).
     """
 
     out_dir: str = "spgeo-demo"
@@ -43,6 +58,12 @@ class DemoConfig:
     working_size: Tuple[int, int] = (320, 240)
     sfm: bool = True
     completion: bool = True
+    vo: bool = True
+    vo_frames: int = 60
+    vo_size: Tuple[int, int] = (160, 120)
+    vo_frontends: Tuple[str, ...] = ("classical", "depth")
+    vo_tum: bool = True
+    vo_tum_frontends: Tuple[str, ...] = ("classical",)
 
 
 @dataclass
@@ -73,6 +94,7 @@ class DemoResult:
     files: Dict[str, str] = field(default_factory=dict)
     sfm_rows: List[SfMRow] = field(default_factory=list)
     extra_tables: Dict[str, str] = field(default_factory=dict)
+    vo_rows: List["VORow"] = field(default_factory=list)
 
     def sfm_table(self) -> str:
         lines = [f"{'scene':12s} {'front-end':22s} {'status':8s} {'rot.err deg (spgeo)':>22s} "
@@ -200,6 +222,11 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
         _demo_completion(config, view, cam, seq, result)
     if config.sfm:
         _demo_sfm(config, scene, cam, seq, result)
+    if config.vo:
+        vo = run_vo_demo(config, scene=scene, tum=seq)
+        result.vo_rows = vo.rows
+        result.files.update(vo.files)
+        result.extra_tables[VO_TABLE_TITLE] = vo.table()
     return result
 
 
@@ -285,6 +312,154 @@ def _demo_sfm(config: DemoConfig, scene, cam: PinholeCamera, seq, result: DemoRe
                 path = Path(config.out_dir) / f"{scene_name}_sfm.png"
                 save_png(path, pic)
                 result.files[f"{scene_name}_sfm_png"] = str(path)
+
+
+VO_TABLE_TITLE = "Visual odometry (spgeo.odometry): per-frame Sim(3) ATE against ground truth"
+
+
+@dataclass
+class VORow:
+    """One VO run of :func:`run_vo_demo`.
+
+    Attributes:
+        sequence: ``"synthetic"`` or ``"tum_fr1_desk"``.
+        frontend: the front-end's name.
+        n_frames: frames given to :meth:`Odometry.track`.
+        duration_s: last minus first timestamp (seconds).
+        init_frame: frame that became keyframe 1 (end of the two-view
+            initialisation); None if the run never initialised.
+        n_tracked: frames whose final status is not ``"lost"``.
+        n_keyframes: keyframes created (keyframe 0 included).
+        n_lost: frames whose final status is ``"lost"``.
+        ate_rmse_m: per-frame ATE RMSE (metres) over the tracked frames after
+            Sim(3) alignment to ground truth; NaN when it cannot be computed.
+        ate_percent: that RMSE in % of the ground-truth path length.
+        trajectory_length_m: ground-truth path length of the evaluated frames (m).
+        sim3_scale: scale of the alignment (1 = metric estimate).
+        fps: frames per wall-clock second of the VO loop (resizing included;
+            rendering / loading excluded).
+        seconds: wall time of that loop (s).
+        out_dir: folder written by :meth:`spgeo.vo_runner.VORun.save`
+            (trajectory, keyframes, status, report with the ATE, keyframe
+            clouds) plus ``groundtruth.txt`` (TUM format).
+    """
+
+    sequence: str
+    frontend: str
+    n_frames: int
+    duration_s: float
+    init_frame: Optional[int]
+    n_tracked: int
+    n_keyframes: int
+    n_lost: int
+    ate_rmse_m: float
+    ate_percent: float
+    trajectory_length_m: float
+    sim3_scale: float
+    fps: float
+    seconds: float
+    out_dir: str
+
+
+@dataclass
+class VODemoResult:
+    """Rows and written folders of :func:`run_vo_demo`."""
+
+    rows: List[VORow] = field(default_factory=list)
+    files: Dict[str, str] = field(default_factory=dict)
+
+    def table(self) -> str:
+        lines = [f"{'sequence':12s} {'front-end':20s} {'frames':>6s} {'secs':>5s} {'init@':>5s} "
+                 f"{'tracked':>7s} {'kfs':>4s} {'lost':>4s} {'path m':>6s} {'ATE m':>7s} "
+                 f"{'ATE %':>6s} {'scale':>6s} {'FPS':>5s}"]
+        for r in self.rows:
+            init = "-" if r.init_frame is None else str(r.init_frame)
+            lines.append(f"{r.sequence:12s} {r.frontend:20s} {r.n_frames:6d} {r.duration_s:5.2f} "
+                         f"{init:>5s} {r.n_tracked:7d} {r.n_keyframes:4d} {r.n_lost:4d} "
+                         f"{r.trajectory_length_m:6.3f} {r.ate_rmse_m:7.4f} "
+                         f"{r.ate_percent:6.2f} {r.sim3_scale:6.3f} {r.fps:5.1f}")
+        lines.append("ATE: RMSE of the camera centres of the frames not lost after Sim(3) "
+                     "alignment (evo); ATE % = of the ground-truth path length ('path m')\n"
+                     "init@: frame that became keyframe 1 (two-view initialisation); scale: "
+                     "Sim(3) scale (1 = metric); FPS excludes rendering/loading")
+        return "\n".join(lines)
+
+
+def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
+            out_root: Path) -> VORow:
+    """One :func:`spgeo.vo_runner.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
+    from .evaluation.trajectory import write_tum
+    from .vo_runner import VORunConfig, run_odometry
+
+    run = run_odometry(frames, VORunConfig(resolution=tuple(config.vo_size), frontend=frontend,
+                                           progress=False))
+    res = run.result()
+    good = np.array([s != "lost" for s in res.statuses])
+    ate = run.ate()
+    per_frame = None if ate is None else ate.get("per-frame")
+    nan = float("nan")
+    out = out_root / f"{sequence}_{frontend}"
+    run.save(out, ate=ate)
+    gt = [T if T is not None else np.full((4, 4), np.nan) for T in run.gt_poses]
+    write_tum(out / "groundtruth.txt", run.timestamps, gt,
+              header=[f"ground truth of the {sequence} VO input (camera-to-world)"])
+    init = next((i for i, k in enumerate(np.cumsum(res.is_keyframe)) if k == 2), None)
+    row = VORow(sequence, run.frontend_name, run.n_frames,
+                float(run.timestamps[-1] - run.timestamps[0]), init, int(good.sum()),
+                int(res.is_keyframe.sum()), int((~good).sum()),
+                per_frame.rmse if per_frame else nan,
+                per_frame.rmse_percent_of_length if per_frame else nan,
+                per_frame.trajectory_length if per_frame else nan,
+                per_frame.scale if per_frame else nan, run.fps, run.wall_seconds, str(out))
+    log.info("VO %s / %s: %d frames, %d keyframes, %d lost, ATE %.4f m (%.2f%%), %.1f FPS",
+             sequence, row.frontend, row.n_frames, row.n_keyframes, row.n_lost, row.ate_rmse_m,
+             row.ate_percent, row.fps)
+    return row
+
+
+def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODemoResult:
+    """Monocular VO on embedded data; trajectories go to ``<out_dir>/vo/<sequence>_<front-end>/``.
+
+    * ``synthetic``: ``config.vo_frames`` frames of the hand-held trajectory
+      :func:`spgeo.synthetic.make_trajectory` (seed ``config.synthetic_seed``)
+      rendered at ``config.vo_size`` (2x supersampled) in the room of the same
+      seed, with each front-end of ``config.vo_frontends``.
+    * ``tum_fr1_desk`` (if ``config.vo_tum``): the 9 bundled TUM frames resized
+      to ``config.vo_size``, with each front-end of ``config.vo_tum_frontends``.
+      So few frames mostly exercise the initialisation (see ``init@``).
+
+    Args:
+        config: :class:`DemoConfig` (its ``vo_*`` fields, ``out_dir`` and
+            ``synthetic_seed``).
+        scene: the :class:`~spgeo.synthetic.SyntheticScene` to render (default:
+            generated from ``config.synthetic_seed``).
+        tum: the bundled TUM sequence if already loaded.
+    """
+    from . import synthetic
+
+    if config.vo_frames < 3:
+        raise ValueError(f"DemoConfig.vo_frames must be >= 3, got {config.vo_frames}")
+    out_root = Path(config.out_dir) / "vo"
+    result = VODemoResult()
+    if config.vo_frontends:
+        if scene is None:
+            scene = synthetic.SyntheticScene.generate(config.synthetic_seed)
+        cam = synthetic.default_camera(*config.vo_size)
+        poses = synthetic.make_trajectory(config.vo_frames, config.synthetic_seed)
+        frames = synthetic.render_frames(scene, cam, poses, supersample=2)
+        for fe in config.vo_frontends:
+            result.rows.append(_run_vo("synthetic", frames, fe, config, out_root))
+    if config.vo_tum and config.vo_tum_frontends:
+        if tum is None:
+            from .datasets import load_bundled_tum
+
+            tum = load_bundled_tum()
+        frames = list(tum)
+        for fe in config.vo_tum_frontends:
+            result.rows.append(_run_vo("tum_fr1_desk", frames, fe, config, out_root))
+    for r in result.rows:
+        result.files[f"vo_{Path(r.out_dir).name}"] = r.out_dir
+    return result
 
 
 def _resize_nearest(depth: np.ndarray, size: Tuple[int, int]) -> np.ndarray:

@@ -13,34 +13,60 @@ One thread, one call per frame (:meth:`Odometry.track`):
   oracle, ``frontend.uses_depth``) keyframe 0's scales start from that depth
   (so the trajectory is metric); with a monocular front-end they start at 0
   and SfM starts from the feature-based two-view pose.
-* **Tracking.**  :func:`spgeo.tracking.track_frame` against the latest
-  keyframe from a constant-velocity guess; if that is lost, once more from
-  the last good pose; if still lost the frame is flagged ``"lost"`` and keeps
-  the last good pose (the next frame starts from it; a frame tracked after a
-  loss is flagged ``"relocalised"``).
+* **Tracking.**  :func:`spgeo.tracking.track_frame` (a batched Gauss-Newton
+  / LM over the pyramid minimising exactly the factors' cost, tested) against
+  the latest keyframe from a constant-velocity guess, then from the last good
+  pose.
+* **Failure.**  A frame that cannot be tracked (low valid fraction, cost
+  blow-up, divergence) is tried against the window's other keyframes
+  (newest first, *relocalisation*); if that fails too it is flagged
+  ``"lost"`` and keeps the last good pose.  The first frame tracked after a
+  loss is ``"relocalised"``.  After ``max_lost_frames`` consecutive lost
+  frames the map is *re-initialised*: the frame becomes keyframe 0 of a new
+  map segment (status ``"reinit"``) at the last good pose, the smoother is
+  restarted and two-view initialisation runs again.  A monocular re-init
+  cannot know the old scale: its depths are set to the last keyframe's median
+  depth, so segments may differ in scale (``report.json`` counts segments;
+  the status file marks every frame).
 * **Keyframes.**  A tracked frame becomes a keyframe when its valid fraction
-  drops below ``kf_min_valid_fraction`` or its translation from the latest
-  keyframe over that keyframe's median depth exceeds ``kf_max_translation``.
-  Its primitives get log-scales from the z-buffered rendering of the window's
-  keyframes (:func:`spgeo.rendering.render_primitives`,
+  drops below ``kf_min_valid_fraction``, its translation from the latest
+  keyframe over that keyframe's median depth exceeds ``kf_max_translation``,
+  its rotation exceeds ``kf_max_rotation_deg`` or its relative photometric
+  cost exceeds ``kf_max_relative_cost``.  Its primitives get log-scales from
+  the z-buffered rendering of the window's keyframes
+  (:func:`spgeo.rendering.render_primitives`,
   :func:`spgeo.rendering.init_scales_from_render`).
 * **Mapping.**  A gtsam ``BatchFixedLagSmoother`` (Levenberg-Marquardt) over
-  keyframe poses, per-keyframe primitive log-scales and an affine brightness
-  per directed keyframe pair.  Each new keyframe is linked to the previous one
-  by :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` in both
-  directions (previous -> new and new -> previous), built at pyramid level
-  ``map_level`` on the ``2^level * map_stride`` pixel lattice.  Keyframe 0's
-  pose has a tight gauge prior; every log-scale a weak prior (weight
-  ``scale_prior_weight``) to its initial value.  Smoother timestamps are the
-  keyframe indices and the lag keeps ``window`` keyframes: older keys are
-  *marginalised* (their information stays as a linear prior), not dropped.
-  After each update the window's :class:`~spgeo.tracking.Keyframe` objects
-  are rebuilt from the smoother's estimate.
+  keyframe poses, per-keyframe primitive shape variables (log-scales, or
+  inverse-depth planes with ``primitive_model="planar"``), supporting-frame
+  poses and an affine brightness per directed (reference, target) pair.  Each
+  new keyframe is linked to the previous one by photometric factors in both
+  directions, and the previous keyframe to up to ``n_support`` supporting
+  non-keyframes tracked against it (evenly spaced; paper: 4), whose poses are
+  optimised too.  One :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor`
+  per primitive and pair, built at pyramid level ``map_level``; the factors of
+  a pair are evaluated together
+  (:class:`~spgeo.factors.photometric.PhotometricFactorGroup`, identical
+  values, one vectorised pass).  The first keyframe's pose has a tight gauge
+  prior; every shape variable a weak prior (weight ``scale_prior_weight``) to
+  its initial value.  Smoother timestamps are keyframe indices (a supporting
+  frame carries its keyframe's) and the lag keeps ``window`` keyframes: older
+  keys are *marginalised* (their information stays as a linear prior), not
+  dropped.  After each update the window's :class:`~spgeo.tracking.Keyframe`
+  objects are rebuilt from the smoother's estimate.
+* **Trajectory.**  :meth:`Odometry.result` gives keyframes and supporting
+  frames at their latest smoothed poses and every other tracked frame at its
+  tracked pose relative to its keyframe composed with that keyframe's latest
+  pose (lost frames repeat the previous frame's pose).  ``FrameResult`` keeps
+  the online (causal) estimate.
 
-Left out of this first version: supporting non-keyframes in the mapping
-graph (the paper links 4 per keyframe), re-initialisation after a long loss,
-relocalisation against older keyframes than the latest, keyframe point
-clouds and a batch runner.
+Ablations (``OdometryConfig.primitive_model``, DESIGN.md §5): ``"integrated"``
+(default, the paper's model), ``"constant_depth"`` (each primitive a
+fronto-parallel plane at its anchor depth), ``"constant_normal"`` (each
+primitive replaced by the least-squares plane of its integrated shape) and
+``"planar"`` (planes as ``constant_normal`` whose three parameters are
+optimised in mapping).  Depth-derived (oracle) normals are the ``"depth"``
+front-end.
 """
 from __future__ import annotations
 
@@ -50,29 +76,33 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Union
+from typing import Dict, List, Optional, Tuple, Union
 
 import numpy as np
 
 import gtsam
 
 from .camera import PinholeCamera
-from .factors.photometric import PhotometricConfig, PrimitivePhotometricFactor, ScaledShape
-from .factors.priors import brightness_prior, log_scale_prior, pose_gauge_prior
+from .factors.photometric import (PhotometricConfig, PhotometricFactorGroup, PlanarShape,
+                                  ScaledShape)
+from .factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from .frame import Frame
 from .frontend import PrimitiveFrontEnd
 from .geometry import invert_pose, rotation_angle_deg
+from .jsonio import json_default
 from .primitives import PrimitiveSet
 from .rendering import init_scales_from_render, render_primitives
-from .sfm import SfMConfig, _level_pixels, few_view_sfm
+from .sfm import SfMConfig, few_view_sfm
 from .tracking import Keyframe, TrackerConfig, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["OdometryConfig", "FrameResult", "OdometryResult", "Odometry",
-           "kf_pose_key", "kf_scale_key", "kf_brightness_key"]
+__all__ = ["OdometryConfig", "FrameResult", "OdometryResult", "Odometry", "PRIMITIVE_MODELS",
+           "STATUSES", "kf_pose_key", "kf_scale_key", "kf_brightness_key", "support_pose_key",
+           "apply_primitive_model"]
 
 log = logging.getLogger(__name__)
 
-STATUSES = ("init", "ok", "keyframe", "lost", "relocalised")
+STATUSES = ("init", "ok", "keyframe", "lost", "relocalised", "reinit")
+PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar")
 _MAX_PRIMS = 1_000_000
 
 
@@ -82,7 +112,8 @@ def kf_pose_key(k: int) -> int:
 
 
 def kf_scale_key(k: int, i: int) -> int:
-    """Smoother key of primitive ``i``'s log-scale in keyframe ``k``."""
+    """Smoother key of primitive ``i``'s shape variable (log-scale, or plane
+    with the planar model) in keyframe ``k``."""
     return gtsam.symbol("s", int(k) * _MAX_PRIMS + int(i))
 
 
@@ -92,10 +123,34 @@ def kf_brightness_key(ref: int, tgt: int) -> int:
     return gtsam.symbol("b" if tgt > ref else "c", int(max(ref, tgt)))
 
 
+def support_pose_key(frame: int) -> int:
+    """Smoother key of supporting frame ``frame``'s pose (frame number)."""
+    return gtsam.symbol("f", int(frame))
+
+
+def _support_brightness_key(frame: int) -> int:
+    return gtsam.symbol("d", int(frame))
+
+
+def apply_primitive_model(primitives: PrimitiveSet, model: str) -> PrimitiveSet:
+    """The shapes of an ablation (:data:`PRIMITIVE_MODELS`): ``"integrated"``
+    unchanged; ``"constant_depth"``: each primitive fronto-parallel at its
+    anchor depth; ``"constant_normal"`` / ``"planar"``: each primitive the
+    least-squares inverse-depth plane of its integrated shape."""
+    if model == "integrated":
+        return primitives
+    if model == "constant_depth":
+        return primitives.with_scaled_log_depth(np.repeat(primitives.log_scales, primitives.sizes))
+    if model in ("constant_normal", "planar"):
+        return primitives.with_planes(primitives.fit_planes())[0]
+    raise ValueError(f"unknown primitive model {model!r}; expected one of {PRIMITIVE_MODELS}")
+
+
 @dataclass(frozen=True)
 class OdometryConfig:
-    """Options of :class:`Odometry` (defaults: DESIGN.md §5, measured on the
-    synthetic 160x120 sequences of ``tests/test_odometry.py``).
+    """Options of :class:`Odometry` (defaults: DESIGN.md §5 where it gives
+    one; the others measured on synthetic 160x120 hand-held sequences, see
+    ``evaluation/vo_synthetic.py``).
 
     Attributes:
         tracker: :class:`TrackerConfig` of frame-to-keyframe tracking.
@@ -111,16 +166,32 @@ class OdometryConfig:
             keyframe exceeds this (default 15 degrees).
         window: keyframes kept in the smoother (default 5); older ones are
             marginalised.
+        n_support: supporting non-keyframes linked to each keyframe (paper: 4).
         levels: pyramid levels of the keyframes (default 3).
         map_level: pyramid level of the mapping factors (default 1).
         map_stride: extra pixel stride of the mapping factors on that level's
             lattice (default 1).
         map_iterations: LM iterations per smoother update (default 10).
+        map_relative_tol: an update stops when an LM iteration lowers the
+            window's cost by less than this fraction (default 1e-3).
+        map_lambda_max: an LM iteration gives up when its damping exceeds
+            this (default 1e3; each rejected trial costs a solve and a cost
+            evaluation of the whole window, and near convergence gtsam keeps
+            raising the damping until this bound).
+        map_chunk: primitives per gtsam factor in mapping (default 16; 1 =
+            one factor per primitive; the cost is identical,
+            :class:`~spgeo.factors.photometric.PhotometricFactorGroup`).
+            gtsam's Python ``CustomFactor`` copies the whole ``Values`` on
+            every call, so per-primitive factors make a window update
+            quadratic in its size (measured in ``evaluation/bench_vo.py``).
         photometric: per-pixel cost of the mapping factors.
+        primitive_model: :data:`PRIMITIVE_MODELS` (ablations; module docstring).
         scale_prior_weight: weight of each log-scale's prior to its initial
             value (paper: 1e-5).
+        planar_slope_sigma: sigma of the planar model's slope prior (towards
+            fronto-parallel; default 2, weak).
         brightness_prior_sigma: sigmas of the brightness ``(a, b)`` priors.
-        gauge_sigma: sigma of keyframe 0's pose prior.
+        gauge_sigma: sigma of the first keyframe's pose prior.
         min_level_pixels: primitives with fewer pixels at ``map_level`` get no
             mapping factor.
         render_splat: splat size when rendering the window into a new keyframe.
@@ -128,6 +199,8 @@ class OdometryConfig:
             translation over keyframe 0's median depth reaches this
             (default 0.08) ...
         init_max_gap: ... or the frame this many frames after keyframe 0
+            (default 10).
+        max_lost_frames: re-initialise after this many consecutive lost frames
             (default 10).
         sfm: :class:`SfMConfig` of the two-view initialisation (its
             ``reset_scales`` is overridden: False with a depth-using
@@ -140,18 +213,25 @@ class OdometryConfig:
     kf_max_relative_cost: float = 0.2
     kf_max_rotation_deg: float = 15.0
     window: int = 5
+    n_support: int = 4
     levels: int = 3
     map_level: int = 1
     map_stride: int = 1
     map_iterations: int = 10
+    map_relative_tol: float = 1e-3
+    map_lambda_max: float = 1e3
+    map_chunk: int = 16
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    primitive_model: str = "integrated"
     scale_prior_weight: float = 1e-5
+    planar_slope_sigma: float = 2.0
     brightness_prior_sigma: tuple = (0.3, 0.3)
     gauge_sigma: float = 1e-6
     min_level_pixels: int = 4
     render_splat: int = 2
     init_min_parallax: float = 0.08
     init_max_gap: int = 10
+    max_lost_frames: int = 10
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
 
     def __post_init__(self) -> None:
@@ -159,14 +239,22 @@ class OdometryConfig:
             raise ValueError(f"OdometryConfig.window must be >= 2, got {self.window}")
         if not 0 <= self.map_level < self.levels:
             raise ValueError("OdometryConfig.map_level must be in [0, levels)")
-        if self.map_stride < 1 or self.map_iterations < 1 or self.init_max_gap < 1:
-            raise ValueError("OdometryConfig: map_stride, map_iterations and init_max_gap "
-                             "must be >= 1")
+        if (self.map_stride < 1 or self.map_iterations < 1 or self.init_max_gap < 1
+                or self.max_lost_frames < 1):
+            raise ValueError("OdometryConfig: map_stride, map_iterations, init_max_gap and "
+                             "max_lost_frames must be >= 1")
+        if self.map_chunk < 1:
+            raise ValueError("OdometryConfig.map_chunk must be >= 1")
+        if self.n_support < 0:
+            raise ValueError("OdometryConfig.n_support must be >= 0")
         if not self.scale_prior_weight > 0:
             raise ValueError("OdometryConfig.scale_prior_weight must be > 0")
         if not 0 <= self.kf_min_valid_fraction <= 1 or not self.kf_max_translation > 0:
             raise ValueError("OdometryConfig: kf_min_valid_fraction in [0, 1] and "
                              "kf_max_translation > 0 required")
+        if self.primitive_model not in PRIMITIVE_MODELS:
+            raise ValueError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
+                             f"got {self.primitive_model!r}")
 
 
 @dataclass
@@ -176,16 +264,19 @@ class FrameResult:
     Attributes:
         index: frame number (0-based, in call order).
         timestamp: the frame's timestamp.
-        T_world_cam: 4x4 camera-to-world pose (world = keyframe 0's camera);
-            the last good pose for a ``"lost"`` frame.
-        status: ``"init"`` (before keyframe 1; the pose is provisional and is
-            refined in :meth:`Odometry.result`), ``"ok"``, ``"keyframe"``,
-            ``"lost"`` or ``"relocalised"`` (first tracked frame after a loss).
+        T_world_cam: 4x4 camera-to-world online pose (world = the first
+            keyframe's camera); the last good pose for a ``"lost"`` frame.
+        status: one of :data:`STATUSES`: ``"init"`` (before keyframe 1 of a
+            map segment; refined once that keyframe exists), ``"ok"``,
+            ``"keyframe"``, ``"lost"``, ``"relocalised"`` (first tracked frame
+            after a loss, or tracked against an older keyframe), ``"reinit"``
+            (started a new map segment).
         keyframe_index: the keyframe's index if this frame became one.
+        segment: map segment (0, then +1 at each re-initialisation).
         track: the :class:`TrackResult` of the final tracking attempt (None
-            for frame 0).
+            for a frame that started a segment).
         timings: seconds per stage (``track``, ``frontend``, ``mapping``,
-            ``total``).
+            ``init``, ``total``).
     """
 
     index: int
@@ -193,6 +284,7 @@ class FrameResult:
     T_world_cam: np.ndarray
     status: str
     keyframe_index: Optional[int] = None
+    segment: int = 0
     track: Optional[TrackResult] = None
     timings: Dict[str, float] = field(default_factory=dict)
 
@@ -203,17 +295,17 @@ class OdometryResult:
 
     Attributes:
         timestamps: (n,) frame timestamps.
-        poses: (n, 4, 4) camera-to-world poses (keyframes at their smoothed
-            estimate, other frames as tracked).
+        poses: (n, 4, 4) camera-to-world poses (module docstring).
         statuses: per-frame status strings.
         is_keyframe: (n,) bool.
-        keyframe_timestamps, keyframe_poses: keyframes only.
+        segments: (n,) map segment of each frame.
     """
 
     timestamps: np.ndarray
     poses: np.ndarray
     statuses: List[str]
     is_keyframe: np.ndarray
+    segments: np.ndarray
 
     @property
     def keyframe_timestamps(self) -> np.ndarray:
@@ -223,6 +315,11 @@ class OdometryResult:
     def keyframe_poses(self) -> np.ndarray:
         return self.poses[self.is_keyframe]
 
+    @property
+    def tracked(self) -> np.ndarray:
+        """(n,) bool: frames with a pose of their own (not ``"lost"``)."""
+        return np.array([s != "lost" for s in self.statuses], dtype=bool)
+
 
 @dataclass
 class _KF:
@@ -230,6 +327,17 @@ class _KF:
     frame: int          # frame number
     image: np.ndarray
     keyframe: Keyframe
+    segment: int = 0
+
+
+@dataclass
+class _Candidate:
+    """A frame tracked against the latest keyframe (supporting-frame candidate)."""
+
+    frame: int
+    image: np.ndarray
+    T_kf_frame: np.ndarray
+    brightness: np.ndarray
 
 
 class Odometry:
@@ -252,15 +360,21 @@ class Odometry:
         self._frames: List[FrameResult] = []
         self._kfs: Dict[int, _KF] = {}
         self._kf_order: List[int] = []
+        self._rel: Dict[int, Tuple[int, np.ndarray]] = {}   # frame -> (kf, T_kf_frame)
+        self._support_pose: Dict[int, np.ndarray] = {}       # frame -> smoothed T_world
+        self._support_frames: List[int] = []
+        self._candidates: List[_Candidate] = []
         self._init_buffer: List[tuple] = []   # (frame index, image) before keyframe 1
+        self._segment = 0
+        self._seg_kfs: List[int] = []          # keyframes of the current segment
         self._last_good: Optional[np.ndarray] = None
         self._prev_good: Optional[np.ndarray] = None
         self._brightness = np.zeros(2)
-        self._lost = False
-        lag = float(config.window) - 0.5
-        self.smoother = gtsam.BatchFixedLagSmoother(lag, self._lm_params())
+        self._n_lost = 0
+        self._groups: List[PhotometricFactorGroup] = []     # alive while in the smoother
+        self.smoother = self._new_smoother()
         self._map_reports: List[dict] = []
-        self._sfm_report: Optional[dict] = None
+        self._sfm_reports: List[dict] = []
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -276,25 +390,39 @@ class Odometry:
         idx = len(self._frames)
         timings: Dict[str, float] = {}
         if idx == 0:
-            res = self._start(frame, timings)
-        elif len(self._kf_order) < 2:
+            res = self._start(frame, idx, np.eye(4), timings)
+        elif len(self._seg_kfs) < 2:
             res = self._initialise(frame, idx, timings)
         else:
             res = self._track(frame, idx, timings)
         timings["total"] = time.perf_counter() - t0
         res.timings = timings
+        res.segment = self._segment
         self._frames.append(res)
         return res
 
     def result(self) -> OdometryResult:
-        """Per-frame trajectory (keyframes at their latest smoothed poses)."""
+        """Per-frame trajectory (module docstring, *Trajectory*)."""
         n = len(self._frames)
-        poses = np.array([f.T_world_cam for f in self._frames]).reshape(n, 4, 4)
-        is_kf = np.array([f.keyframe_index is not None for f in self._frames], dtype=bool)
-        for kf in self._kfs.values():
-            poses[kf.frame] = kf.keyframe.T_world_kf
+        poses = np.empty((n, 4, 4))
+        is_kf = np.zeros(n, dtype=bool)
+        kf_of_frame = {kf.frame: kf for kf in self._kfs.values()}
+        for i, f in enumerate(self._frames):
+            if i in kf_of_frame:
+                poses[i] = kf_of_frame[i].keyframe.T_world_kf
+                is_kf[i] = True
+            elif i in self._support_pose:
+                poses[i] = self._support_pose[i]
+            elif i in self._rel and self._rel[i][0] in self._kfs:
+                k, T_kf_f = self._rel[i]
+                poses[i] = self._kfs[k].keyframe.T_world_kf @ T_kf_f
+            elif f.status == "lost" and i > 0:
+                poses[i] = poses[i - 1]
+            else:
+                poses[i] = f.T_world_cam
         return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
-                              poses, [f.status for f in self._frames], is_kf)
+                              poses, [f.status for f in self._frames], is_kf,
+                              np.array([f.segment for f in self._frames], dtype=int))
 
     def smoother_estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
@@ -305,10 +433,44 @@ class Odometry:
         """All keyframes in creation order (the window's at their smoothed state)."""
         return [self._kfs[k].keyframe for k in self._kf_order]
 
-    def save(self, directory: Union[str, Path]) -> Dict[str, Path]:
-        """Write ``trajectory.txt`` (every frame with a pose), ``keyframes.txt``
-        (TUM, camera-to-world), ``trajectory.status.txt`` (per-frame status and
-        keyframe flag) and ``report.json``; returns their paths."""
+    @property
+    def frames(self) -> List[FrameResult]:
+        """The :class:`FrameResult` of every frame so far."""
+        return list(self._frames)
+
+    def report(self) -> dict:
+        """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
+        initialisation reports, configuration."""
+        res = self.result()
+        counts = {s: int(sum(1 for x in res.statuses if x == s)) for s in STATUSES}
+        tot = [f.timings.get("total", 0.0) for f in self._frames]
+        n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
+        maps = [m["seconds"] for m in self._map_reports]
+        return {
+            "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
+            "n_segments": self._segment + 1,
+            "status_counts": counts,
+            "seconds_total": float(np.sum(tot)),
+            "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
+            "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
+                                  for k in ("track", "frontend", "mapping", "init")},
+            "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
+            "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
+            "config": dataclasses.asdict(self.config),
+            "frontend": getattr(self.frontend, "name", str(self.frontend)),
+            "sfm": self._sfm_reports,
+            "mapping": self._map_reports,
+            "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
+                        "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
+                       for f in self._frames],
+        }
+
+    def save(self, directory: Union[str, Path], clouds: bool = True) -> Dict[str, object]:
+        """Write ``trajectory.txt`` (every frame, TUM ``timestamp tx ty tz qx qy
+        qz qw``, camera-to-world, :meth:`result` poses), ``keyframes.txt``,
+        ``trajectory.status.txt`` (per-frame status, keyframe flag, segment),
+        ``report.json`` and, with ``clouds``, one PLY per keyframe in
+        ``clouds/`` (world frame, metres, coloured); returns their paths."""
         from spgeo.evaluation.trajectory import status_path_for, write_status, write_tum
 
         out = Path(directory)
@@ -321,35 +483,33 @@ class Odometry:
                   header=["spgeo.odometry keyframes"])
         status = status_path_for(traj)
         write_status(status, res.timestamps, res.statuses,
-                     {"keyframe": [int(k) for k in res.is_keyframe]})
-        counts = {s: int(sum(1 for x in res.statuses if x == s)) for s in STATUSES}
-        tot = [f.timings.get("total", 0.0) for f in self._frames]
-        report = {
-            "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
-            "status_counts": counts,
-            "seconds_total": float(np.sum(tot)),
-            "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
-            "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
-                                  for k in ("track", "frontend", "mapping", "init")},
-            "config": _jsonable(dataclasses.asdict(self.config)),
-            "frontend": getattr(self.frontend, "name", str(self.frontend)),
-            "sfm": _jsonable(self._sfm_report),
-            "mapping": _jsonable(self._map_reports),
-            "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
-                        "keyframe": f.keyframe_index, "timings": f.timings}
-                       for f in self._frames],
-        }
+                     {"keyframe": [int(k) for k in res.is_keyframe],
+                      "segment": [int(s) for s in res.segments]})
         rep = out / "report.json"
-        rep.write_text(json.dumps(report, indent=1), encoding="utf-8")
-        return {"trajectory": traj, "keyframes": kfs, "status": status, "report": rep}
+        rep.write_text(json.dumps(self.report(), indent=1, default=json_default),
+                       encoding="utf-8")
+        paths: Dict[str, object] = {"trajectory": traj, "keyframes": kfs, "status": status,
+                                    "report": rep}
+        if clouds:
+            cdir = out / "clouds"
+            cdir.mkdir(exist_ok=True)
+            paths["clouds"] = []
+            for k in self._kf_order:
+                kf = self._kfs[k]
+                pc = kf.keyframe.primitives.point_cloud(kf.image).transformed(kf.keyframe.T_world_kf)
+                p = cdir / f"keyframe_{k:04d}.ply"
+                pc.save_ply(p)
+                paths["clouds"].append(p)
+        return paths
 
     # ------------------------------------------------------------ stages
-    def _lm_params(self) -> gtsam.LevenbergMarquardtParams:
+    def _new_smoother(self) -> gtsam.BatchFixedLagSmoother:
         p = gtsam.LevenbergMarquardtParams()
         p.setMaxIterations(int(self.config.map_iterations))
-        p.setRelativeErrorTol(1e-4)
+        p.setRelativeErrorTol(float(self.config.map_relative_tol))
         p.setAbsoluteErrorTol(1e-9)
-        return p
+        p.setlambdaUpperBound(float(self.config.map_lambda_max))
+        return gtsam.BatchFixedLagSmoother(float(self.config.window) - 0.5, p)
 
     def _primify(self, frame: Frame) -> PrimitiveSet:
         depth = frame.depth if self.frontend.uses_depth else None
@@ -358,17 +518,28 @@ class Odometry:
             raise ValueError("the front-end produced no primitive")
         return prims
 
-    def _start(self, frame: Frame, timings: Dict[str, float]) -> FrameResult:
+    def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
+               timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
+        """Keyframe 0 of a map segment at ``T_world``."""
         t = time.perf_counter()
         prims = self._primify(frame)
         if not self.frontend.uses_depth:
-            prims = prims.with_log_scales(np.zeros(len(prims)))
+            s0 = 0.0 if median_depth is None else float(np.log(median_depth))
+            prims = prims.with_log_scales(np.full(len(prims), s0))
+        prims = apply_primitive_model(prims, self.config.primitive_model)
         timings["frontend"] = time.perf_counter() - t
-        kf = Keyframe.build(frame.image, prims, np.eye(4), self.config.levels)
-        self._kfs[0] = _KF(0, 0, np.asarray(frame.image), kf)
-        self._kf_order.append(0)
-        self._last_good, self._prev_good = np.eye(4), None
-        return FrameResult(0, float(frame.timestamp), np.eye(4), "keyframe", keyframe_index=0)
+        k = len(self._kf_order)
+        kf = Keyframe.build(frame.image, prims, T_world, self.config.levels)
+        self._kfs[k] = _KF(k, idx, np.asarray(frame.image), kf, self._segment)
+        self._kf_order.append(k)
+        self._seg_kfs = [k]
+        self._candidates.clear()
+        self._init_buffer.clear()
+        self._last_good, self._prev_good = np.array(T_world, dtype=float), None
+        self._brightness = np.zeros(2)
+        self._n_lost = 0
+        return FrameResult(idx, float(frame.timestamp), np.array(T_world, dtype=float),
+                           "keyframe" if idx == 0 else "reinit", keyframe_index=k)
 
     def _track_against(self, kf: Keyframe, image: np.ndarray):
         """Constant-velocity guess, then the last good pose; returns the TrackResult."""
@@ -385,41 +556,63 @@ class Odometry:
         self._brightness = np.asarray(tr.brightness, dtype=float).copy()
 
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        kf0 = self._kfs[0]
+        kf0 = self._kfs[self._seg_kfs[0]]
         t = time.perf_counter()
         tr = self._track_against(kf0.keyframe, frame.image)
         timings["track"] = time.perf_counter() - t
+        T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
         if tr.ok:
             self._accept(tr)
-        parallax = (np.linalg.norm(tr.T_world_frame[:3, 3]) / kf0.keyframe.median_depth
+            self._n_lost = 0
+        else:
+            self._n_lost += 1
+        parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
                     if tr.ok else 0.0)
         gap = idx - kf0.frame
         if parallax < self.config.init_min_parallax and gap < self.config.init_max_gap:
             self._init_buffer.append((idx, np.asarray(frame.image)))
+            if tr.ok:
+                self._rel[idx] = (kf0.index, T_kf0_f)
             pose = tr.T_world_frame if tr.ok else self._last_good
             return FrameResult(idx, float(frame.timestamp), pose.copy(),
                                "init" if tr.ok else "lost", track=tr)
-        # ---- two-view SfM: keyframe 0 (reference) and this frame
+        # ---- two-view SfM: keyframe 0 of the segment (reference) and this frame
         t = time.perf_counter()
         sfm_cfg = dataclasses.replace(self.config.sfm, reset_scales=not self.frontend.uses_depth)
-        init = [tr.T_world_frame] if tr.ok else None
-        sfm = few_view_sfm(kf0.image, [frame.image], self.camera, kf0.keyframe.primitives,
-                           sfm_cfg, init_T_ref_view=init)
+        init = [T_kf0_f] if tr.ok else None
+        prims0 = kf0.keyframe.primitives
+        sfm = few_view_sfm(kf0.image, [frame.image], self.camera, prims0, sfm_cfg,
+                           init_T_ref_view=init)
         timings["init"] = time.perf_counter() - t
-        self._sfm_report = {"status": sfm.status, "frame": idx, "parallax": parallax,
-                            **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost",
-                                                               "seconds_total")}}
+        self._sfm_reports.append({
+            "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
+            **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
         if sfm.status == "diverged" or not np.all(np.isfinite(sfm.T_ref_view[0])):
             log.warning("two-view initialisation failed (%s) at frame %d; retrying later",
                         sfm.status, idx)
             self._init_buffer.append((idx, np.asarray(frame.image)))
+            self._n_lost += 1
             return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), "lost",
                                track=tr)
-        kf0.keyframe = Keyframe.build(kf0.image, sfm.primitives, np.eye(4), self.config.levels)
-        T1 = np.asarray(sfm.T_ref_view[0], dtype=float)
+        new_prims = sfm.primitives
+        if self.config.primitive_model != "integrated":
+            new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
+        T_w0 = kf0.keyframe.T_world_kf
+        if not self.frontend.uses_depth and self._segment > 0:
+            # a re-initialised monocular segment keeps the previous map's depth scale
+            med = np.median(np.exp(prims0.scaled_log_depth()))
+            med_new = np.median(np.exp(new_prims.scaled_log_depth()))
+            c = float(np.log(med / med_new))
+            new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
+            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float).copy()
+            T_01[:3, 3] *= np.exp(c)
+        else:
+            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
+        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels)
+        T1 = T_w0 @ T_01
         # re-track the buffered frames against the solved keyframe 0
         prev = None
-        last = np.eye(4)
+        last = T_w0.copy()
         for j, img in self._init_buffer:
             tj = track_frame(kf0.keyframe, img, constant_velocity_guess(last, prev),
                              self._brightness, self.config.tracker)
@@ -427,45 +620,94 @@ class Odometry:
                 prev, last = last, tj.T_world_frame
                 self._frames[j].T_world_cam = tj.T_world_frame.copy()
                 self._frames[j].status = "init"
+                self._rel[j] = (kf0.index, invert_pose(T_w0) @ tj.T_world_frame)
+                self._candidates.append(_Candidate(j, img, self._rel[j][1],
+                                                   np.asarray(tj.brightness, float)))
             else:
                 self._frames[j].status = "lost"
                 self._frames[j].T_world_cam = last.copy()
+                self._rel.pop(j, None)
         self._init_buffer.clear()
         self._last_good, self._prev_good = T1.copy(), last.copy()
-        res = self._new_keyframe(frame, idx, T1, timings, track=tr)
-        return res
+        self._n_lost = 0
+        return self._new_keyframe(frame, idx, T1, timings, track=tr)
+
+    def _relocalise(self, image: np.ndarray) -> Tuple[Optional[TrackResult], Optional[_KF]]:
+        """Track against the window's older keyframes, newest first."""
+        for k in reversed(self._seg_kfs[-self.config.window:-1]):
+            kf = self._kfs[k]
+            tr = track_frame(kf.keyframe, image, self._last_good, self._brightness,
+                             self.config.tracker)
+            if tr.ok:
+                return tr, kf
+        return None, None
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        latest = self._kfs[self._kf_order[-1]]
+        latest = self._kfs[self._seg_kfs[-1]]
+        ref = latest
         t = time.perf_counter()
         tr = self._track_against(latest.keyframe, frame.image)
+        relocalised = False
+        if not tr.ok:
+            tr_old, kf_old = self._relocalise(frame.image)
+            if tr_old is not None:
+                tr, ref, relocalised = tr_old, kf_old, True
         timings["track"] = time.perf_counter() - t
         if not tr.ok:
-            self._lost = True
+            self._n_lost += 1
             log.info("frame %d lost (%s)", idx, tr.reason)
+            if self._n_lost >= self.config.max_lost_frames:
+                log.warning("frame %d: %d frames lost; re-initialising the map", idx,
+                            self._n_lost)
+                return self._reinitialise(frame, idx, timings)
             return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), "lost",
                                track=tr)
-        was_lost, self._lost = self._lost, False
+        was_lost = self._n_lost > 0
+        self._n_lost = 0
         self._accept(tr)
-        T_kf_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
-        rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
-        rot = rotation_angle_deg(T_kf_f[:3, :3])
-        if (tr.valid_fraction < self.config.kf_min_valid_fraction
-                or rel_t > self.config.kf_max_translation
-                or tr.relative_cost > self.config.kf_max_relative_cost
-                or rot > self.config.kf_max_rotation_deg):
+        T_ref_f = invert_pose(ref.keyframe.T_world_kf) @ tr.T_world_frame
+        self._rel[idx] = (ref.index, T_ref_f)
+        status = "relocalised" if (was_lost or relocalised) else "ok"
+        if ref is latest:
+            T_kf_f = T_ref_f
+            rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
+            rot = rotation_angle_deg(T_kf_f[:3, :3])
+            if (tr.valid_fraction < self.config.kf_min_valid_fraction
+                    or rel_t > self.config.kf_max_translation
+                    or tr.relative_cost > self.config.kf_max_relative_cost
+                    or rot > self.config.kf_max_rotation_deg):
+                res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
+                if res is not None:
+                    return res
+            self._add_candidate(_Candidate(idx, np.asarray(frame.image), T_kf_f,
+                                           np.asarray(tr.brightness, float)))
+        else:
+            # tracked against an older keyframe: make it a keyframe to re-anchor the map
             res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
             if res is not None:
                 return res
-        return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(),
-                           "relocalised" if was_lost else "ok", track=tr)
+        return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(), status,
+                           track=tr)
+
+    def _add_candidate(self, cand: _Candidate) -> None:
+        self._candidates.append(cand)
+        cap = max(8 * self.config.n_support, 16)
+        if len(self._candidates) > cap:
+            self._candidates = self._candidates[::2]
+
+    def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        med = self._kfs[self._seg_kfs[-1]].keyframe.median_depth
+        self._segment += 1
+        self.smoother = self._new_smoother()
+        self._groups = []
+        return self._start(frame, idx, self._last_good.copy(), timings, median_depth=med)
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult]):
         cfg = self.config
         t = time.perf_counter()
         prims = self._primify(frame)
-        window = [self._kfs[k] for k in self._kf_order[-cfg.window:]]
+        window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
                                   prims.camera, T_world, splat=cfg.render_splat)
         try:
@@ -474,15 +716,19 @@ class Odometry:
             log.warning("frame %d: no keyframe (%s)", idx, exc)
             timings["frontend"] = time.perf_counter() - t
             return None
+        prims = apply_primitive_model(prims, cfg.primitive_model)
         timings["frontend"] = time.perf_counter() - t
         k = len(self._kf_order)
         kf = _KF(k, idx, np.asarray(frame.image),
-                 Keyframe.build(frame.image, prims, T_world, cfg.levels))
+                 Keyframe.build(frame.image, prims, T_world, cfg.levels), self._segment)
         self._kfs[k] = kf
         self._kf_order.append(k)
+        self._seg_kfs.append(k)
+        self._rel.pop(idx, None)
         t = time.perf_counter()
         self._map(k)
         timings["mapping"] = time.perf_counter() - t
+        self._candidates.clear()
         T_new = self._kfs[k].keyframe.T_world_kf
         # the smoothed pose of the new keyframe replaces the tracked one
         # (the same world-frame correction moves the previous pose of the velocity model)
@@ -494,96 +740,136 @@ class Odometry:
                            keyframe_index=k, track=track)
 
     # ------------------------------------------------------------ mapping
-    def _pair_factors(self, ref: _KF, tgt: _KF, graph: gtsam.NonlinearFactorGraph) -> int:
-        """Photometric factors of ref's primitives observed in tgt (map level)."""
+    @property
+    def _planar(self) -> bool:
+        return self.config.primitive_model == "planar"
+
+    def _shape_values(self, kf: _KF) -> np.ndarray:
+        """(N, dim) initial shape variables of a keyframe's primitives."""
+        prims = kf.keyframe.primitives
+        if self._planar:
+            return prims.fit_planes()
+        return prims.log_scales.reshape(-1, 1)
+
+    def _group(self, ref: _KF, tgt_key: int, tgt_image: np.ndarray,
+               tgt_camera: PinholeCamera, bkey: int) -> Optional[PhotometricFactorGroup]:
+        """Photometric factors of ref's primitives observed in a target (map level)."""
         cfg = self.config
-        lvl = cfg.map_level
+        data = ref.keyframe.level_data(cfg.map_level, cfg.map_stride, cfg.min_level_pixels)
+        if data.prim_index.size == 0:
+            return None
         prims = ref.keyframe.primitives
-        cam = prims.camera
-        w = cam.width
-        stride = 2 ** lvl
-        rays_all = cam.rays().reshape(-1, 3)[prims.pixels]
-        ref_img = ref.keyframe.pyramid.images[lvl]
-        tgt_img = tgt.keyframe.pyramid.images[lvl]
-        tgt_cam = tgt.keyframe.pyramid.cameras[lvl]
-        bkey = kf_brightness_key(ref.index, tgt.index)
-        n = 0
-        for i, ent in enumerate(_level_pixels(prims, stride * cfg.map_stride)):
-            if ent.size < cfg.min_level_pixels:
-                continue
-            pix = prims.pixels[ent]
-            ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
-            f = PrimitivePhotometricFactor(
-                kf_pose_key(ref.index), kf_pose_key(tgt.index), kf_scale_key(ref.index, i),
-                ScaledShape(rays_all[ent], prims.log_depth[ent]), ref_int, tgt_img, tgt_cam,
-                bkey, cfg.photometric, n_pixels=ent.size)
-            graph.add(f.factor)
-            n += 1
-        graph.add(brightness_prior(bkey, cfg.brightness_prior_sigma))
-        return n
+        rays = prims.camera.rays().reshape(-1, 3)[prims.pixels[data.entries]]
+        shape = (PlanarShape(rays) if self._planar
+                 else ScaledShape(rays, prims.log_depth[data.entries]))
+        offsets = np.concatenate([[0], np.cumsum(np.bincount(data.ids,
+                                                             minlength=data.prim_index.size))])
+        keys = [kf_scale_key(ref.index, i) for i in data.prim_index]
+        return PhotometricFactorGroup(kf_pose_key(ref.index), tgt_key, keys, shape, offsets,
+                                      data.ref_intensity, tgt_image, tgt_camera, bkey,
+                                      cfg.photometric, n_pixels=data.n_pixels,
+                                      chunk=cfg.map_chunk)
 
     def _map(self, k: int) -> None:
-        """Add keyframe ``k`` (k >= 1) to the smoother and update the window."""
+        """Add keyframe ``k`` (second or later of its segment) and the previous
+        keyframe's supporting frames to the smoother and update the window."""
         cfg = self.config
+        lvl = cfg.map_level
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
 
+        def stamp(key: int, t: int) -> None:
+            stamps.insert((key, float(t)))
+
         def add_kf(kf: _KF) -> None:
             values.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf))
-            stamps.insert((kf_pose_key(kf.index), float(kf.index)))
-            s = kf.keyframe.primitives.log_scales
-            for i in range(len(s)):
+            stamp(kf_pose_key(kf.index), kf.index)
+            th = self._shape_values(kf)
+            for i in range(th.shape[0]):
                 key = kf_scale_key(kf.index, i)
-                values.insert(key, np.array([s[i]]))
-                stamps.insert((key, float(kf.index)))
-                graph.add(log_scale_prior(key, float(s[i]), cfg.scale_prior_weight))
+                values.insert(key, th[i].copy())
+                stamp(key, kf.index)
+                if self._planar:
+                    graph.add(planar_slope_prior(key, float(th[i, 2]), cfg.planar_slope_sigma,
+                                                 1.0 / np.sqrt(cfg.scale_prior_weight)))
+                else:
+                    graph.add(log_scale_prior(key, float(th[i, 0]), cfg.scale_prior_weight))
 
-        new, prev = self._kfs[k], self._kfs[self._kf_order[-2]]
-        if k == 1:
+        def add_group(group: Optional[PhotometricFactorGroup], bkey: int, b0, t: int) -> int:
+            if group is None:
+                return 0
+            for f in group.factors:
+                graph.add(f)
+            self._groups.append(group)
+            values.insert(bkey, np.asarray(b0, dtype=float))
+            stamp(bkey, t)
+            graph.add(brightness_prior(bkey, cfg.brightness_prior_sigma))
+            return len(group)
+
+        new, prev = self._kfs[k], self._kfs[self._seg_kfs[-2]]
+        if len(self._seg_kfs) == 2:
             add_kf(prev)
             graph.add(pose_gauge_prior(kf_pose_key(prev.index), prev.keyframe.T_world_kf,
                                        cfg.gauge_sigma))
         add_kf(new)
-        n_fwd = self._pair_factors(prev, new, graph)
-        n_bwd = self._pair_factors(new, prev, graph)
+        n_pair = 0
         for ref, tgt in ((prev, new), (new, prev)):
-            key = kf_brightness_key(ref.index, tgt.index)
-            values.insert(key, np.zeros(2))
-            stamps.insert((key, float(k)))
+            bkey = kf_brightness_key(ref.index, tgt.index)
+            g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
+                            tgt.keyframe.pyramid.cameras[lvl], bkey)
+            n_pair += add_group(g, bkey, np.zeros(2), k)
+        # supporting frames of the previous keyframe: evenly spaced among its tracked frames
+        cands = self._candidates
+        chosen = []
+        if cfg.n_support > 0 and cands:
+            pick = np.unique(np.round(np.linspace(0, len(cands) - 1,
+                                                  min(cfg.n_support, len(cands)))).astype(int))
+            chosen = [cands[i] for i in pick]
+        n_sup = 0
+        for c in chosen:
+            pkey = support_pose_key(c.frame)
+            pyr = prev.keyframe.frame_pyramid(c.image, lvl + 1)
+            T_w = prev.keyframe.T_world_kf @ c.T_kf_frame
+            values.insert(pkey, gtsam.Pose3(T_w))
+            stamp(pkey, prev.index)
+            bkey = _support_brightness_key(c.frame)
+            g = self._group(prev, pkey, pyr.images[lvl], pyr.cameras[lvl], bkey)
+            n_sup += add_group(g, bkey, c.brightness, prev.index)
+            self._support_frames.append(c.frame)
         t = time.perf_counter()
         self.smoother.update(graph, values, stamps)
         est = self.smoother.calculateEstimate()
         secs = time.perf_counter() - t
-        # refresh the window's keyframes from the estimate
-        for j in self._kf_order:
+        self._refresh(est)
+        self._groups = [g for g in self._groups if est.exists(g.ref_key) and est.exists(g.tgt_key)]
+        self._map_reports.append({"keyframe": k, "segment": self._segment,
+                                  "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
+                                  "support_frames": [c.frame for c in chosen],
+                                  "seconds": secs, "keys_in_window": int(est.size())})
+        log.debug("mapping kf %d: %d + %d factors, %.2f s", k, n_pair, n_sup, secs)
+
+    def _refresh(self, est: gtsam.Values) -> None:
+        """Window keyframes and supporting frames from the smoother's estimate."""
+        for j in self._seg_kfs[-self.config.window - 1:]:
             kf = self._kfs[j]
             if not est.exists(kf_pose_key(j)):
                 continue
             T = est.atPose3(kf_pose_key(j)).matrix()
             n_s = len(kf.keyframe.primitives)
-            s = np.array([est.atVector(kf_scale_key(j, i))[0] for i in range(n_s)])
-            if not (np.all(np.isfinite(T)) and np.all(np.isfinite(s))):
+            th = np.array([est.atVector(kf_scale_key(j, i)) for i in range(n_s)])
+            if not (np.all(np.isfinite(T)) and np.all(np.isfinite(th))):
                 log.warning("mapping produced non-finite values for keyframe %d; kept", j)
                 continue
-            kf.keyframe = Keyframe.build(kf.image, kf.keyframe.primitives.with_log_scales(s), T,
-                                         cfg.levels)
-        self._map_reports.append({"keyframe": k, "factors_forward": n_fwd,
-                                  "factors_backward": n_bwd, "seconds": secs,
-                                  "keys_in_window": int(est.size())})
-        log.debug("mapping kf %d: %d+%d factors, %.2f s", k, n_fwd, n_bwd, secs)
-
-
-def _jsonable(obj):
-    """Convert dataclass dicts / numpy values for json."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if obj is None or isinstance(obj, (int, float, str, bool)):
-        return obj
-    return str(obj)
+            prims = kf.keyframe.primitives
+            if self._planar:
+                prims = prims.with_planes(th)[0]
+            else:
+                prims = prims.with_log_scales(th[:, 0])
+            kf.keyframe = Keyframe.build(kf.image, prims, T, self.config.levels)
+        for f in self._support_frames[-(self.config.window + 1) * max(self.config.n_support, 1):]:
+            key = support_pose_key(f)
+            if est.exists(key):
+                T = est.atPose3(key).matrix()
+                if np.all(np.isfinite(T)):
+                    self._support_pose[f] = T

@@ -360,6 +360,66 @@ class PrimitiveSet:
         out.log_scales = s.copy()
         return out
 
+    def with_scaled_log_depth(self, scaled_log_depth: np.ndarray) -> "PrimitiveSet":
+        """A copy whose shapes follow a new per-pixel metric log-depth (N
+        entries, as :meth:`scaled_log_depth`): the log-scale becomes its value
+        at the anchor and the unscaled shape the rest."""
+        L = np.asarray(scaled_log_depth, dtype=np.float64).reshape(-1)
+        if L.shape != self.log_depth.shape or not np.all(np.isfinite(L)):
+            raise ValueError(f"scaled_log_depth must be ({self.log_depth.size},) finite")
+        s = L[self._anchor_entries()]
+        out = PrimitiveSet(self.camera, self.pixels, self.offsets, L - np.repeat(s, self.sizes),
+                           self.anchors, s, self.scores, self.normals, self.meta)
+        return out
+
+    def fit_planes(self, log_scales: Optional[np.ndarray] = None,
+                   ridge: float = 1e-6) -> np.ndarray:
+        """Least-squares inverse-depth plane of each primitive.
+
+        Returns ``(N, 3)`` ``theta`` with ``1/z ~= theta . (x, y, 1)`` over the
+        primitive's pixels (``(x, y)`` normalised image coordinates; ``z`` the
+        scaled depth, metres, with ``log_scales`` or the set's own).  The
+        slope ``(a, b)`` is damped by ``ridge`` (times the pixel count and the
+        mean squared inverse depth) so one-pixel or collinear primitives get a
+        fronto-parallel plane instead of a singular solve.
+        """
+        w = self.camera.width
+        x = (self.pixels % w - self.camera.cx) / self.camera.fx
+        y = (self.pixels // w - self.camera.cy) / self.camera.fy
+        rho = np.exp(-self.scaled_log_depth(log_scales))
+        r = np.stack([x, y, np.ones_like(x)], -1)
+        ids = self.primitive_ids
+        n = len(self)
+        A = np.zeros((n, 3, 3))
+        b = np.zeros((n, 3))
+        for i in range(3):
+            b[:, i] = np.bincount(ids, weights=r[:, i] * rho, minlength=n)
+            for j in range(i, 3):
+                A[:, i, j] = A[:, j, i] = np.bincount(ids, weights=r[:, i] * r[:, j], minlength=n)
+        damp = ridge * self.sizes * np.bincount(ids, weights=rho ** 2, minlength=n) / self.sizes
+        A[:, 0, 0] += damp + 1e-12
+        A[:, 1, 1] += damp + 1e-12
+        return np.linalg.solve(A, b[:, :, None])[:, :, 0]
+
+    def with_planes(self, planes: np.ndarray, min_inverse_depth: float = 1e-6
+                    ) -> Tuple["PrimitiveSet", np.ndarray]:
+        """A copy whose primitives lie on the given inverse-depth planes
+        (:meth:`fit_planes` convention).  Primitives whose plane is behind the
+        camera (or parallel to a ray) at any of their pixels keep their shape;
+        returns ``(set, replaced (N,) bool)``."""
+        th = np.asarray(planes, dtype=np.float64).reshape(len(self), 3)
+        w = self.camera.width
+        x = (self.pixels % w - self.camera.cx) / self.camera.fx
+        y = (self.pixels // w - self.camera.cy) / self.camera.fy
+        ids = self.primitive_ids
+        rho = th[ids, 0] * x + th[ids, 1] * y + th[ids, 2]
+        ok_pix = np.isfinite(rho) & (rho > min_inverse_depth)
+        ok = np.bincount(ids, weights=~ok_pix, minlength=len(self)) == 0
+        L = self.scaled_log_depth().copy()
+        use = ok[ids]
+        L[use] = -np.log(rho[use])
+        return self.with_scaled_log_depth(L), ok
+
     def fit_log_scales(self, depth: np.ndarray, min_points: int = 1
                        ) -> Tuple[np.ndarray, np.ndarray]:
         """Per-primitive robust scale from a (possibly sparse) metric depth map.

@@ -187,3 +187,101 @@ def test_priors_weights_and_gauge():
     k = gtsam.symbol("p", 0)
     vals.insert(k, np.array([0.2, 0.0, 0.5]))
     assert planar_slope_prior(k, 0.5, slope_sigma=0.2).error(vals) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("model", ["scaled", "planar"])
+@pytest.mark.parametrize("normalise", ["valid", "all", "none"])
+def test_factor_group_equals_individual_factors(model, normalise):
+    """PhotometricFactorGroup: every factor's error and Jacobians equal the
+    stand-alone PrimitivePhotometricFactor of that primitive (with pixels
+    leaving the image and a primitive behind the camera in the mix), the
+    batch is evaluated once per linearisation, and a changed variable is never
+    served from the cache."""
+    from spgeo.factors.photometric import PhotometricFactorGroup
+
+    rng = np.random.default_rng(3)
+    cfg = PhotometricConfig(robust="huber", normalise=normalise)
+    img = smooth_image(1)
+    sizes = [30, 1, 55, 12]
+    pix_u = rng.uniform(-20, 140, sum(sizes))          # some project outside the image
+    pix_v = rng.uniform(-10, 100, sum(sizes))
+    rays = np.stack([(pix_u - CAM.cx) / CAM.fx, (pix_v - CAM.cy) / CAM.fy,
+                     np.ones(pix_u.size)], -1)
+    ld = 0.1 * np.sin(pix_u / 20.0)
+    ref_int = rng.uniform(0.2, 0.8, pix_u.size)
+    off = np.concatenate([[0], np.cumsum(sizes)])
+    skeys = [gtsam.symbol("s", i) for i in range(len(sizes))]
+    if model == "scaled":
+        shape = ScaledShape(rays, ld)
+        thetas = [np.array([v]) for v in (0.3, -0.2, 0.7, 0.0)]
+        sub = [ScaledShape(rays[a:b], ld[a:b]) for a, b in zip(off[:-1], off[1:])]
+    else:
+        shape = PlanarShape(rays)
+        thetas = [np.array([0.05, -0.03, 0.5]), np.array([0.0, 0.0, 0.4]),
+                  np.array([0.0, 0.0, -0.5]), np.array([0.1, 0.02, 0.3])]   # one behind
+        sub = [PlanarShape(rays[a:b]) for a, b in zip(off[:-1], off[1:])]
+    n_all = np.array(sizes, float) * 2
+    group = PhotometricFactorGroup(X_, X1, skeys, shape, off, ref_int, img, CAM, B_, cfg,
+                                   n_pixels=n_all)
+    singles = [PrimitivePhotometricFactor(X_, X1, skeys[i], sub[i], ref_int[a:b], img, CAM, B_,
+                                          cfg, n_pixels=int(n_all[i]))
+               for i, (a, b) in enumerate(zip(off[:-1], off[1:]))]
+    vals = gtsam.Values()
+    vals.insert(X_, gtsam.Pose3(pose([0.01, -0.02, 0.015], [0.1, 0.05, -0.02])))
+    vals.insert(X1, gtsam.Pose3(pose([-0.03, 0.02, 0.01], [-0.08, 0.02, 0.05])))
+    vals.insert(B_, np.array([0.1, -0.05]))
+    for k, th in zip(skeys, thetas):
+        vals.insert(k, th)
+    graph = gtsam.NonlinearFactorGraph()
+    for f in group.factors:
+        graph.add(f)
+    lin = graph.linearize(vals)
+    assert group.n_batch_evaluations == 1
+    for i, s in enumerate(singles):
+        A_g, b_g = lin.at(i).jacobian()
+        A_s, b_s = s.factor.linearize(vals).jacobian()
+        np.testing.assert_allclose(A_g, A_s, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(b_g, b_s, rtol=1e-12, atol=1e-12)
+    # change one primitive's variable only: its error must follow
+    vals.update(skeys[2], thetas[2] + 0.05)
+    np.testing.assert_allclose(group.factors[2].unwhitenedError(vals),
+                               singles[2].factor.unwhitenedError(vals), atol=1e-14)
+    assert graph.error(vals) == pytest.approx(sum(s.factor.error(vals) for s in singles), rel=1e-12)
+
+
+def test_factor_group_chunks_give_the_same_cost_and_linear_system():
+    """chunk > 1 stacks primitives into one gtsam factor: same total error,
+    same Hessian / gradient of the linearised system as one factor each."""
+    from spgeo.factors.photometric import PhotometricFactorGroup
+
+    rng = np.random.default_rng(5)
+    sizes = [9, 14, 1, 20, 7]
+    k = sum(sizes)
+    u, v = rng.uniform(5, 123, k), rng.uniform(5, 91, k)
+    rays = np.stack([(u - CAM.cx) / CAM.fx, (v - CAM.cy) / CAM.fy, np.ones(k)], -1)
+    off = np.concatenate([[0], np.cumsum(sizes)])
+    skeys = [gtsam.symbol("s", i) for i in range(len(sizes))]
+    vals = gtsam.Values()
+    vals.insert(X_, gtsam.Pose3(pose([0.01, -0.02, 0.015], [0.1, 0.05, -0.02])))
+    vals.insert(X1, gtsam.Pose3(pose([-0.03, 0.02, 0.01], [-0.08, 0.02, 0.05])))
+    vals.insert(B_, np.array([0.05, 0.01]))
+    for i, key in enumerate(skeys):
+        vals.insert(key, np.array([0.1 * i]))
+    out = {}
+    for chunk in (1, 2, 5):
+        grp = PhotometricFactorGroup(X_, X1, skeys, ScaledShape(rays, 0.05 * np.sin(u / 9)), off,
+                                     rng.uniform(0.2, 0.8, k) * 0 + np.linspace(0.3, 0.7, k),
+                                     smooth_image(2), CAM, B_, PhotometricConfig(), chunk=chunk)
+        graph = gtsam.NonlinearFactorGraph()
+        for f in grp.factors:
+            graph.add(f)
+        assert graph.size() == -(-len(sizes) // chunk)
+        lin = graph.linearize(vals)
+        order = gtsam.Ordering()
+        for key in [X_, X1, B_] + skeys:
+            order.push_back(key)
+        out[chunk] = (graph.error(vals), lin.hessian(order))
+    for chunk in (2, 5):
+        assert out[chunk][0] == pytest.approx(out[1][0], rel=1e-12)
+        np.testing.assert_allclose(out[chunk][1][0], out[1][1][0], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(out[chunk][1][1], out[1][1][1], rtol=1e-10, atol=1e-12)

@@ -1,0 +1,428 @@
+"""Batch runner of the monocular VO (:class:`spgeo.odometry.Odometry`) over a
+frame sequence or a data set, with Sim(3) ATE against the ground truth.
+
+* :func:`run_odometry`: frames (any iterable of :class:`~spgeo.frame.Frame`)
+  -> :class:`VORun`.  Every image is resized to ``VORunConfig.resolution``
+  (``cv2.INTER_AREA``, the camera with :meth:`PinholeCamera.resized`); the
+  depth map is resized (``cv2.INTER_NEAREST``) and passed on **only** when the
+  front-end uses depth (``frontend.uses_depth``): with a monocular front-end
+  the runner never touches ``Frame.depth``.
+* :func:`run_dataset`: the same on a data set opened with
+  :func:`spgeo.datasets.open_dataset`, with ``load_depth=False`` for a
+  monocular front-end (the depth files are not even opened).
+* :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
+  ``evo_ape -as`` equivalent) over the frames not flagged ``"lost"``.
+* :meth:`VORun.save`: ``trajectory.txt`` (every processed frame, TUM format,
+  camera-to-world ``T_world_cam``), ``keyframes.txt``,
+  ``trajectory.status.txt``, ``report.json`` (with ``"run"`` and, when there
+  is ground truth, ``"ate"``) and keyframe point clouds in ``clouds/``.
+
+Frames: ``T_world_cam`` is the 4x4 camera-to-world pose; the VO's world is
+keyframe 0's camera (arbitrary scale for a monocular front-end), the
+ground truth's world is the data set's.  Translations are in metres for the
+ground truth, in the VO's unit for the estimate; ATE is in ground-truth metres
+after the Sim(3) alignment.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Tuple, Union
+
+import numpy as np
+
+from .frame import Frame
+from .jsonio import json_default
+from .frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from .odometry import Odometry, OdometryConfig, OdometryResult
+
+__all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "make_vo_frontend",
+           "parse_resolution"]
+
+log = logging.getLogger(__name__)
+
+#: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
+ATE_LABELS = ("per-frame", "keyframe-only")
+
+
+def parse_resolution(text: str) -> Tuple[int, int]:
+    """``"WxH"`` (e.g. ``"160x120"``) -> ``(width, height)`` in pixels.
+
+    Raises ``ValueError`` for anything but two positive integers separated by
+    ``x``.
+    """
+    parts = str(text).strip().lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise ValueError(f"invalid resolution {text!r}: expected WIDTHxHEIGHT, e.g. 160x120")
+    w, h = (int(p) for p in parts)
+    if w < 16 or h < 16:
+        raise ValueError(f"invalid resolution {text!r}: width and height must be >= 16 pixels")
+    return w, h
+
+
+@dataclass(frozen=True)
+class VORunConfig:
+    """Options of :func:`run_odometry` / :func:`run_dataset`.
+
+    Attributes:
+        resolution: ``(width, height)`` in pixels the frames are resized to
+            before the VO sees them (default ``(160, 120)``); also the
+            front-end's working size.
+        frontend: front-end name for :func:`spgeo.frontend.make_frontend`:
+            ``"classical"`` (default; monocular, reads no depth), ``"depth"``
+            (normals and initial scales from the sensor depth: RGB-D / oracle)
+            or ``"onnx"`` (SAM + normal network; models from
+            ``spgeo models fetch``).  Ignored when a built front-end is given.
+        odometry: :class:`~spgeo.odometry.OdometryConfig` of the VO.
+        progress: show a tqdm progress bar with live FPS (default True).
+        sam_family: ``onnx`` only: SAM registry family (default None: the
+            registry default, ``efficientsam-vitt``).
+        normal_model: ``onnx`` only: normal-network registry name or ``.onnx``
+            path (default None: ``metric3d-vit-small-fp16``).
+        ate_max_time_diff: timestamp tolerance (seconds, or frames for data
+            sets timed by frame number) of the ATE association (default 1e-3:
+            estimate and ground truth share the frames' timestamps).
+    """
+
+    resolution: Tuple[int, int] = (160, 120)
+    frontend: str = "classical"
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    progress: bool = True
+    sam_family: Optional[str] = None
+    normal_model: Optional[str] = None
+    ate_max_time_diff: float = 1e-3
+
+    def __post_init__(self) -> None:
+        res = tuple(self.resolution)
+        if len(res) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in res):
+            raise ValueError(f"VORunConfig.resolution must be (width, height) positive integers, "
+                             f"got {self.resolution!r}")
+        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        if self.frontend not in FRONTENDS:
+            raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
+                             f"got {self.frontend!r}")
+        if not isinstance(self.odometry, OdometryConfig):
+            raise ValueError("VORunConfig.odometry must be an OdometryConfig")
+        if not self.ate_max_time_diff > 0:
+            raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
+
+
+def make_vo_frontend(config: VORunConfig = VORunConfig()) -> PrimitiveFrontEnd:
+    """The front-end named by ``config.frontend`` with working size ``config.resolution``.
+
+    ``onnx`` raises ``FileNotFoundError`` when its models are not in the cache.
+    """
+    sam = normals = None
+    if config.frontend == "onnx":
+        sam = {"family": config.sam_family} if config.sam_family else None
+        normals = {"name_or_path": config.normal_model} if config.normal_model else None
+    return make_frontend(config.frontend, FrontEndConfig(working_size=config.resolution),
+                         sam=sam, normals=normals)
+
+
+@dataclass
+class VORun:
+    """Outcome of :func:`run_odometry`.
+
+    Attributes:
+        odometry: the :class:`~spgeo.odometry.Odometry` after the last frame
+            (trajectory, keyframes, :meth:`Odometry.save`).
+        gt_poses: per processed frame, the ground-truth camera-to-world 4x4
+            ``T_world_cam`` (data-set world, metres) or None where absent.
+        timestamps: (n,) frame timestamps (seconds; frame numbers for data
+            sets without timestamps, e.g. 7-Scenes).
+        names: per-frame names (file stems).
+        wall_seconds: wall time of the whole loop (frame loading, resizing and
+            VO), seconds.
+        fps: processed frames per wall-clock second (``n / wall_seconds``).
+        config: the :class:`VORunConfig` used.
+        keyframe_images: keyframe index -> the resized RGB image (float32
+            [0, 1]) the keyframe was made from (colours of the point clouds).
+    """
+
+    odometry: Odometry
+    gt_poses: List[Optional[np.ndarray]]
+    timestamps: np.ndarray
+    names: List[str]
+    wall_seconds: float
+    fps: float
+    config: VORunConfig
+    keyframe_images: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """True when at least one frame has a ground-truth pose."""
+        return any(T is not None for T in self.gt_poses)
+
+    def result(self) -> OdometryResult:
+        """The VO trajectory (:meth:`Odometry.result`)."""
+        return self.odometry.result()
+
+    def status_counts(self) -> Dict[str, int]:
+        """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``, ...)."""
+        return dict(Counter(self.result().statuses))
+
+    def ate(self) -> Optional[Dict[str, object]]:
+        """Sim(3)-aligned ATE of the frames not flagged ``"lost"``.
+
+        Returns ``{"per-frame": AteResult, "keyframe-only": AteResult or None}``
+        (:class:`spgeo.evaluation.trajectory.AteResult`; errors in ground-truth
+        metres; keyframe-only aligns on the keyframes alone and is None with
+        fewer than 3 keyframes), or None when no frame has ground truth or
+        fewer than 3 poses can be evaluated (logged).
+        """
+        from .evaluation.trajectory import ate_per_frame_and_keyframes
+
+        if not self.has_ground_truth:
+            return None
+        res = self.result()
+        keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
+        has_gt = [i for i, T in enumerate(self.gt_poses) if T is not None]
+        gt = (self.timestamps[has_gt], np.array([self.gt_poses[i] for i in has_gt]))
+        try:
+            return ate_per_frame_and_keyframes(
+                (res.timestamps[keep], res.poses[keep]), gt, res.is_keyframe[keep],
+                max_time_diff=self.config.ate_max_time_diff)
+        except ValueError as exc:
+            log.warning("ATE not available: %s", exc)
+            return None
+
+    def ate_report(self, ate: Optional[Dict[str, object]] = None) -> Optional[Dict[str, object]]:
+        """JSON-friendly :meth:`ate`: per label the summary (``rmse_m``,
+        ``rmse_percent_of_length``, ``trajectory_length_m``, ``scale``, ...) or
+        None, plus ``n_lost_excluded``; None without ground truth.  ``ate``: a
+        result of :meth:`ate` to reuse (default: computed here)."""
+        if ate is None:
+            ate = self.ate()
+        if ate is None:
+            return None
+        out: Dict[str, object] = {lab: (None if ate.get(lab) is None else ate[lab].summary())
+                                  for lab in ATE_LABELS}
+        out["n_lost_excluded"] = int(sum(s == "lost" for s in self.result().statuses))
+        out["alignment"] = "Sim(3) (Umeyama, evo_ape -as), translation RMSE"
+        return out
+
+    def summary_lines(self, ate: Optional[Dict[str, object]] = None) -> List[str]:
+        """Short human-readable summary (frames, lost, keyframes, FPS, ATE lines).
+
+        ``ate``: a result of :meth:`ate` to reuse (default: computed here).
+        """
+        res = self.result()
+        n_lost = int(sum(s == "lost" for s in res.statuses))
+        w, h = self.config.resolution
+        lines = [f"{self.n_frames} frames, {n_lost} lost, {int(res.is_keyframe.sum())} "
+                 f"keyframes, {self.fps:.1f} FPS (front-end {self.frontend_name}, {w}x{h})"]
+        if ate is None:
+            ate = self.ate()
+        if ate is None:
+            lines.append("ATE: no ground truth" if not self.has_ground_truth
+                         else "ATE: not available (too few poses)")
+            return lines
+        for lab in ATE_LABELS:
+            a = ate.get(lab)
+            if a is None:
+                lines.append(f"Sim(3) ATE {lab}: not available (fewer than 3 keyframes)")
+            else:
+                lines.append(f"Sim(3) ATE {lab}: {a.rmse:.4f} m = "
+                             f"{a.rmse_percent_of_length:.2f}% of {a.trajectory_length:.3f} m "
+                             f"({a.n_associated} poses, scale {a.scale:.4g})")
+        return lines
+
+    @property
+    def frontend_name(self) -> str:
+        fe = self.odometry.frontend
+        return str(getattr(fe, "name", "") or type(fe).__name__)
+
+    def save(self, directory: Union[str, Path], with_ate: bool = True,
+             ate: Optional[Dict[str, object]] = None) -> Dict[str, object]:
+        """Write the run to ``directory`` (created).
+
+        Files: :meth:`Odometry.save`'s ``trajectory.txt`` (every processed
+        frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
+        ``keyframes.txt``, ``trajectory.status.txt`` and ``report.json``, to
+        which this adds ``"run"`` (resolution, front-end, wall time, FPS) and,
+        with ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`);
+        keyframe point clouds (world frame, PLY) in ``clouds/`` when
+        :meth:`Odometry.save` does not write them itself.  ``ate``: a result
+        of :meth:`ate` to reuse.  Returns the paths (``"clouds"``: a list).
+        """
+        out = Path(directory)
+        paths: Dict[str, object] = dict(self.odometry.save(out))
+        if "clouds" not in paths:
+            paths["clouds"] = self._write_clouds(out / "clouds")
+        report_path = Path(paths["report"])  # type: ignore[arg-type]
+        report = json.loads(report_path.read_text(encoding="utf-8"))
+        w, h = self.config.resolution
+        report["run"] = {"resolution": [w, h], "frontend": self.frontend_name,
+                         "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
+                         "n_frames": self.n_frames,
+                         "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
+                         "frame_names": list(self.names)}
+        if with_ate:
+            report["ate"] = self.ate_report(ate)
+        report_path.write_text(json.dumps(report, indent=1, default=json_default),
+                               encoding="utf-8")
+        return paths
+
+    def _write_clouds(self, folder: Path) -> List[Path]:
+        """One PLY per keyframe (world frame = keyframe 0's camera, VO units)."""
+        import cv2
+
+        folder.mkdir(parents=True, exist_ok=True)
+        written: List[Path] = []
+        for k, kf in enumerate(self.odometry.keyframes):
+            cam = kf.primitives.camera
+            img = self.keyframe_images.get(k)
+            if img is not None and img.shape[:2] != cam.shape:
+                img = cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
+            if img is None:
+                img = kf.pyramid.images[0]
+            cloud = kf.primitives.point_cloud(img).transformed(kf.T_world_kf)
+            path = folder / f"keyframe_{k:04d}.ply"
+            cloud.save_ply(path)
+            written.append(path)
+        return written
+
+
+def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
+                  index: int) -> Frame:
+    import cv2
+
+    image = np.asarray(frame.image)
+    if image.dtype != np.float32:
+        from .images import to_float_image
+
+        image = to_float_image(image)
+    if (image.shape[1], image.shape[0]) != tuple(size):
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    depth = None
+    if use_depth:
+        if frame.depth is None:
+            raise ValueError(f"frame {index} ({frame.name!r}) has no depth but the front-end "
+                             "uses depth (open the data set with depth, or use a monocular "
+                             "front-end)")
+        depth = np.asarray(frame.depth, dtype=np.float32)
+        if (depth.shape[1], depth.shape[0]) != tuple(size):
+            depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
+    return Frame(image, camera, float(frame.timestamp), depth, None, frame.name)
+
+
+def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
+                 frontend: Optional[PrimitiveFrontEnd] = None,
+                 n_frames: Optional[int] = None) -> VORun:
+    """Run the VO over ``frames`` (see the module docstring).
+
+    Args:
+        frames: :class:`~spgeo.frame.Frame` objects in time order (a list, a
+            data-set reader, a generator), all from one camera size;
+            ``T_world_cam`` is kept as ground truth, never given to the VO.
+            ``depth`` is read only when the front-end uses depth.
+        config: :class:`VORunConfig`.
+        frontend: an already-built front-end (overrides ``config.frontend``;
+            its working size should be ``config.resolution``).
+        n_frames: total for the progress bar (default ``len(frames)`` when
+            available).
+
+    Raises:
+        ValueError: no frame, frames of different camera sizes, timestamps not
+            strictly increasing, a depth-using front-end and a frame without
+            depth, or an image the VO rejects.
+    """
+    fe = frontend if frontend is not None else make_vo_frontend(config)
+    use_depth = bool(fe.uses_depth)
+    size = config.resolution
+    if n_frames is None and hasattr(frames, "__len__"):
+        n_frames = len(frames)  # type: ignore[arg-type]
+    from tqdm import tqdm
+
+    vo: Optional[Odometry] = None
+    cam_in = cam = None
+    gt: List[Optional[np.ndarray]] = []
+    stamps: List[float] = []
+    names: List[str] = []
+    kf_images: Dict[int, np.ndarray] = {}
+    counts: Counter = Counter()
+    t0 = time.perf_counter()
+    bar = tqdm(frames, total=n_frames, disable=not config.progress, desc="vo", unit="frame",
+               dynamic_ncols=True)
+    try:
+        for i, f in enumerate(bar):
+            if cam_in is None:
+                cam_in = f.camera
+                cam = cam_in.resized(*size)
+                ain, aout = cam_in.width / cam_in.height, size[0] / size[1]
+                if abs(ain / aout - 1.0) > 0.01:
+                    log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
+                                "(fx and fy scale differently)", size[0], size[1],
+                                cam_in.width, cam_in.height)
+                vo = Odometry(cam, config.odometry, fe)
+            elif f.camera.shape != cam_in.shape:
+                raise ValueError(f"frame {i} ({f.name!r}) is {f.camera.width}x{f.camera.height}, "
+                                 f"the first frame {cam_in.width}x{cam_in.height}: all frames "
+                                 "must share one camera")
+            ts = float(f.timestamp)
+            if not np.isfinite(ts) or (stamps and ts <= stamps[-1]):
+                raise ValueError(f"frame {i} ({f.name!r}): timestamp {ts} is not finite or not "
+                                 f"after the previous one ({stamps[-1] if stamps else None})")
+            small = _resize_frame(f, cam, size, use_depth, i)
+            r = vo.track(small)  # type: ignore[union-attr]
+            gt.append(None if f.T_world_cam is None
+                      else np.asarray(f.T_world_cam, dtype=np.float64).copy())
+            stamps.append(ts)
+            names.append(str(f.name))
+            counts[r.status] += 1
+            if r.keyframe_index is not None:
+                kf_images[r.keyframe_index] = small.image
+            if config.progress:
+                dt = time.perf_counter() - t0
+                bar.set_postfix({"fps": f"{(i + 1) / max(dt, 1e-9):.1f}",
+                                 "kf": len(kf_images), "lost": counts["lost"],
+                                 "status": r.status}, refresh=False)
+    finally:
+        bar.close()
+    if vo is None:
+        raise ValueError("run_odometry: no frames (empty sequence or frame selection)")
+    wall = time.perf_counter() - t0
+    n = len(stamps)
+    log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost", n, wall,
+             n / max(wall, 1e-9), len(kf_images), counts["lost"])
+    return VORun(vo, gt, np.array(stamps, dtype=np.float64), names, wall,
+                 n / max(wall, 1e-9), config, kf_images)
+
+
+def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
+                config: VORunConfig = VORunConfig(),
+                frontend: Optional[PrimitiveFrontEnd] = None, **reader_options) -> VORun:
+    """Open a data set with :func:`spgeo.datasets.open_dataset` and run the VO.
+
+    Args:
+        kind: ``"tum"``, ``"7scenes"``, ``"icl"`` or ``"folder"``.
+        path: the sequence folder.
+        frames: ``"A:B[:S]"`` selection by frame number (default None: all).
+        config, frontend: as for :func:`run_odometry`.
+        reader_options: further reader-config fields (e.g. ``calibration="fr1"``).
+
+    With a monocular front-end the data set is opened with ``load_depth=False``
+    (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
+    from the reader (missing folder, empty selection, ...).
+    """
+    from .datasets import open_dataset
+
+    fe = frontend if frontend is not None else make_vo_frontend(config)
+    opts = dict(reader_options)
+    opts.setdefault("load_depth", bool(fe.uses_depth))
+    if opts["load_depth"] is False and fe.uses_depth:
+        raise ValueError("the front-end uses depth: the data set must be read with depth")
+    seq = open_dataset(kind, path, frames=frames, **opts)
+    if len(seq) == 0:
+        raise ValueError(f"{path}: the frame selection {frames!r} is empty")
+    log.info("VO on %s (%s): %d frames, camera %r", seq.name, kind, len(seq), seq.camera)
+    return run_odometry(seq, config, fe, n_frames=len(seq))
