@@ -696,6 +696,10 @@ class Odometry:
             self._candidates = self._candidates[::2]
 
     def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        grey = np.asarray(frame.image, dtype=np.float64)
+        if float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0):
+            # a featureless frame cannot start a map: stay lost, retry on the next frame
+            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), "lost")
         med = self._kfs[self._seg_kfs[-1]].keyframe.median_depth
         self._segment += 1
         self.smoother = self._new_smoother()

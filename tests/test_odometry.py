@@ -118,3 +118,93 @@ def test_bad_input_raises(frames):
         Odometry(CAM, OdometryConfig(), None)
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
+
+
+# ---------------------------------------------------------------- issue-4 system features
+def test_supporting_frames_are_optimised_in_the_window(run):
+    """Each mapping update links the previous keyframe to up to 4 supporting
+    non-keyframes whose poses are smoother variables; result() reports them at
+    their smoothed poses."""
+    from spgeo.odometry import support_pose_key
+
+    vo, _ = run
+    rep = vo.report()
+    sup = [m["support_frames"] for m in rep["mapping"]]
+    assert all(len(s) <= 4 for s in sup) and sum(len(s) for s in sup) >= 8
+    kf_frames = {i for i, r in enumerate(vo.frames) if r.keyframe_index is not None}
+    flat = [f for s in sup for f in s]
+    assert not kf_frames.intersection(flat)
+    est = vo.smoother_estimate()
+    latest = [f for f in sup[-1]]
+    assert latest and all(est.exists(support_pose_key(f)) for f in latest)
+    res = vo.result()
+    f = latest[0]
+    np.testing.assert_allclose(res.poses[f], est.atPose3(support_pose_key(f)).matrix(), atol=1e-9)
+
+
+def test_reinitialisation_after_a_long_loss(frames):
+    """Frames of another room after the first 25: tracking is lost, then (after
+    max_lost_frames) the map re-initialises on a textured frame as a new
+    segment and tracks the new room; no crash, every frame has a pose, the
+    status file marks the segment."""
+    other = synthetic.render_frames(synthetic.SyntheticScene.generate(7), CAM,
+                                     synthetic.make_trajectory(25, 7), supersample=2)
+    seq = list(frames[:25]) + [Frame(np.zeros_like(frames[0].image), CAM, 0.0,
+                                     depth=frames[0].depth)] * 2 + list(other)
+    vo = Odometry(CAM, OdometryConfig(max_lost_frames=3), frontend())
+    out = [vo.track(Frame(f.image, CAM, i / 30.0, depth=f.depth)) for i, f in enumerate(seq)]
+    st = [r.status for r in out]
+    assert st.count("reinit") == 1
+    k = st.index("reinit")
+    # blank frames 25, 26 are lost; frame 27 (the other room) is the 3rd lost
+    # frame and, being textured, restarts the map
+    assert st[25] == st[26] == "lost" and k == 27
+    assert out[-1].segment == 1 and out[0].segment == 0
+    after = st[k + 1:]
+    assert after.count("lost") <= 2 and after[-1] != "lost"
+    res = vo.result()
+    assert res.poses.shape == (len(seq), 4, 4) and np.all(np.isfinite(res.poses))
+    # the new segment is consistent with the other room's motion (own Sim(3))
+    seg = (res.segments == 1) & res.tracked
+    gt = np.array([f.T_world_cam for f in other])[seg[27:]]
+    a = ate_sim3((res.timestamps[seg], res.poses[seg]), (res.timestamps[seg], gt))
+    assert a.rmse_percent_of_length < 5.0
+
+
+@pytest.mark.parametrize("model", ["constant_depth", "constant_normal"])
+def test_primitive_model_ablations_reshape_primitives(frames, model):
+    from spgeo.odometry import apply_primitive_model
+
+    prims = frontend().primify(frames[0].image, CAM, frames[0].depth)
+    out = apply_primitive_model(prims, model)
+    assert len(out) == len(prims)
+    np.testing.assert_allclose(out.log_scales, prims.log_scales, atol=0.05)
+    if model == "constant_depth":
+        np.testing.assert_array_equal(out.log_depth, 0.0)
+    else:
+        # every primitive lies on its plane: 1/z is affine in (x, y)
+        th = out.fit_planes()
+        w = CAM.width
+        x = (out.pixels % w - CAM.cx) / CAM.fx
+        y = (out.pixels // w - CAM.cy) / CAM.fy
+        ids = out.primitive_ids
+        rho = th[ids, 0] * x + th[ids, 1] * y + th[ids, 2]
+        np.testing.assert_allclose(np.exp(-out.scaled_log_depth()), rho, rtol=2e-3)
+
+
+def test_classical_planar_monocular_accuracy(frames):
+    """Monocular classical front-end (never reads depth) with 3-DoF planar
+    primitives optimised in mapping: Sim(3) ATE < 3% of the trajectory length
+    on the 50-frame sequence (the issue's bound for the long run, asserted on
+    the short one)."""
+    fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
+    vo = Odometry(CAM, OdometryConfig(primitive_model="planar"), fe)
+    for f in frames:
+        vo.track(Frame(f.image, CAM, f.timestamp))     # no depth given at all
+    res = vo.result()
+    gt = np.array([f.T_world_cam for f in frames])
+    ok = res.tracked
+    ate = ate_sim3((res.timestamps[ok], res.poses[ok]), (res.timestamps, gt))
+    log.info("classical planar ATE %.2f%%", ate.rmse_percent_of_length)
+    assert ok.sum() >= N_FRAMES - 2
+    assert ate.rmse_percent_of_length < 3.0
