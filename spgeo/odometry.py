@@ -445,7 +445,7 @@ class Odometry:
         counts = {s: int(sum(1 for x in res.statuses if x == s)) for s in STATUSES}
         tot = [f.timings.get("total", 0.0) for f in self._frames]
         n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
-        maps = [m["seconds"] for m in self._map_reports]
+        maps = [m["seconds"] for m in self._map_reports if "seconds" in m]
         return {
             "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
             "n_segments": self._segment + 1,
@@ -842,7 +842,24 @@ class Odometry:
             n_sup += add_group(g, bkey, c.brightness, prev.index)
             self._support_frames.append(c.frame)
         t = time.perf_counter()
-        self.smoother.update(graph, values, stamps)
+        try:
+            self.smoother.update(graph, values, stamps)
+        except RuntimeError as exc:       # e.g. gtsam.IndeterminantLinearSystemException
+            if len(self._seg_kfs) == 2:
+                log.warning("mapping keyframe %d failed (%s); keyframe poses kept as tracked",
+                            k, str(exc).strip().splitlines()[0])
+                self.smoother = self._new_smoother()
+                self._map_reports.append({"keyframe": k, "segment": self._segment,
+                                          "failed": True})
+                return
+            # restart the window from the last two keyframes (old ones stay as they are)
+            log.warning("mapping keyframe %d failed (%s); restarting the window", k,
+                        str(exc).strip().splitlines()[0])
+            self.smoother = self._new_smoother()
+            self._groups = []
+            self._seg_kfs = self._seg_kfs[-2:]
+            self._map(k)
+            return
         est = self.smoother.calculateEstimate()
         secs = time.perf_counter() - t
         self._refresh(est)

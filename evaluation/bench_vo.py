@@ -1,0 +1,98 @@
+"""Speed of the monocular VO at 160x120 on this machine (one thread).
+
+    python -m spgeo.evaluation.bench_vo [--frames 150] [--seed 0] [--frontend classical]
+
+Three measurements on one rendered synthetic sequence
+(:func:`spgeo.evaluation.vo_synthetic.synthetic_sequence`), printed as a table:
+
+1. *Tracking alone*: every frame after the first tracked against keyframe 0
+   built from ground-truth depth (frames that see less than half of it are
+   skipped), median seconds per frame -> tracking FPS.
+2. *Whole pipeline* (:class:`spgeo.odometry.Odometry`, default config, the
+   chosen front-end): FPS over all frames, mapping seconds per keyframe and
+   seconds per stage (tracking, front-end, mapping, two-view initialisation).
+3. *Mapping factor granularity*: the same pipeline with one gtsam factor per
+   primitive (``map_chunk=1``) vs the default chunks, mapping seconds per
+   keyframe (same cost, see :class:`spgeo.factors.photometric.PhotometricFactorGroup`).
+
+Timings are wall-clock on whatever else the machine is doing; compare the
+numbers of one run with each other (ratios), not across machines.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import replace
+from typing import Dict, Optional, Sequence
+
+import numpy as np
+
+from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
+from spgeo.odometry import OdometryConfig
+from spgeo.tracking import Keyframe, TrackerConfig, track_frame
+
+__all__ = ["bench_tracking", "main"]
+
+
+def bench_tracking(frames, config: TrackerConfig = TrackerConfig(),
+                   min_overlap: float = 0.5) -> Dict[str, float]:
+    """Median / mean seconds per tracked frame against keyframe 0 (primitives
+    fitted to its rendered depth, :class:`~spgeo.frontend.FrontEndConfig`
+    defaults of the ``depth`` front-end)."""
+    from spgeo.frontend import FrontEndConfig, make_frontend
+
+    cam = frames[0].camera
+    fe = make_frontend("depth", FrontEndConfig(working_size=cam.size))
+    prims = fe.primify(frames[0].image, cam, frames[0].depth)
+    kf = Keyframe.build(frames[0].image, prims, frames[0].T_world_cam, config.levels)
+    secs, errs = [], []
+    T_prev = frames[0].T_world_cam
+    for f in frames[1:]:
+        t = time.perf_counter()
+        tr = track_frame(kf, f.image, T_prev, (0.0, 0.0), config)
+        dt = time.perf_counter() - t
+        if tr.valid_fraction < min_overlap:
+            break
+        secs.append(dt)
+        errs.append(float(np.linalg.norm(tr.T_world_frame[:3, 3] - f.T_world_cam[:3, 3])))
+        T_prev = tr.T_world_frame if tr.ok else f.T_world_cam
+    if not secs:
+        raise ValueError("bench_tracking: no frame overlaps keyframe 0")
+    return {"frames": len(secs), "median_s": float(np.median(secs)),
+            "fps": 1.0 / float(np.median(secs)), "median_translation_err_m": float(np.median(errs))}
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=150)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--frontend", default="classical", choices=["classical", "depth"])
+    ap.add_argument("--no-chunk-compare", action="store_true")
+    args = ap.parse_args(argv)
+    frames = synthetic_sequence(SyntheticVOConfig(args.frames, args.seed))
+    print(f"machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; "
+          f"{args.frames} synthetic frames (seed {args.seed}) at 160x120")
+    tr = bench_tracking(frames)
+    print(f"tracking alone: {tr['fps']:.1f} FPS (median {1e3 * tr['median_s']:.1f} ms over "
+          f"{tr['frames']} frames vs keyframe 0; median translation error "
+          f"{1e3 * tr['median_translation_err_m']:.1f} mm)")
+    runs = [("default", OdometryConfig())]
+    if not args.no_chunk_compare:
+        runs.append(("map_chunk=1", replace(OdometryConfig(), map_chunk=1)))
+    print("| pipeline | FPS | track FPS | mapping s/KF | KFs | s track | s front-end | "
+          "s mapping | s init | per-frame ATE % |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, cfg in runs:
+        r = run_synthetic_vo(frames, args.frontend, cfg)
+        st = r["seconds_per_stage"]
+        print(f"| {args.frontend} {name} | {r['fps']:.2f} | {r['tracking_fps']:.1f} | "
+              f"{r['mapping_s_per_kf']:.2f} | {r['keyframes']} | {st['track']:.1f} | "
+              f"{st['frontend']:.1f} | {st['mapping']:.1f} | {st['init']:.1f} | "
+              f"{r['per-frame']['percent']:.2f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
