@@ -395,6 +395,40 @@ def run_colmap_fewview(images: Sequence[ImageInput], camera: PinholeCamera,
             tmp.cleanup()
 
 
+def extract_sift(db_path, image_dir, names: List[str], cam: PinholeCamera, num_threads: int,
+                 max_num_features: int, max_image_size: int = 0) -> float:
+    """SIFT features of ``names`` into the database with one shared, known
+    PINHOLE camera (CPU); ``max_image_size`` 0 = the image size.  Returns seconds."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    # COLMAP pixel centres are at half-integers: shift the principal point by +0.5
+    reader.camera_params = f"{cam.fx!r},{cam.fy!r},{cam.cx + 0.5!r},{cam.cy + 0.5!r}"
+    ext = pycolmap.FeatureExtractionOptions()
+    ext.num_threads = int(num_threads)
+    ext.use_gpu = False
+    ext.max_image_size = int(max_image_size) if max_image_size > 0 else max(cam.width, cam.height)
+    ext.sift.max_num_features = int(max_num_features)
+    t = time.perf_counter()
+    pycolmap.extract_features(db_path, image_dir, image_names=names,
+                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                              extraction_options=ext, device=pycolmap.Device.cpu)
+    return time.perf_counter() - t
+
+
+def sift_matching_options(num_threads: int, max_ratio: float):
+    """CPU brute-force SIFT matching options."""
+    import pycolmap
+
+    mo = pycolmap.FeatureMatchingOptions()
+    mo.num_threads = int(num_threads)
+    mo.use_gpu = False
+    mo.sift.max_ratio = float(max_ratio)
+    mo.sift.cpu_brute_force_matcher = True
+    return mo
+
+
 def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[str],
                   cam: PinholeCamera, config: ColmapConfig,
                   timings: Dict[str, float]) -> ColmapResult:
@@ -402,27 +436,10 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
 
     n = len(names)
     pycolmap.set_random_seed(int(config.random_seed))
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # COLMAP pixel centres are at half-integers: shift the principal point by +0.5
-    reader.camera_params = f"{cam.fx!r},{cam.fy!r},{cam.cx + 0.5!r},{cam.cy + 0.5!r}"
-    ext = pycolmap.FeatureExtractionOptions()
-    ext.num_threads = int(config.num_threads)
-    ext.use_gpu = False
-    ext.max_image_size = int(config.max_image_size) if config.max_image_size > 0 \
-        else max(cam.width, cam.height)
-    ext.sift.max_num_features = int(config.max_num_features)
-    t = time.perf_counter()
-    pycolmap.extract_features(db_path, image_dir, image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=ext, device=pycolmap.Device.cpu)
-    timings["extract"] = time.perf_counter() - t
-
-    mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = int(config.num_threads)
-    mo.use_gpu = False
-    mo.sift.max_ratio = float(config.max_ratio)
-    mo.sift.cpu_brute_force_matcher = True
+    max_size = int(config.max_image_size) if config.max_image_size > 0 else 0
+    timings["extract"] = extract_sift(db_path, image_dir, names, cam, config.num_threads,
+                                      config.max_num_features, max_size)
+    mo = sift_matching_options(config.num_threads, config.max_ratio)
     vo = pycolmap.TwoViewGeometryOptions()
     vo.min_num_inliers = int(config.min_num_matches)
     vo.ransac.max_error = float(config.ransac_max_error_px)

@@ -53,7 +53,8 @@ from spgeo.frame import Frame
 from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
 
-from .colmap import ColmapConfig, _cam_from_world, _load_images, _mapper_options
+from .colmap import (ColmapConfig, _cam_from_world, _load_images, _mapper_options, extract_sift,
+                     sift_matching_options)
 from .trajectory import (AteResult, TrajectoryLike, ate_sim3, status_path_for, write_status,
                          write_tum)
 
@@ -367,26 +368,9 @@ def _extract_and_match(db_path: Path, image_dir: Path, names: List[str], cam: Pi
     import pycolmap
 
     pycolmap.set_random_seed(int(config.random_seed))
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # COLMAP pixel centres are at half-integers: shift the principal point by +0.5
-    reader.camera_params = f"{cam.fx!r},{cam.fy!r},{cam.cx + 0.5!r},{cam.cy + 0.5!r}"
-    ext = pycolmap.FeatureExtractionOptions()
-    ext.num_threads = int(config.num_threads)
-    ext.use_gpu = False
-    ext.max_image_size = max(cam.width, cam.height)
-    ext.sift.max_num_features = int(config.max_num_features)
-    t = time.perf_counter()
-    pycolmap.extract_features(db_path, image_dir, image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=ext, device=pycolmap.Device.cpu)
-    timings["extract"] = time.perf_counter() - t
-
-    mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = int(config.num_threads)
-    mo.use_gpu = False
-    mo.sift.max_ratio = float(config.max_ratio)
-    mo.sift.cpu_brute_force_matcher = True
+    timings["extract"] = extract_sift(db_path, image_dir, names, cam, config.num_threads,
+                                      config.max_num_features)
+    mo = sift_matching_options(config.num_threads, config.max_ratio)
     po = pycolmap.SequentialPairingOptions()
     po.overlap = int(config.overlap)
     po.quadratic_overlap = bool(config.quadratic_overlap)
