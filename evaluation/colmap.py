@@ -750,10 +750,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     kind, path = args.dataset
     selection = _parse_frames(args.frames)
     try:
-        try:
-            seq = open_dataset(kind, path, frames=selection, load_depth=False)
-        except TypeError:
-            seq = open_dataset(kind, path, frames=selection)
+        seq = open_dataset(kind, path, frames=selection, load_depth=False)
     except (ValueError, FileNotFoundError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -570,10 +570,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         config = ColmapVOConfig(resolution=parse_resolution(args.resolution),
                                 overlap=args.overlap, num_threads=args.threads,
                                 show_progress=True)
-        try:
-            seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
-        except TypeError:  # a reader without a load_depth option
-            seq = open_dataset(kind, path, frames=args.frames)
+        seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
     except (ValueError, FileNotFoundError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -813,10 +813,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     kind, path = args.dataset
     try:
-        try:
-            seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
-        except TypeError:
-            seq = open_dataset(kind, path, frames=args.frames)
+        seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
         frames = list(seq)
     except (ValueError, FileNotFoundError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -417,10 +417,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         resolution = parse_resolution(args.resolution)
         load_depth = any(m in ORACLE_METHODS for m in args.methods)
-        try:
-            seq = open_dataset(kind, path, frames=args.frames, load_depth=load_depth)
-        except TypeError:  # a reader without a load_depth option
-            seq = open_dataset(kind, path, frames=args.frames)
+        seq = open_dataset(kind, path, frames=args.frames, load_depth=load_depth)
         config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,
                                  progress=not args.no_progress)
         rows = compare_vo(seq, args.methods, resolution, config)
