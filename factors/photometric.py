@@ -489,14 +489,14 @@ class PhotometricFactorGroup:
             H[0] = res["J_ref"][a:b]
             H[1] = res["J_tgt"][a:b]
             J_s = res["J_shape"]
-            for m, i in enumerate(prims):
-                if prims.size == 1:
-                    H[2] = J_s[a:b]
-                    break
-                blk = np.zeros((b - a, J_s.shape[1]))
-                lo, hi = self.offsets[i] - a, self.offsets[i + 1] - a
-                blk[lo:hi] = J_s[self.offsets[i]:self.offsets[i + 1]]
-                H[2 + m] = blk
+            if prims.size == 1:
+                H[2] = J_s[a:b]
+            else:   # each shape variable acts on its own primitive's rows only
+                for m, i in enumerate(prims):
+                    blk = np.zeros((b - a, J_s.shape[1]))
+                    lo, hi = self.offsets[i], self.offsets[i + 1]
+                    blk[lo - a:hi - a] = J_s[lo:hi]
+                    H[2 + m] = blk
             if self.brightness_key is not None:
                 H[2 + prims.size] = res["J_brightness"][a:b]
         return res["e"][a:b]
