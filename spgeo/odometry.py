@@ -204,7 +204,8 @@ class OdometryConfig:
             (default 0.08) ...
         init_max_gap: ... or the frame this many frames after keyframe 0
             (default 30: 1 s at 30 Hz; at 10 the synthetic runs started
-            from 2-3 % baselines and the depth front-end's ATE doubled).
+            from 2-3 % baselines and the depth front-end's per-frame ATE was
+            about 1.4x that at 20-30 on seeds 0 and 1).
         init_min_gap: keyframe 1 is at least this many frames after keyframe
             0 (default 3).
         max_lost_frames: re-initialise after this many consecutive lost frames
