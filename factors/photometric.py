@@ -378,14 +378,21 @@ class PhotometricFactorGroup:
             (default: the row counts).
 
         chunk: primitives per gtsam factor (default 1: one factor per
-            primitive).  With ``chunk = c`` factor ``j`` stacks the rows of
-            primitives ``j c .. j c + c - 1`` (keys: the two poses, their
-            ``c`` shape variables, the brightness): the cost, and the linear
-            system gtsam builds from it, are the same sum over primitives
-            (tested).  gtsam's Python ``CustomFactor`` copies the whole
-            ``Values`` for every callback, so a window with thousands of
-            per-primitive factors and hundreds of keys spends most of its
-            time copying; chunks of 8-16 cut that 8-16 times.
+            primitive, exactly :class:`PrimitivePhotometricFactor`).  With
+            ``chunk = c > 1`` factor ``j`` covers primitives ``j c .. j c + c -
+            1`` (keys: the two poses, their ``c`` shape variables, the
+            brightness) in *square-root form*: instead of its pixel rows it
+            returns ``c * dim + m + 1`` rows ``[R | z]`` (``m`` = 12 pose + 2
+            brightness columns) with ``R^T R = J^T J``, ``R^T z = J^T e`` and
+            ``|z| = |e|`` (:meth:`_compressed`), so the cost, the Gauss-Newton
+            system and every gtsam optimiser step are those of the per-primitive
+            factors (tested), while gtsam makes one Python callback per chunk
+            instead of per primitive (each callback copies the whole
+            ``Values``) and its dense blocks do not grow with the pixel count.
+            A cost-only call returns ``(|e|, 0, ..., 0)``; a chunk factor's
+            error vector is therefore not differentiable row by row: check
+            Jacobians on ``chunk=1`` (the factor tests do) and the chunks
+            against them.
 
     ``factors`` lists the gtsam.CustomFactor objects (add them all).
     """
@@ -429,12 +436,17 @@ class PhotometricFactorGroup:
         if int(chunk) < 1:
             raise ValueError("PhotometricFactorGroup: chunk must be >= 1")
         self.chunks = [np.arange(a, min(a + int(chunk), n)) for a in range(0, n, int(chunk))]
+        # columns shared by every row: both poses and the brightness
+        self._n_pose_cols = 12 + (2 if brightness_key is not None else 0)
+        self._chunk_rows = np.array([self.offsets[c[0]] for c in self.chunks] + [k])
+        self._chunk_keys = [[self.shape_keys[i] for i in prims] for prims in self.chunks]
         self.factors = []
         for j, prims in enumerate(self.chunks):
             keys = [self.ref_key, self.tgt_key] + [self.shape_keys[i] for i in prims]
             if brightness_key is not None:
                 keys.append(int(brightness_key))
-            rows = int(sizes[prims].sum())
+            rows = (int(sizes[prims].sum()) if prims.size == 1
+                    else prims.size * shape.dim + self._n_pose_cols + 1)
             noise = gtsam.noiseModel.Unit.Create(rows)
             self.factors.append(gtsam.CustomFactor(
                 noise, keys, lambda this, v, H, j=j: self._error(j, v, H)))
@@ -465,38 +477,110 @@ class PhotometricFactorGroup:
         thetas[prims] = own
         return thetas
 
+    def _compressed(self, res: dict) -> List[np.ndarray]:
+        """Per multi-primitive chunk, a square-root form ``[R | z]`` of its
+        rows' ``[J | e]``: ``c * dim + m + 1`` rows (``m`` pose and brightness
+        columns) with ``[R z]^T [R z] = [J e]^T [J e]``, so the same Gauss-Newton
+        Hessian ``J^T J``, gradient ``J^T e`` and cost ``e^T e``.  Columns:
+        ``m`` pose / brightness, then ``dim`` per primitive, then ``z``.
+
+        Each primitive's rows depend on its own shape variable only, so the
+        shape columns are block-diagonal; the primitive's ``dim`` rows of ``R``
+        come from its ``dim x dim`` Gram block in closed form, and the pose /
+        brightness remainder (Schur complement) from a ``(m+1)``-square
+        eigen-decomposition.  Built once per linearisation, cached in ``res``.
+        """
+        if "compressed" in res:
+            return res["compressed"]
+        J_s = res["J_shape"]
+        d = J_s.shape[1]
+        parts = [res["J_ref"], res["J_tgt"]]
+        if self.brightness_key is not None:
+            parts.append(res["J_brightness"])
+        Ae = np.column_stack(parts + [res["e"]])            # (K, m + 1)
+        m1 = Ae.shape[1]
+        starts = self.offsets[:-1]
+        if d == 1:
+            s = J_s[:, 0]
+            G_ss = np.add.reduceat(s * s, starts)[:, None, None]                    # (N, 1, 1)
+            G_sa = np.add.reduceat(s[:, None] * Ae, starts)[:, None, :]             # (N, 1, m+1)
+        else:
+            G_ss = np.add.reduceat(J_s[:, :, None] * J_s[:, None, :], starts)      # (N, d, d)
+            G_sa = np.add.reduceat(J_s[:, :, None] * Ae[:, None, :], starts)       # (N, d, m+1)
+        lam, V = np.linalg.eigh(G_ss)
+        tol = 1e-12 * max(float(lam.max()), 1e-300)
+        ok = lam > tol
+        root = np.sqrt(np.where(ok, lam, 0.0))
+        inv_root = np.where(ok, 1.0 / np.where(ok, root, 1.0), 0.0)
+        Vt = np.swapaxes(V, 1, 2)
+        U_ss = root[:, :, None] * Vt                                                 # (N, d, d)
+        U_sa = inv_root[:, :, None] * (Vt @ G_sa)                                    # (N, d, m+1)
+        out = []
+        for j, prims in enumerate(self.chunks):
+            if prims.size == 1:
+                out.append(None)
+                continue
+            c = prims.size
+            A_j = Ae[self._chunk_rows[j]:self._chunk_rows[j + 1]]
+            rows_s = U_sa[prims].reshape(c * d, m1)
+            M = A_j.T @ A_j - rows_s.T @ rows_s       # pose / brightness Schur complement
+            mu, W = np.linalg.eigh(0.5 * (M + M.T))
+            W_rows = np.sqrt(np.maximum(mu, 0.0))[:, None] * W.T                    # (m+1, m+1)
+            C = np.zeros((c * d + m1, m1 - 1 + c * d + 1))
+            C[:c * d, :m1 - 1] = rows_s[:, :-1]
+            C[:c * d, -1] = rows_s[:, -1]
+            ii = np.arange(c)[:, None, None] * d
+            C[ii + np.arange(d)[None, :, None],
+              m1 - 1 + ii + np.arange(d)[None, None, :]] = U_ss[prims]
+            C[c * d:, :m1 - 1] = W_rows[:, :-1]
+            C[c * d:, -1] = W_rows[:, -1]
+            out.append(C)
+        res["compressed"] = out
+        res["chunk_norm"] = np.sqrt(np.add.reduceat(res["e"] ** 2, self._chunk_rows[:-1]))
+        return out
+
     def _error(self, j: int, values: gtsam.Values, H: Optional[List[np.ndarray]]) -> np.ndarray:
         prims = self.chunks[j]
         T_wr = values.atPose3(self.ref_key).matrix()
         T_wt = values.atPose3(self.tgt_key).matrix()
-        own = np.array([values.atVector(self.shape_keys[i]) for i in prims], dtype=np.float64)
+        own = np.array([values.atVector(k) for k in self._chunk_keys[j]], dtype=np.float64)
         br = (np.asarray(values.atVector(self.brightness_key), dtype=np.float64)
               if self.brightness_key is not None else None)
         c = self._cache
         hit = (c is not None and (H is None or c["jacobians"])
-               and np.array_equal(c["thetas"][prims], own)
-               and np.array_equal(c["T_wr"], T_wr) and np.array_equal(c["T_wt"], T_wt)
-               and (br is None or np.array_equal(c["br"], br)))
+               and bool((c["thetas"][prims] == own).all())
+               and bool((c["T_wr"] == T_wr).all()) and bool((c["T_wt"] == T_wt).all())
+               and (br is None or bool((c["br"] == br).all())))
         if not hit:
-            thetas = self._read_thetas(values, prims, own)
+            thetas = own if prims.size == len(self) else self._read_thetas(values, prims, own)
             res = self.evaluate(T_wr, T_wt, thetas, br, jacobians=H is not None)
             self.n_batch_evaluations += 1
             c = self._cache = {"T_wr": T_wr, "T_wt": T_wt, "br": br, "thetas": thetas,
                                "jacobians": H is not None, "res": res}
         res = c["res"]
-        a, b = self.offsets[prims[0]], self.offsets[prims[-1] + 1]
-        if H is not None:
-            H[0] = res["J_ref"][a:b]
-            H[1] = res["J_tgt"][a:b]
-            J_s = res["J_shape"]
-            if prims.size == 1:
-                H[2] = J_s[a:b]
-            else:   # each shape variable acts on its own primitive's rows only
-                for m, i in enumerate(prims):
-                    blk = np.zeros((b - a, J_s.shape[1]))
-                    lo, hi = self.offsets[i], self.offsets[i + 1]
-                    blk[lo - a:hi - a] = J_s[lo:hi]
-                    H[2 + m] = blk
-            if self.brightness_key is not None:
-                H[2 + prims.size] = res["J_brightness"][a:b]
-        return res["e"][a:b]
+        if prims.size == 1:
+            a, b = self.offsets[prims[0]], self.offsets[prims[0] + 1]
+            if H is not None:
+                H[0] = res["J_ref"][a:b]
+                H[1] = res["J_tgt"][a:b]
+                H[2] = res["J_shape"][a:b]
+                if self.brightness_key is not None:
+                    H[3] = res["J_brightness"][a:b]
+            return res["e"][a:b]
+        if H is None:
+            # the cost only: any vector of the factor's dimension with the rows' norm
+            if "chunk_norm" not in res:
+                res["chunk_norm"] = np.sqrt(np.add.reduceat(res["e"] ** 2, self._chunk_rows[:-1]))
+            z = np.zeros(prims.size * self.shape.dim + self._n_pose_cols + 1)
+            z[0] = res["chunk_norm"][j]
+            return z
+        C = self._compressed(res)[j]
+        d = self.shape.dim
+        H[0] = C[:, 0:6]
+        H[1] = C[:, 6:12]
+        base = self._n_pose_cols
+        for m in range(prims.size):
+            H[2 + m] = C[:, base + m * d:base + (m + 1) * d]
+        if self.brightness_key is not None:
+            H[2 + prims.size] = C[:, 12:14]
+        return C[:, -1]

@@ -182,12 +182,16 @@ class OdometryConfig:
             this (default 1e3; each rejected trial costs a solve and a cost
             evaluation of the whole window, and near convergence gtsam keeps
             raising the damping until this bound).
-        map_chunk: primitives per gtsam factor in mapping (default 16; 1 =
-            one factor per primitive; the cost is identical,
-            :class:`~spgeo.factors.photometric.PhotometricFactorGroup`).
-            gtsam's Python ``CustomFactor`` copies the whole ``Values`` on
-            every call, so per-primitive factors make a window update
-            quadratic in its size (measured in ``evaluation/bench_vo.py``).
+        map_chunk: primitives per gtsam factor in mapping (default 32; 1 =
+            one factor per primitive; the cost and the Gauss-Newton system
+            are identical, :class:`~spgeo.factors.photometric.PhotometricFactorGroup`,
+            whose chunks are in square-root form).  gtsam's Python
+            ``CustomFactor`` copies the whole ``Values`` on every call, so
+            per-primitive factors make a window update quadratic in its size;
+            very large chunks make gtsam's dense blocks large instead (on the
+            synthetic runs 32, 64 and one chunk per pair were within timing
+            noise of each other; per-primitive factors were 5x slower, see
+            ``evaluation/bench_vo.py``).
         photometric: per-pixel cost of the mapping factors.
         primitive_model: :data:`PRIMITIVE_MODELS` (ablations; module docstring).
         scale_prior_weight: weight of each log-scale's prior to its initial
@@ -228,7 +232,7 @@ class OdometryConfig:
     map_iterations: int = 10
     map_relative_tol: float = 1e-2
     map_lambda_max: float = 1e3
-    map_chunk: int = 16
+    map_chunk: int = 32
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     primitive_model: str = "integrated"
     scale_prior_weight: float = 1e-5

@@ -3,7 +3,8 @@
 A reference image is primified; its primitives' log-scales and the poses of
 1..n *unposed* supporting views (plus an affine brightness per view) are
 estimated by photometric alignment: one :class:`PrimitivePhotometricFactor`
-per (primitive, view) in a GTSAM graph, solved by Levenberg-Marquardt
+per (primitive, view) in a GTSAM graph (evaluated in chunks of primitives by
+:class:`PhotometricFactorGroup`: the same cost), solved by Levenberg-Marquardt
 coarse-to-fine over a Gaussian pyramid (geometry stays at the reference's
 resolution; factors are rebuilt per level).
 
@@ -26,7 +27,7 @@ import numpy as np
 import gtsam
 
 from .camera import PinholeCamera
-from .factors.photometric import (PhotometricConfig, PlanarShape, PrimitivePhotometricFactor,
+from .factors.photometric import (PhotometricConfig, PhotometricFactorGroup, PlanarShape,
                                   ScaledShape)
 from .factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
                              pose_gauge_prior)
@@ -104,6 +105,11 @@ class SfMConfig:
             ``SfMResult.unconstrained`` and left out of ``depth`` instead of
             reporting a depth the data does not support (needs ``marginals``).
         lm_lambda_initial: initial LM damping.
+        chunk: primitives per gtsam factor (default 32; 1 = one factor per
+            primitive and view; the cost and its linear system are the same,
+            :class:`PhotometricFactorGroup`).  Measured on the VO two-view
+            initialisation (287 primitives, 160x120, synthetic seed 1): 15.5 s
+            with one factor per primitive, 1.4 s with chunks of 16.
     """
 
     shape_model: str = "scaled"
@@ -125,6 +131,7 @@ class SfMConfig:
     marginals: bool = True
     max_log_scale_std: float = 0.5
     lm_lambda_initial: float = 1e-3
+    chunk: int = 32
 
     def __post_init__(self) -> None:
         if self.shape_model not in ("scaled", "planar"):
@@ -135,6 +142,8 @@ class SfMConfig:
             raise ValueError(f"init must be 'identity' or 'twoview', got {self.init!r}")
         if self.scale_prior_weight <= 0:
             raise ValueError("scale_prior_weight must be > 0 (it fixes the scale gauge)")
+        if self.chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {self.chunk}")
 
 
 @dataclass
@@ -281,7 +290,7 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     report: Dict[str, object] = {"levels": [], "n_primitives": len(prims),
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}
-    builders: List[PrimitivePhotometricFactor] = []
+    builders: List[PhotometricFactorGroup] = []
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
     any_identity = init_T_ref_view is None or any(
         np.allclose(T, np.eye(4)) for T in init_T_ref_view)
@@ -344,11 +353,8 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         try:
             # per-pixel noise model with sigma from the residuals at the solution
             # (robust MAD), so covariances are in physical units
-            res_pix = np.concatenate([b.evaluate(
-                values.atPose3(b.keys[0]).matrix(), values.atPose3(b.keys[1]).matrix(),
-                values.atVector(b.keys[2]),
-                values.atVector(b.keys[3]) if b.has_brightness else None,
-                jacobians=False)["r"] for b in builders]) if builders else np.zeros(0)
+            res_pix = np.concatenate([_group_rows(g, values) for g in builders]
+                                     ) if builders else np.zeros(0)
             res_pix = res_pix[res_pix != 0]
             sigma = float(1.4826 * np.median(np.abs(res_pix))) if res_pix.size else 0.02
             sigma = max(sigma, 1e-3)
@@ -382,6 +388,15 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
                    "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
     return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
                      brightness, report, unconstrained)
+
+
+def _group_rows(group: PhotometricFactorGroup, values: gtsam.Values) -> np.ndarray:
+    """Per-pixel residuals of a group at ``values``."""
+    thetas = np.array([values.atVector(k) for k in group.shape_keys])
+    br = values.atVector(group.brightness_key) if group.brightness_key is not None else None
+    return group.evaluate(values.atPose3(group.ref_key).matrix(),
+                          values.atPose3(group.tgt_key).matrix(), thetas, br,
+                          jacobians=False)["r"]
 
 
 def _gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
@@ -484,9 +499,11 @@ def _hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam
 
 def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
                  values: gtsam.Values, config: SfMConfig):
-    """The graph of one pyramid level; returns ``(graph, photometric factor builders)``."""
+    """The graph of one pyramid level; returns ``(graph, groups)``: one
+    :class:`PhotometricFactorGroup` per view over the primitives with at least
+    ``min_level_pixels`` pixels on the level's lattice."""
     graph = gtsam.NonlinearFactorGraph()
-    builders: List[PrimitivePhotometricFactor] = []
+    builders: List[PhotometricFactorGroup] = []
     graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
     n_views = len(view_pyrs)
     if config.brightness:
@@ -503,22 +520,28 @@ def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, 
     stride = 2 ** lvl
     ref_img = ref_pyr.images[lvl]
     w = prims.camera.width
-    for i, ent in enumerate(_level_pixels(prims, stride)):
-        if ent.size < config.min_level_pixels:
-            continue
-        pix = prims.pixels[ent]
-        ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
-        rays = rays_all[ent]
-        shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
-                 else PlanarShape(rays))
-        for j in range(n_views):
-            f = PrimitivePhotometricFactor(
-                pose_key(0), pose_key(j + 1), scale_key(i), shape, ref_int,
-                view_pyrs[j].images[lvl], view_pyrs[j].cameras[lvl],
-                brightness_key(j + 1) if config.brightness else None, config.photometric,
-                n_pixels=ent.size)
-            graph.add(f.factor)
-            builders.append(f)
+    per_prim = _level_pixels(prims, stride)
+    keep = [i for i, ent in enumerate(per_prim) if ent.size >= config.min_level_pixels]
+    if not keep:
+        return graph, builders
+    ent = np.concatenate([per_prim[i] for i in keep])
+    sizes = np.array([per_prim[i].size for i in keep])
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    pix = prims.pixels[ent]
+    ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
+    rays = rays_all[ent]
+    shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
+             else PlanarShape(rays))
+    keys = [scale_key(i) for i in keep]
+    for j in range(n_views):
+        g = PhotometricFactorGroup(
+            pose_key(0), pose_key(j + 1), keys, shape, offsets, ref_int,
+            view_pyrs[j].images[lvl], view_pyrs[j].cameras[lvl],
+            brightness_key(j + 1) if config.brightness else None, config.photometric,
+            chunk=config.chunk)
+        for f in g.factors:
+            graph.add(f)
+        builders.append(g)
     return graph, builders
 
 

@@ -249,39 +249,56 @@ def test_factor_group_equals_individual_factors(model, normalise):
     assert graph.error(vals) == pytest.approx(sum(s.factor.error(vals) for s in singles), rel=1e-12)
 
 
-def test_factor_group_chunks_give_the_same_cost_and_linear_system():
-    """chunk > 1 stacks primitives into one gtsam factor: same total error,
-    same Hessian / gradient of the linearised system as one factor each."""
+@pytest.mark.parametrize("model", ["scaled", "planar"])
+@pytest.mark.parametrize("brightness", [True, False])
+def test_factor_group_chunks_give_the_same_cost_and_linear_system(model, brightness):
+    """chunk > 1 stacks primitives into one gtsam factor in square-root form:
+    same total error, same Hessian / gradient of the linearised system as one
+    factor each (pixels outside the image and a primitive behind the camera in
+    the mix), and c * dim + m + 1 rows per chunk whatever its pixel count."""
     from spgeo.factors.photometric import PhotometricFactorGroup
 
     rng = np.random.default_rng(5)
-    sizes = [9, 14, 1, 20, 7]
+    sizes = [9, 14, 1, 20, 7, 40, 3]
     k = sum(sizes)
-    u, v = rng.uniform(5, 123, k), rng.uniform(5, 91, k)
+    u, v = rng.uniform(-10, 140, k), rng.uniform(-5, 100, k)
     rays = np.stack([(u - CAM.cx) / CAM.fx, (v - CAM.cy) / CAM.fy, np.ones(k)], -1)
     off = np.concatenate([[0], np.cumsum(sizes)])
     skeys = [gtsam.symbol("s", i) for i in range(len(sizes))]
     vals = gtsam.Values()
     vals.insert(X_, gtsam.Pose3(pose([0.01, -0.02, 0.015], [0.1, 0.05, -0.02])))
     vals.insert(X1, gtsam.Pose3(pose([-0.03, 0.02, 0.01], [-0.08, 0.02, 0.05])))
-    vals.insert(B_, np.array([0.05, 0.01]))
+    bkey = B_ if brightness else None
+    if brightness:
+        vals.insert(B_, np.array([0.05, 0.01]))
     for i, key in enumerate(skeys):
-        vals.insert(key, np.array([0.1 * i]))
+        if model == "scaled":
+            vals.insert(key, np.array([0.1 * i]))
+        else:   # primitive 3 lies behind the camera
+            vals.insert(key, np.array([0.02 * i, -0.01, -0.4 if i == 3 else 0.3 + 0.02 * i]))
+    shape = (ScaledShape(rays, 0.05 * np.sin(u / 9)) if model == "scaled" else PlanarShape(rays))
+    m = 12 + (2 if brightness else 0)
     out = {}
-    for chunk in (1, 2, 5):
-        grp = PhotometricFactorGroup(X_, X1, skeys, ScaledShape(rays, 0.05 * np.sin(u / 9)), off,
-                                     rng.uniform(0.2, 0.8, k) * 0 + np.linspace(0.3, 0.7, k),
-                                     smooth_image(2), CAM, B_, PhotometricConfig(), chunk=chunk)
+    for chunk in (1, 2, 5, 7):
+        grp = PhotometricFactorGroup(X_, X1, skeys, shape, off, np.linspace(0.3, 0.7, k),
+                                     smooth_image(2), CAM, bkey, PhotometricConfig(), chunk=chunk)
         graph = gtsam.NonlinearFactorGraph()
         for f in grp.factors:
             graph.add(f)
         assert graph.size() == -(-len(sizes) // chunk)
+        if chunk > 1:
+            c0 = min(chunk, len(sizes))
+            assert grp.factors[0].unwhitenedError(vals).size == c0 * shape.dim + m + 1
         lin = graph.linearize(vals)
         order = gtsam.Ordering()
-        for key in [X_, X1, B_] + skeys:
+        for key in [X_, X1] + ([B_] if brightness else []) + skeys:
             order.push_back(key)
-        out[chunk] = (graph.error(vals), lin.hessian(order))
-    for chunk in (2, 5):
+        b = lin.jacobian(order)[1]
+        out[chunk] = (graph.error(vals), lin.hessian(order), 0.5 * float(b @ b))
+    H1, g1 = out[1][1]
+    scale = np.abs(H1).max()
+    for chunk in (2, 5, 7):
         assert out[chunk][0] == pytest.approx(out[1][0], rel=1e-12)
-        np.testing.assert_allclose(out[chunk][1][0], out[1][1][0], rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(out[chunk][1][1], out[1][1][1], rtol=1e-10, atol=1e-12)
+        assert out[chunk][2] == pytest.approx(out[1][2], rel=1e-10)   # linear cost at 0
+        np.testing.assert_allclose(out[chunk][1][0], H1, rtol=1e-9, atol=1e-11 * scale)
+        np.testing.assert_allclose(out[chunk][1][1], g1, rtol=1e-9, atol=1e-11 * scale)

@@ -45,7 +45,8 @@ def seq():
 
 def graph_cost_and_gradient(kf, pyr, lvl, T_frame, ab, pc):
     """Sum of factor errors and of -A^T b (frame pose, brightness) over the
-    PrimitivePhotometricFactors built by spgeo.sfm._build_graph at ``lvl``."""
+    per-primitive photometric factors built by spgeo.sfm._build_graph at
+    ``lvl`` (chunk = 1: one gtsam factor per primitive)."""
     prims = kf.primitives
     rays_all = prims.camera.rays().reshape(-1, 3)[prims.pixels]
     values = gtsam.Values()
@@ -54,16 +55,17 @@ def graph_cost_and_gradient(kf, pyr, lvl, T_frame, ab, pc):
     values.insert(brightness_key(1), np.asarray(ab, float))
     for i in range(len(prims)):
         values.insert(scale_key(i), np.array([prims.log_scales[i]]))
-    cfg = SfMConfig(levels=len(kf.pyramid), photometric=pc, brightness=True)
-    _, builders = _build_graph(prims, rays_all, kf.pyramid, [pyr], lvl, values, cfg)
+    cfg = SfMConfig(levels=len(kf.pyramid), photometric=pc, brightness=True, chunk=1)
+    _, groups = _build_graph(prims, rays_all, kf.pyramid, [pyr], lvl, values, cfg)
+    factors = [f for g in groups for f in g.factors]
     cost, grad = 0.0, np.zeros(8)
-    for f in builders:
-        cost += f.factor.error(values)
-        A, b = f.factor.linearize(values).jacobian()
+    for f in factors:
+        cost += f.error(values)
+        A, b = f.linearize(values).jacobian()
         # columns: T_world_kf (6), T_world_frame (6), s (1), (a, b) (2); e = -b
         grad[:6] += A[:, 6:12].T @ -b
         grad[6:] += A[:, 13:15].T @ -b
-    return cost, grad, len(builders)
+    return cost, grad, len(factors)
 
 
 @pytest.mark.parametrize("normalise", ["valid", "all"])
