@@ -41,13 +41,28 @@ def run(frames):
     return vo, results
 
 
+@pytest.fixture(scope="module")
+def run_frequent_kf(frames):
+    """As ``run`` with keyframes every 0.1 median depths of translation (3
+    keyframes on this sequence, so two mapping updates)."""
+    vo = Odometry(CAM, OdometryConfig(kf_max_translation=0.1), frontend())
+    for i, f in enumerate(frames):
+        if i == BLANK:
+            f = Frame(np.zeros_like(f.image), CAM, f.timestamp, depth=f.depth, name="blank")
+        vo.track(f)
+    return vo
+
+
 def test_end_to_end_accuracy(frames, run):
-    """Several keyframes; Sim(3) ATE of the tracked frames < 3% of the
-    trajectory length (measured 1.7% on this 50-frame, 0.63 m sequence)."""
+    """The initialised keyframe pair (at least), mapped by the smoother; Sim(3) ATE of
+    the tracked frames < 3% of the trajectory length (measured 0.52% with 2
+    keyframes on this 50-frame, 0.63 m sequence; 0.88% and 3 keyframes with
+    the former half-resolution mapping)."""
     vo, results = run
     res = vo.result()
     assert len(res.timestamps) == N_FRAMES
-    assert res.is_keyframe.sum() >= 3
+    assert res.is_keyframe.sum() >= 2
+    assert vo.report()["mapping"] and not any(m.get("failed") for m in vo.report()["mapping"])
     assert res.statuses[0] == "keyframe"
     good = np.array([s != "lost" for s in res.statuses])
     gt = np.array([f.T_world_cam for f in frames])
@@ -56,9 +71,19 @@ def test_end_to_end_accuracy(frames, run):
              ate.rmse_percent_of_length, ate.trajectory_length, res.is_keyframe.sum(),
              N_FRAMES / sum(r.timings["total"] for r in results))
     assert ate.rmse_percent_of_length < 3.0
-    kf_ate = ate_sim3((res.keyframe_timestamps, res.keyframe_poses), (res.timestamps, gt),
-                      label="keyframe-only")
-    assert kf_ate.rmse_percent_of_length < 3.0
+    # keyframe 0 -> 1 (the two-view initialisation refined by the smoother):
+    # rotation and translation direction (scale-free) against the ground truth
+    kf_idx = np.flatnonzero(res.is_keyframe)
+    T_est = np.linalg.inv(res.poses[kf_idx[0]]) @ res.poses[kf_idx[1]]
+    T_gt = np.linalg.inv(gt[kf_idx[0]]) @ gt[kf_idx[1]]
+    dR = T_est[:3, :3].T @ T_gt[:3, :3]
+    assert np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 1.0
+    cos_t = T_est[:3, 3] @ T_gt[:3, 3] / np.linalg.norm(T_est[:3, 3]) / np.linalg.norm(T_gt[:3, 3])
+    assert np.degrees(np.arccos(np.clip(cos_t, -1, 1))) < 5.0
+    if kf_idx.size >= 3:    # a Sim(3) alignment needs three positions
+        kf_ate = ate_sim3((res.keyframe_timestamps, res.keyframe_poses), (res.timestamps, gt),
+                          label="keyframe-only")
+        assert kf_ate.rmse_percent_of_length < 3.0
 
 
 def test_blank_frame_is_lost_and_tracking_continues(run):
@@ -118,16 +143,20 @@ def test_bad_input_raises(frames):
         Odometry(CAM, OdometryConfig(), None)
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
+    for bad in ({"map_pixel_fraction": 0.0}, {"init_min_gap": 0}, {"init_min_gap": 31},
+                {"map_lambda_initial": 0.0}):
+        with pytest.raises(ValueError):
+            OdometryConfig(**bad)
 
 
 # ---------------------------------------------------------------- issue-4 system features
-def test_supporting_frames_are_optimised_in_the_window(run):
+def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
     """Each mapping update links the previous keyframe to up to 4 supporting
     non-keyframes whose poses are smoother variables; result() reports them at
     their smoothed poses."""
     from spgeo.odometry import support_pose_key
 
-    vo, _ = run
+    vo = run_frequent_kf
     rep = vo.report()
     sup = [m["support_frames"] for m in rep["mapping"]]
     assert all(len(s) <= 4 for s in sup) and sum(len(s) for s in sup) >= 8
@@ -219,7 +248,8 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
         def update(self, *args):
             raise RuntimeError("Indeterminant linear system detected (injected)")
 
-    vo = Odometry(CAM, OdometryConfig(), frontend())
+    # keyframes every 0.1 median depths: a third keyframe maps after the failure
+    vo = Odometry(CAM, OdometryConfig(kf_max_translation=0.1), frontend())
     injected = False
     for i, f in enumerate(frames):
         if not injected and len(vo.keyframes) >= 2:
