@@ -442,7 +442,7 @@ class PhotometricFactorGroup:
         self._chunk_keys = [[self.shape_keys[i] for i in prims] for prims in self.chunks]
         self.factors = []
         for j, prims in enumerate(self.chunks):
-            keys = [self.ref_key, self.tgt_key] + [self.shape_keys[i] for i in prims]
+            keys = [self.ref_key, self.tgt_key] + self._chunk_keys[j]
             if brightness_key is not None:
                 keys.append(int(brightness_key))
             rows = (int(sizes[prims].sum()) if prims.size == 1
@@ -536,8 +536,13 @@ class PhotometricFactorGroup:
             C[c * d:, -1] = W_rows[:, -1]
             out.append(C)
         res["compressed"] = out
-        res["chunk_norm"] = np.sqrt(np.add.reduceat(res["e"] ** 2, self._chunk_rows[:-1]))
         return out
+
+    def _chunk_norms(self, res: dict) -> np.ndarray:
+        """|e| of each chunk's rows, cached in ``res``."""
+        if "chunk_norm" not in res:
+            res["chunk_norm"] = np.sqrt(np.add.reduceat(res["e"] ** 2, self._chunk_rows[:-1]))
+        return res["chunk_norm"]
 
     def _error(self, j: int, values: gtsam.Values, H: Optional[List[np.ndarray]]) -> np.ndarray:
         prims = self.chunks[j]
@@ -569,10 +574,8 @@ class PhotometricFactorGroup:
             return res["e"][a:b]
         if H is None:
             # the cost only: any vector of the factor's dimension with the rows' norm
-            if "chunk_norm" not in res:
-                res["chunk_norm"] = np.sqrt(np.add.reduceat(res["e"] ** 2, self._chunk_rows[:-1]))
             z = np.zeros(prims.size * self.shape.dim + self._n_pose_cols + 1)
-            z[0] = res["chunk_norm"][j]
+            z[0] = self._chunk_norms(res)[j]
             return z
         C = self._compressed(res)[j]
         d = self.shape.dim

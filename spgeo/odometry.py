@@ -182,8 +182,9 @@ class OdometryConfig:
         map_pixel_fraction: fraction of the level's primitive pixels used by
             mapping, those with the largest reference image gradient (at least
             ``min_level_pixels`` per primitive; default 0.5: flat pixels carry
-            little pose or depth information, and half the pixels halve the
-            mapping cost; 0.3 lost accuracy on seed 1).
+            little pose or depth information; on depth seed 0 mapping took
+            1.28 instead of 1.84 s per keyframe for 0.43 instead of 0.37 %
+            ATE, and 0.3 lost accuracy on classical seed 1).
         map_iterations: LM iterations per smoother update (default 10).
         map_relative_tol: an update stops when an LM iteration lowers the
             window's cost by less than this fraction (default 1e-2: every
