@@ -73,14 +73,20 @@ class ScaleInit:
 def init_scales_from_render(primitives: PrimitiveSet, rendered_depth: np.ndarray,
                             min_support: int = 5) -> ScaleInit:
     """Log-scale of each primitive = median of (log rendered depth - log D) over
-    its pixels with a rendered depth; primitives with fewer than ``min_support``
-    such pixels get the median of the others' scales.  Raises ``ValueError`` if
-    no primitive has support (nothing of the map is visible: re-initialise)."""
+    its pixels with a rendered depth.  A primitive with fewer than ``min_support``
+    such pixels keeps its own log-scale shifted by the median shift of the
+    fitted ones: with equal incoming scales (a monocular front-end) that is the
+    median of the others' scales; with a depth-using front-end it keeps the
+    relative depth the front-end measured (after a rotation into unmapped
+    space, the median alone would flatten the new part of the view onto the
+    old).  Raises ``ValueError`` if no primitive has support (nothing of the
+    map is visible: re-initialise)."""
     s, n = primitives.fit_log_scales(rendered_depth, min_points=min_support)
     ok = np.isfinite(s)
     if not ok.any():
         raise ValueError("no primitive overlaps the rendered depth: the map is not visible "
                          "from this camera")
     fallback = ~ok
-    s = np.where(ok, s, np.median(s[ok]))
+    own = np.asarray(primitives.log_scales, dtype=np.float64)
+    s = np.where(ok, s, own + np.median(s[ok] - own[ok]))
     return ScaleInit(primitives.with_log_scales(s), n, fallback)

@@ -63,6 +63,8 @@ def test_end_to_end_accuracy(frames, run):
     assert len(res.timestamps) == N_FRAMES
     assert res.is_keyframe.sum() >= 2
     assert vo.report()["mapping"] and not any(m.get("failed") for m in vo.report()["mapping"])
+    # every mapping update tied the new keyframe's depth to the previous one's surface
+    assert all(m["depth_link_correspondences"] > 500 for m in vo.report()["mapping"])
     assert res.statuses[0] == "keyframe"
     good = np.array([s != "lost" for s in res.statuses])
     gt = np.array([f.T_world_cam for f in frames])
@@ -144,7 +146,9 @@ def test_bad_input_raises(frames):
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
     for bad in ({"map_pixel_fraction": 0.0}, {"init_min_gap": 0}, {"init_min_gap": 31},
-                {"map_lambda_initial": 0.0}):
+                {"map_lambda_initial": 0.0}, {"render_prior_weight": 0.0},
+                {"kf_depth_link_sigma": -1.0}, {"kf_depth_link_primitives": 0},
+                {"kf_depth_link_tolerance": 0.0}):
         with pytest.raises(ValueError):
             OdometryConfig(**bad)
 

@@ -40,3 +40,24 @@ def test_render_previous_keyframe_and_init_scales():
     assert res.fallback.sum() < len(prims1)
     with pytest.raises(ValueError, match="not visible"):
         init_scales_from_render(unscaled, np.full(CAM.shape, np.nan))
+
+
+def test_unrendered_primitives_keep_their_relative_scale():
+    """A primitive the render does not reach keeps its own scale shifted by the
+    median shift of the rendered ones (the depth front-end's relative depth),
+    which for equal incoming scales is the median of the others."""
+    scene = synthetic.SyntheticScene.generate(3)
+    view = scene.render(CAM, synthetic.make_trajectory(2, 3)[0])
+    prims = make_frontend("depth").primify(view.rgb, CAM, view.depth)   # metric scales
+    # a render that covers only the left half of the image, at 1.3x the true depth
+    rendered = np.where(np.arange(CAM.width)[None, :] < CAM.width // 2, 1.3 * view.depth, np.nan)
+    res = init_scales_from_render(prims, rendered)
+    fb = res.fallback
+    assert fb.any() and (~fb).any()
+    np.testing.assert_allclose(res.primitives.log_scales[fb],
+                               prims.log_scales[fb] + np.log(1.3), atol=0.02)
+    # equal incoming scales: the unrendered ones take the median of the others
+    flat = prims.with_log_scales(np.zeros(len(prims)))
+    res = init_scales_from_render(flat, rendered)
+    np.testing.assert_allclose(res.primitives.log_scales[res.fallback],
+                               np.median(res.primitives.log_scales[~res.fallback]))
