@@ -43,6 +43,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 
 from spgeo.camera import PinholeCamera
+from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
 from spgeo.geometry import invert_pose, relative_pose
 from spgeo.jsonio import json_default
 
@@ -731,20 +732,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         prog="python -m spgeo.evaluation.colmap",
         description="Relative-pose errors of COLMAP (pycolmap, SIFT, fixed intrinsics) on a "
                     "reference frame plus supporting frames, against ground truth.")
-    parser.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                        help="data-set kind (tum, icl, 7scenes, folder) and its folder")
-    parser.add_argument("--frames", nargs="+", default=None,
-                        help="frame numbers, reference first (e.g. 0 4 8), or 'A:B[:S]' "
-                             "(default: all frames of the data set)")
+    add_dataset_arguments(parser, frames_nargs="+",
+                          frames_help="frame numbers, reference first (e.g. 0 4 8), or "
+                                      "'A:B[:S]' (default: all frames of the data set)")
     parser.add_argument("--json", default=None, help="write the full comparison as JSON here")
     parser.add_argument("--workdir", default=None, help="keep COLMAP's files in this folder")
     parser.add_argument("--threads", type=int, default=1, help="COLMAP threads (default 1)")
     parser.add_argument("--no-fallback", action="store_true",
                         help="do not pose unregistered views by two-view geometry")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    add_verbose_argument(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    setup_logging(args.verbose)
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset

@@ -49,6 +49,8 @@ import numpy as np
 from tqdm import tqdm
 
 from spgeo.camera import PinholeCamera
+from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
+from spgeo.cli_args import parse_resolution as _parse_resolution
 from spgeo.frame import Frame
 from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
@@ -530,15 +532,7 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
 def parse_resolution(text: str) -> Optional[Tuple[int, int]]:
     """``"160x120"`` -> (160, 120) (width, height in pixels); ``"native"`` ->
     None (keep the frames' size).  Raises ``ValueError``."""
-    if text.strip().lower() in ("native", "none", "full"):
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValueError(f"resolution: expected WIDTHxHEIGHT or 'native', got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise ValueError(f"resolution: size must be positive, got {text!r}")
-    return w, h
+    return _parse_resolution(text, allow_native=True, min_size=1)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -550,19 +544,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         prog="python -m spgeo.evaluation.colmap_vo",
         description="COLMAP incremental SfM reference on the frames a VO run sees "
                     "(SIFT, sequential matching, fixed PINHOLE intrinsics).")
-    parser.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                        help="data-set kind (tum, 7scenes, icl, folder) and its folder")
-    parser.add_argument("--frames", default=None, help="frame numbers A:B[:S] (A <= n < B)")
+    add_dataset_arguments(parser)
     parser.add_argument("--resolution", default="160x120",
                         help="WIDTHxHEIGHT (default 160x120) or 'native'")
     parser.add_argument("--overlap", type=int, default=10, help="sequential overlap (default 10)")
     parser.add_argument("--threads", type=int, default=1, help="COLMAP threads (default 1)")
     parser.add_argument("--out", default=None, help="output folder")
     parser.add_argument("--workdir", default=None, help="keep COLMAP's files in this folder")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    add_verbose_argument(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    setup_logging(args.verbose)
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset

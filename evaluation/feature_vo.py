@@ -63,6 +63,8 @@ import cv2
 import numpy as np
 
 from spgeo.camera import PinholeCamera
+from spgeo.cli_args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
+                             setup_logging)
 from spgeo.frame import Frame
 from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
@@ -761,18 +763,6 @@ def _fractional_velocity(T: np.ndarray, steps: int) -> np.ndarray:
 
 
 # ======================================================================= CLI
-def _parse_resolution(text: Optional[str]) -> Optional[Tuple[int, int]]:
-    if not text:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"--resolution: expected WIDTHxHEIGHT, got {text!r}")
-    if w <= 0 or h <= 0:
-        raise SystemExit(f"--resolution: size must be positive, got {text!r}")
-    return w, h
-
-
 def resize_frames(frames: Sequence[Frame], width: int, height: int) -> List[Frame]:
     """Frames resized to ``width`` x ``height`` (area interpolation; camera via
     :meth:`PinholeCamera.resized`).  Depth is dropped (the baseline never reads it)."""
@@ -794,9 +784,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m spgeo.evaluation.feature_vo",
         description="Feature-based monocular VO baseline (ORB + essential matrix + PnP).")
-    parser.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                        help="data-set kind (tum, 7scenes, icl, folder) and its folder")
-    parser.add_argument("--frames", default=None, help="frame numbers A:B[:S] (A <= n < B)")
+    add_dataset_arguments(parser)
     parser.add_argument("--resolution", default=None,
                         help="resize images to WIDTHxHEIGHT first (e.g. 160x120)")
     parser.add_argument("--detector", choices=("orb", "sift"), default="orb")
@@ -805,14 +793,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help="ATE association tolerance (default 0.02 s, 0.1 for frame-number "
                              "timestamps)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    add_verbose_argument(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    setup_logging(args.verbose)
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset
     try:
+        res_wh = parse_resolution(args.resolution, min_size=1) if args.resolution else None
         seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
         frames = list(seq)
     except (ValueError, FileNotFoundError, OSError) as exc:
@@ -821,7 +809,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if len(frames) < 2:
         print("error: need at least 2 frames", file=sys.stderr)
         return 2
-    res_wh = _parse_resolution(args.resolution)
     if res_wh is not None:
         frames = resize_frames(frames, *res_wh)
     config = FeatureVOConfig(detector=args.detector, show_progress=not args.no_progress)

@@ -42,6 +42,7 @@ from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
+from spgeo.cli_args import add_verbose_argument, setup_logging
 from spgeo.frame import Frame
 from spgeo.jsonio import json_default
 
@@ -365,10 +366,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help="first N frames per sequence only (default: all = the protocol)")
     parser.add_argument("--out", default=None, help="write trajectories and JSON here")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    add_verbose_argument(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    setup_logging(args.verbose)
     try:
         config = FR1Config(methods=tuple(args.methods), max_frames=args.max_frames,
                            compare=VOCompareConfig(progress=not args.no_progress))

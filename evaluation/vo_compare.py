@@ -49,6 +49,7 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 from tqdm import tqdm
 
+from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
 from spgeo.frame import Frame
 from spgeo.jsonio import json_default
 
@@ -395,9 +396,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         prog="python -m spgeo.evaluation.vo_compare",
         description="spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
                     "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
-    parser.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                        help="data-set kind (tum, 7scenes, icl, folder) and its folder")
-    parser.add_argument("--frames", default=None, help="frame numbers A:B[:S] (A <= n < B)")
+    add_dataset_arguments(parser)
     parser.add_argument("--resolution", default="160x120",
                         help="WIDTHxHEIGHT every method sees (default 160x120) or 'native'")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
@@ -407,10 +406,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help="ATE association tolerance (default 0.1 for frame-number "
                              "timestamps, else 0.02 s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    add_verbose_argument(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    setup_logging(args.verbose)
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset

@@ -15,6 +15,7 @@ from typing import Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from spgeo.cli_args import add_dataset_arguments
 from spgeo.frame import Frame
 from spgeo.odometry import Odometry, OdometryConfig
 from spgeo.vo_runner import VORunConfig, parse_resolution, run_dataset, run_odometry
@@ -39,8 +40,7 @@ def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (160, 120),
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True)
-    ap.add_argument("--frames", default=None, help="A:B[:S] frame numbers")
+    add_dataset_arguments(ap)
     ap.add_argument("--resolution", default="160x120", help="WxH (default 160x120)")
     ap.add_argument("--frontend", default="classical", choices=["classical", "depth", "onnx"])
     ap.add_argument("--out", default=None, help="write trajectory.txt, keyframes.txt, report.json")

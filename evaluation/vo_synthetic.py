@@ -19,6 +19,7 @@ this script measures; nothing here is tuned to a real data set.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import time
 from dataclasses import dataclass, replace
@@ -99,6 +100,18 @@ def run_synthetic_vo(frames: Sequence[Frame], frontend: str = "depth",
     return out
 
 
+def parse_overrides(items: Sequence[str]) -> dict:
+    """``["field=value", ...]`` -> ``{field: value}`` with ``value`` a Python
+    literal (``None``, ``0.02``, ``(1, 2)``); raises ``ValueError``."""
+    out = {}
+    for item in items:
+        key, sep, val = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"expected FIELD=VALUE, got {item!r}")
+        out[key.strip()] = ast.literal_eval(val.strip())
+    return out
+
+
 def _pct(entry) -> str:
     return "-" if entry is None else f"{entry['percent']:.2f}"
 
@@ -112,8 +125,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="FRONTEND[:MODEL] (models: integrated, constant_depth, "
                          "constant_normal, planar)")
     ap.add_argument("--rotation", default="90:120", help="frozen-translation frames A:B or 'none'")
+    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                    help="OdometryConfig overrides (Python literals), e.g. "
+                         "kf_depth_link_sigma=None render_prior_weight=1e-5")
     ap.add_argument("--out", default=None, help="write results.json and trajectories here")
     args = ap.parse_args(argv)
+    try:
+        overrides = parse_overrides(args.set)
+        replace(OdometryConfig(), **overrides)
+    except (ValueError, TypeError, SyntaxError) as exc:
+        ap.error(f"--set: {exc}")
     rot = None if args.rotation == "none" else tuple(int(x) for x in args.rotation.split(":"))
     rows = []
     print("| run | seed | per-frame ATE % | keyframe-only ATE % | length m | KFs | lost | "
@@ -123,7 +144,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         frames = synthetic_sequence(SyntheticVOConfig(args.frames, seed, rotation=rot))
         for run in args.runs:
             fe, _, model = run.partition(":")
-            cfg = replace(OdometryConfig(), primitive_model=model or "integrated")
+            cfg = replace(OdometryConfig(), **{"primitive_model": model or "integrated",
+                                               **overrides})
             r = run_synthetic_vo(frames, fe, cfg)
             vo = r.pop("odometry")
             if args.out:

@@ -465,6 +465,14 @@ class PhotometricFactorGroup:
                                 self.camera, self.ref_intensity, br, self.config, self.ids,
                                 len(self), self.n_pixels, jacobians)
 
+    def evaluate_at(self, values: gtsam.Values, jacobians: bool = False) -> dict:
+        """:meth:`evaluate` at the poses, shape variables and brightness in
+        ``values`` (all of the group's keys must be there)."""
+        thetas = np.array([values.atVector(k) for k in self.shape_keys])
+        br = values.atVector(self.brightness_key) if self.brightness_key is not None else None
+        return self.evaluate(values.atPose3(self.ref_key).matrix(),
+                             values.atPose3(self.tgt_key).matrix(), thetas, br, jacobians)
+
     def _read_thetas(self, values: gtsam.Values, prims: np.ndarray,
                      own: np.ndarray) -> np.ndarray:
         """All shape variables from ``values`` (a key gtsam left out keeps a

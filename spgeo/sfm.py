@@ -353,7 +353,7 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         try:
             # per-pixel noise model with sigma from the residuals at the solution
             # (robust MAD), so covariances are in physical units
-            res_pix = np.concatenate([_group_rows(g, values) for g in builders]
+            res_pix = np.concatenate([g.evaluate_at(values)["r"] for g in builders]
                                      ) if builders else np.zeros(0)
             res_pix = res_pix[res_pix != 0]
             sigma = float(1.4826 * np.median(np.abs(res_pix))) if res_pix.size else 0.02
@@ -388,15 +388,6 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
                    "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
     return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
                      brightness, report, unconstrained)
-
-
-def _group_rows(group: PhotometricFactorGroup, values: gtsam.Values) -> np.ndarray:
-    """Per-pixel residuals of a group at ``values``."""
-    thetas = np.array([values.atVector(k) for k in group.shape_keys])
-    br = values.atVector(group.brightness_key) if group.brightness_key is not None else None
-    return group.evaluate(values.atPose3(group.ref_key).matrix(),
-                          values.atPose3(group.tgt_key).matrix(), thetas, br,
-                          jacobians=False)["r"]
 
 
 def _gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):

@@ -35,6 +35,7 @@ from typing import Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
+from .cli_args import parse_resolution  # noqa: F401  (re-exported)
 from .frame import Frame
 from .jsonio import json_default
 from .frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
@@ -47,21 +48,6 @@ log = logging.getLogger(__name__)
 
 #: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
 ATE_LABELS = ("per-frame", "keyframe-only")
-
-
-def parse_resolution(text: str) -> Tuple[int, int]:
-    """``"WxH"`` (e.g. ``"160x120"``) -> ``(width, height)`` in pixels.
-
-    Raises ``ValueError`` for anything but two positive integers separated by
-    ``x``.
-    """
-    parts = str(text).strip().lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise ValueError(f"invalid resolution {text!r}: expected WIDTHxHEIGHT, e.g. 160x120")
-    w, h = (int(p) for p in parts)
-    if w < 16 or h < 16:
-        raise ValueError(f"invalid resolution {text!r}: width and height must be >= 16 pixels")
-    return w, h
 
 
 @dataclass(frozen=True)

@@ -229,6 +229,10 @@ def test_factor_group_equals_individual_factors(model, normalise):
     np.testing.assert_allclose(group.factors[2].unwhitenedError(vals),
                                singles[2].factor.unwhitenedError(vals), atol=1e-14)
     assert graph.error(vals) == pytest.approx(sum(s.factor.error(vals) for s in singles), rel=1e-12)
+    # evaluate_at reads the same variables from a Values: the singles' rows, concatenated
+    e_all = group.evaluate_at(vals)["e"]
+    np.testing.assert_allclose(e_all, np.concatenate([s.factor.unwhitenedError(vals)
+                                                      for s in singles]), atol=1e-14)
 
 
 @pytest.mark.parametrize("model", ["scaled", "planar"])

@@ -146,6 +146,7 @@ def test_bad_input_raises(frames):
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
     for bad in ({"map_pixel_fraction": 0.0}, {"init_min_gap": 0}, {"init_min_gap": 31},
+                {"init_extra_views": -1},
                 {"map_lambda_initial": 0.0}, {"render_prior_weight": 0.0},
                 {"kf_depth_link_sigma": -1.0}, {"kf_depth_link_primitives": 0},
                 {"kf_depth_link_tolerance": 0.0}):

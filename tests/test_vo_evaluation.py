@@ -220,3 +220,15 @@ def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
     assert (tmp_path / "trajectory.txt").is_file() and (tmp_path / "report.json").is_file()
     assert (tmp_path / "trajectory.status.txt").is_file()
     assert "feature VO" in capsys.readouterr().out
+
+
+def test_vo_synthetic_config_overrides():
+    from spgeo.evaluation.vo_synthetic import parse_overrides
+
+    assert parse_overrides(["kf_depth_link_sigma=None", "render_prior_weight = 1e-5",
+                            "brightness_prior_sigma=(0.1, 0.2)"]) == {
+        "kf_depth_link_sigma": None, "render_prior_weight": 1e-5,
+        "brightness_prior_sigma": (0.1, 0.2)}
+    for bad in (["kf_depth_link_sigma"], ["=1"], ["window=five"]):
+        with pytest.raises((ValueError, SyntaxError)):
+            parse_overrides(bad)
