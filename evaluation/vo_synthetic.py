@@ -101,15 +101,37 @@ def run_synthetic_vo(frames: Sequence[Frame], frontend: str = "depth",
 
 
 def parse_overrides(items: Sequence[str]) -> dict:
-    """``["field=value", ...]`` -> ``{field: value}`` with ``value`` a Python
-    literal (``None``, ``0.02``, ``(1, 2)``); raises ``ValueError``."""
-    out = {}
+    """``["field=value", "sub.field=value", ...]`` -> ``{field: value, sub:
+    {field: value}}`` with ``value`` a Python literal (``None``, ``0.02``,
+    ``(1, 2)``); raises ``ValueError``."""
+    out: dict = {}
     for item in items:
         key, sep, val = item.partition("=")
-        if not sep or not key.strip():
+        path = [k.strip() for k in key.split(".")]
+        if not sep or not all(path):
             raise ValueError(f"expected FIELD=VALUE, got {item!r}")
-        out[key.strip()] = ast.literal_eval(val.strip())
+        node = out
+        for k in path[:-1]:
+            node = node.setdefault(k, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"{k!r} is set both as a value and as a group")
+        node[path[-1]] = ast.literal_eval(val.strip())
     return out
+
+
+def odometry_config(overrides: dict) -> OdometryConfig:
+    """``OdometryConfig()`` with :func:`parse_overrides`' result applied
+    (nested dicts replace fields of nested config dataclasses)."""
+    def apply(cfg, over):
+        fields = {}
+        for k, v in over.items():
+            if isinstance(v, dict):
+                if not hasattr(cfg, k):
+                    raise TypeError(f"{type(cfg).__name__} has no field {k!r}")
+                v = apply(getattr(cfg, k), v)
+            fields[k] = v
+        return replace(cfg, **fields)
+    return apply(OdometryConfig(), overrides)
 
 
 def _pct(entry) -> str:
@@ -132,7 +154,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = ap.parse_args(argv)
     try:
         overrides = parse_overrides(args.set)
-        replace(OdometryConfig(), **overrides)
+        odometry_config(overrides)
     except (ValueError, TypeError, SyntaxError) as exc:
         ap.error(f"--set: {exc}")
     rot = None if args.rotation == "none" else tuple(int(x) for x in args.rotation.split(":"))
@@ -144,8 +166,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         frames = synthetic_sequence(SyntheticVOConfig(args.frames, seed, rotation=rot))
         for run in args.runs:
             fe, _, model = run.partition(":")
-            cfg = replace(OdometryConfig(), **{"primitive_model": model or "integrated",
-                                               **overrides})
+            cfg = odometry_config({"primitive_model": model or "integrated", **overrides})
             r = run_synthetic_vo(frames, fe, cfg)
             vo = r.pop("odometry")
             if args.out:

@@ -92,7 +92,12 @@ class TrackerConfig:
         lm_lambda_max: a level stops when the damping exceeds this (no step
             decreases the cost any more).
         relative_cost_tol: a level stops when an accepted step decreases the
-            cost by less than this fraction (default 1e-4).
+            cost by less than this fraction (default 1e-3: against 1e-4,
+            ``bench_vo``'s tracking alone ran 1.3x faster with a median
+            translation error of 6.1 instead of 6.0 mm, and the 150-frame
+            synthetic VO runs, seeds 0-3, kept their mean per-frame ATE:
+            0.39 / 0.83 / 0.92 % against 0.38 / 0.82 / 0.92 %, depth /
+            classical / planar).
         rotation_tol: a level stops when a step (accepted or rejected) turns
             by less than this (radians; default 5e-5, 0.003 deg) and moves by
             less than ``translation_tol``.
@@ -126,7 +131,7 @@ class TrackerConfig:
     lm_lambda_initial: float = 1e-4
     lm_lambda_factor: float = 10.0
     lm_lambda_max: float = 1e5
-    relative_cost_tol: float = 1e-4
+    relative_cost_tol: float = 1e-3
     rotation_tol: float = 5e-5
     translation_tol: float = 5e-5
     min_level_pixels: int = 4

@@ -223,12 +223,20 @@ def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
 
 
 def test_vo_synthetic_config_overrides():
-    from spgeo.evaluation.vo_synthetic import parse_overrides
+    from spgeo.evaluation.vo_synthetic import odometry_config, parse_overrides
 
-    assert parse_overrides(["kf_depth_link_sigma=None", "render_prior_weight = 1e-5",
-                            "brightness_prior_sigma=(0.1, 0.2)"]) == {
-        "kf_depth_link_sigma": None, "render_prior_weight": 1e-5,
-        "brightness_prior_sigma": (0.1, 0.2)}
-    for bad in (["kf_depth_link_sigma"], ["=1"], ["window=five"]):
+    over = parse_overrides(["kf_depth_link_sigma=None", "render_prior_weight = 1e-5",
+                            "brightness_prior_sigma=(0.1, 0.2)", "tracker.relative_cost_tol=1e-4",
+                            "tracker.photometric.huber_delta=0.05"])
+    assert over == {"kf_depth_link_sigma": None, "render_prior_weight": 1e-5,
+                    "brightness_prior_sigma": (0.1, 0.2),
+                    "tracker": {"relative_cost_tol": 1e-4, "photometric": {"huber_delta": 0.05}}}
+    cfg = odometry_config(over)
+    assert cfg.tracker.relative_cost_tol == 1e-4 and cfg.tracker.photometric.huber_delta == 0.05
+    assert cfg.tracker.levels == 3 and cfg.render_prior_weight == 1e-5
+    for bad in (["kf_depth_link_sigma"], ["=1"], ["window=five"], ["a.=1"],
+                ["window=3", "window.x=1"]):
         with pytest.raises((ValueError, SyntaxError)):
             parse_overrides(bad)
+    with pytest.raises(TypeError):
+        odometry_config({"nonsense": {"x": 1}})
