@@ -95,9 +95,10 @@ class TrackerConfig:
             cost by less than this fraction (default 1e-3: against 1e-4,
             ``bench_vo``'s tracking alone ran 1.3x faster with a median
             translation error of 6.1 instead of 6.0 mm, and the 150-frame
-            synthetic VO runs, seeds 0-3, kept their mean per-frame ATE:
-            0.39 / 0.83 / 0.92 % against 0.38 / 0.82 / 0.92 %, depth /
-            classical / planar).
+            synthetic VO runs, seeds 0-3, with level-0 mapping
+            (``vo_synthetic --set map_level=0 map_pixel_fraction=0.5``) kept
+            their mean per-frame ATE: 0.39 / 0.83 / 0.92 % against 0.38 /
+            0.82 / 0.92 % with 1e-4, depth / classical / planar).
         rotation_tol: a level stops when a step (accepted or rejected) turns
             by less than this (radians; default 5e-5, 0.003 deg) and moves by
             less than ``translation_tol``.

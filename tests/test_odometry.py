@@ -56,9 +56,8 @@ def run_frequent_kf(frames):
 
 def test_end_to_end_accuracy(frames, run):
     """The initialised keyframe pair (at least), mapped by the smoother; Sim(3) ATE of
-    the tracked frames < 3% of the trajectory length (measured 0.52% with 2
-    keyframes on this 50-frame, 0.63 m sequence; 0.88% and 3 keyframes with
-    the former half-resolution mapping)."""
+    the tracked frames < 3% of the trajectory length (measured 0.50% with 3
+    keyframes on this 50-frame, 0.63 m sequence)."""
     vo, results = run
     res = vo.result()
     assert len(res.timestamps) == N_FRAMES
