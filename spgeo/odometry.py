@@ -192,9 +192,12 @@ class OdometryConfig:
             1.35 % at level 1 with all pixels, and 0.39 / 0.83 / 0.92 % at
             level 0 with ``map_pixel_fraction=0.5`` (``--set map_level=0
             map_pixel_fraction=0.5``), both within the issue's targets
-            (< 1 % depth, < 3 % planar); the whole classical pipeline ran at
-            14.5 against 8.8 FPS in one ``bench_vo`` run on the 2-core CPU,
-            and only level 1 meets the >= 10 FPS target.
+            (< 1 % depth, < 3 % planar).  Level 1 is the default because the
+            >= 10 FPS target must hold on the 2-core CPU, whose speed varies
+            up to 2x within a session: level-0 mapping takes 1.6x the time
+            (0.92-0.95 against 0.53-0.63 s per keyframe in three ``bench_vo``
+            runs, whole pipeline 13.4-13.7 against 14.7-17.0 FPS), and in the
+            slower periods the level-0 pipeline fell to 8.0-8.8 FPS.
         map_stride: extra pixel stride of the mapping factors on that level's
             lattice (default 1; a stride of 2 at level 0 was worse than level
             1: it drops three of four pixels on every edge).
