@@ -63,6 +63,8 @@ def test_end_to_end_accuracy(frames, run):
     assert len(res.timestamps) == N_FRAMES
     assert res.is_keyframe.sum() >= 2
     assert vo.report()["mapping"] and not any(m.get("failed") for m in vo.report()["mapping"])
+    # the initialisation SfM had keyframe 1 and one frame between as supporting views
+    assert vo.report()["sfm"][-1]["n_views"] == 2
     assert res.statuses[0] == "keyframe"
     good = np.array([s != "lost" for s in res.statuses])
     gt = np.array([f.T_world_cam for f in frames])
