@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import argparse
 
+from .cli_args import DATASET_KINDS
+
 __all__ = ["add_vo_cli"]
 
-_KINDS = ("tum", "7scenes", "icl", "folder")
 
 _DESCRIPTION = """Monocular visual odometry (SuperPrimitives) on a data set.
 
@@ -32,8 +33,9 @@ def _run(args: argparse.Namespace) -> int:
     from .vo_runner import VORunConfig, parse_resolution, run_dataset
 
     kind, path = args.dataset
-    if kind.lower() not in _KINDS:
-        raise ValueError(f"--dataset KIND must be one of {', '.join(_KINDS)}, got {kind!r}")
+    if kind.lower() not in DATASET_KINDS:
+        raise ValueError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
+                         f"got {kind!r}")
     cfg = VORunConfig(resolution=parse_resolution(args.resolution), frontend=args.frontend,
                       progress=not args.no_progress, sam_family=args.sam_family,
                       normal_model=args.normal_model)
@@ -53,7 +55,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
         "vo", help="monocular visual odometry on a data set -> trajectory, keyframes, ATE",
         description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                   help=f"data-set kind ({', '.join(_KINDS)}) and sequence folder")
+                   help=f"data-set kind ({', '.join(DATASET_KINDS)}) and sequence folder")
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
                    help="frame numbers A <= n < B, every STEP-th (default: all)")
     p.add_argument("--resolution", default="160x120", metavar="WxH",

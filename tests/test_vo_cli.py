@@ -168,6 +168,19 @@ def test_parse_resolution():
             parse_resolution(bad)
     with pytest.raises(ValueError):
         VORunConfig(resolution=(0, 120))
+    # the shared parser behind it: 'native' and the minimum size are the caller's choice
+    from spgeo.cli_args import parse_resolution as parse_any
+    assert parse_any("native", allow_native=True) is None
+    assert parse_any("8x8", min_size=1) == (8, 8)
+    with pytest.raises(ValueError):
+        parse_any("native")
+
+
+def test_cli_dataset_kinds_are_the_readers():
+    from spgeo.cli_args import DATASET_KINDS
+    from spgeo.datasets import DATASET_KINDS as READERS
+
+    assert set(DATASET_KINDS) == set(READERS)
     with pytest.raises(ValueError):
         VORunConfig(frontend="sift")
 
