@@ -534,7 +534,7 @@ class PhotometricFactorGroup:
             M = A_j.T @ A_j - rows_s.T @ rows_s       # pose / brightness Schur complement
             mu, W = np.linalg.eigh(0.5 * (M + M.T))
             W_rows = np.sqrt(np.maximum(mu, 0.0))[:, None] * W.T                    # (m+1, m+1)
-            C = np.zeros((c * d + m1, m1 - 1 + c * d + 1))
+            C = np.zeros((c * d + m1, c * d + m1))       # rows x (m pose, c*d shape, z)
             C[:c * d, :m1 - 1] = rows_s[:, :-1]
             C[:c * d, -1] = rows_s[:, -1]
             ii = np.arange(c)[:, None, None] * d

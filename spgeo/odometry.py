@@ -926,8 +926,10 @@ class Odometry:
         Correspondences whose log-ratio is more than ``kf_depth_link_tolerance``
         from the median one are occlusions or disocclusions and are left out."""
         cfg = self.config
+        if cfg.kf_depth_link_sigma is None:
+            return None
         sel = self._map_pixels(ref)
-        if cfg.kf_depth_link_sigma is None or sel is None:
+        if sel is None:
             return None
         entries = sel[0]
         pr, pt = ref.keyframe.primitives, tgt.keyframe.primitives
@@ -974,11 +976,10 @@ class Odometry:
         return DepthConsistencyFactor(
             kf_pose_key(ref.index), kf_pose_key(tgt.index),
             [kf_scale_key(ref.index, i) for i in range(len(pr))],
-            self._shape_model(pr, entries, rays_all[pr.pixels[entries]]),
-            pr.primitive_ids[entries],
+            self._shape_model(pr, entries, rays_all[pr.pixels[entries]]), ref_ids[ok],
             [kf_scale_key(tgt.index, i) for i in range(len(pt))],
-            self._shape_model(pt, t_ent, rays_all[pt.pixels[t_ent]]),
-            pt.primitive_ids[t_ent], cfg.kf_depth_link_sigma, cfg.photometric.min_depth)
+            self._shape_model(pt, t_ent, rays_all[pt.pixels[t_ent]]), tgt_ids[ok],
+            cfg.kf_depth_link_sigma, cfg.photometric.min_depth)
 
     def _group(self, ref: _KF, tgt_key: int, tgt_image: np.ndarray,
                tgt_camera: PinholeCamera, bkey: int) -> Optional[PhotometricFactorGroup]:
