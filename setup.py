@@ -4,7 +4,7 @@
 installed as the sub-packages ``spgeo.factors`` and ``spgeo.evaluation``
 (the top-level names are taken on PyPI and are never installed as such).
 """
-from setuptools import setup
+from setuptools import find_packages, setup
 
 # Versions tested together on Python 3.11 (x86-64, CPU).  gtsam wheels have
 # crashed with some numpy 2 builds upstream; this pair is exercised by the tests.
@@ -41,13 +41,10 @@ setup(
     long_description_content_type="text/markdown",
     license="MIT",
     python_requires=">=3.11,<3.12",
-    packages=[
-        "spgeo",
-        "spgeo.frontend",
-        "spgeo.datasets",
-        "spgeo.factors",
-        "spgeo.evaluation",
-    ],
+    # every sub-package of spgeo/, plus factors/ and evaluation/ under the spgeo name
+    packages=(["spgeo"] + [f"spgeo.{p}" for p in find_packages("spgeo")]
+              + ["spgeo.factors", "spgeo.evaluation"]
+              + [f"spgeo.evaluation.{p}" for p in find_packages("evaluation")]),
     package_dir={
         "spgeo": "spgeo",
         "spgeo.factors": "factors",

@@ -1,19 +1,7 @@
-"""TUM trajectory files and Sim(3)-aligned absolute trajectory error (ATE).
+"""Sim(3)-aligned absolute trajectory error (ATE) of a :class:`~spgeo.trajectory.Trajectory`.
 
-TUM format (one pose per line, camera-to-world ``T_world_cam``)::
-
-    # comment lines start with '#'
-    timestamp tx ty tz qx qy qz qw
-
-Quaternions are Hamilton ``(qx, qy, qz, qw)`` (:mod:`spgeo.geometry`).  Files
-written here contain exactly 8 space-separated columns per pose line so that
-``evo_ape tum gt.txt est.txt -as`` reads them unchanged.  Per-frame status
-flags (``tracked``, ``lost``, ...) are **not** written as trailing comments
-(evo rejects rows with more than 8 columns) but in a separate two-column
-status file, by default ``<stem>.status.txt`` beside the trajectory
-(:func:`status_path_for`, :func:`write_status`, :func:`read_status`).  Frames
-without a pose (tracking lost) are omitted from the trajectory file and appear
-only in the status file.
+The TUM reader / writer lives in :mod:`spgeo.io.tum` (re-exported here);
+``TumTrajectory`` is an alias of :class:`spgeo.trajectory.Trajectory`.
 
 ATE (:func:`ate_sim3`) uses evo's library API: nearest-timestamp association
 (:func:`evo.core.sync.associate_trajectories`), Umeyama Sim(3) alignment of
@@ -29,14 +17,14 @@ returns both.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from spgeo.geometry import pose_from_tum, pose_to_tum
+from spgeo.io.tum import read_status, read_tum, status_path_for, write_status, write_tum
+from spgeo.trajectory import Trajectory
 
 __all__ = [
     "TumTrajectory", "read_tum", "write_tum", "status_path_for", "write_status", "read_status",
@@ -46,164 +34,24 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PathLike = Union[str, Path]
-#: ``(timestamps (n,), poses (n, 4, 4))`` or a :class:`TumTrajectory`.
-TrajectoryLike = Union[Tuple[Sequence[float], Sequence[np.ndarray]], "TumTrajectory"]
+#: ``(timestamps (n,), poses (n, 4, 4))`` or a :class:`~spgeo.trajectory.Trajectory`.
+TrajectoryLike = Union[Tuple[Sequence[float], Sequence[np.ndarray]], Trajectory]
+#: Former name of :class:`spgeo.trajectory.Trajectory`.
+TumTrajectory = Trajectory
 
 
-# ============================================================== file I/O
-@dataclass
-class TumTrajectory:
-    """A trajectory: timestamps (n,) float64 and camera-to-world poses (n, 4, 4)."""
-
-    timestamps: np.ndarray
-    poses: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
-        self.poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 4, 4)
-        if len(self.timestamps) != len(self.poses):
-            raise ValueError(f"trajectory: {len(self.timestamps)} timestamps for "
-                             f"{len(self.poses)} poses")
-
-    def __len__(self) -> int:
-        return len(self.timestamps)
-
-    def subset(self, mask_or_indices) -> "TumTrajectory":
-        """The poses selected by a boolean mask or an index array."""
-        idx = np.asarray(mask_or_indices)
-        return TumTrajectory(self.timestamps[idx], self.poses[idx])
-
-
-def _as_trajectory(traj: TrajectoryLike, name: str) -> TumTrajectory:
-    if isinstance(traj, TumTrajectory):
+def _as_trajectory(traj: TrajectoryLike, name: str) -> Trajectory:
+    if isinstance(traj, Trajectory):
         return traj
     if hasattr(traj, "timestamps") and hasattr(traj, "poses"):
-        return TumTrajectory(traj.timestamps, traj.poses)  # e.g. a VO result
+        return Trajectory(traj.timestamps, traj.poses)  # e.g. a result object
     try:
         stamps, poses = traj
     except (TypeError, ValueError):
-        raise TypeError(f"{name}: expected (timestamps, poses) or a TumTrajectory, "
+        raise TypeError(f"{name}: expected (timestamps, poses) or a Trajectory, "
                         f"got {type(traj).__name__}") from None
-    return TumTrajectory(stamps, np.stack([np.asarray(p, dtype=np.float64) for p in poses])
-                         if len(poses) else np.zeros((0, 4, 4)))
-
-
-def read_tum(path: PathLike) -> TumTrajectory:
-    """Read a TUM trajectory file.
-
-    Skips blank lines and lines starting with ``#``; text after a ``#`` on a
-    pose line is ignored too (files written by other tools).  Raises
-    ``FileNotFoundError`` for a missing file and ``ValueError`` (naming the file
-    and line) for a line without 8 finite numbers or an invalid quaternion.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"trajectory file not found: {path}")
-    stamps: List[float] = []
-    poses: List[np.ndarray] = []
-    for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) != 8:
-            raise ValueError(f"{path}:{lineno}: expected 8 columns "
-                             f"'timestamp tx ty tz qx qy qz qw', got {len(parts)}")
-        try:
-            values = np.array([float(p) for p in parts])
-            pose = pose_from_tum(values[1:])
-        except ValueError as exc:
-            raise ValueError(f"{path}:{lineno}: {exc}") from None
-        if not math.isfinite(values[0]):
-            raise ValueError(f"{path}:{lineno}: non-finite timestamp")
-        stamps.append(float(values[0]))
-        poses.append(pose)
-    return TumTrajectory(np.array(stamps), np.array(poses).reshape(-1, 4, 4))
-
-
-def write_tum(path: PathLike, timestamps: Sequence[float], poses: Sequence[np.ndarray],
-              header: Optional[Sequence[str]] = None) -> int:
-    """Write a TUM trajectory file (8 columns, camera-to-world).
-
-    Poses that are ``None`` or contain non-finite values are skipped (a frame
-    without a pose has no line).  ``header`` lines are written as ``# ``
-    comments first.  Creates the parent folder.  Returns the number of pose
-    lines written.
-    """
-    path = Path(path)
-    timestamps = list(timestamps)
-    poses = list(poses)
-    if len(timestamps) != len(poses):
-        raise ValueError(f"write_tum: {len(timestamps)} timestamps for {len(poses)} poses")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    n = 0
-    lines = [f"# {h}" for h in (header or [])]
-    lines.append("# timestamp tx ty tz qx qy qz qw (camera-to-world)")
-    for ts, T in zip(timestamps, poses):
-        if T is None:
-            continue
-        T = np.asarray(T, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            continue
-        v = pose_to_tum(T)
-        lines.append(f"{float(ts):.6f} " + " ".join(f"{x:.9f}" for x in v))
-        n += 1
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return n
-
-
-def status_path_for(trajectory_path: PathLike) -> Path:
-    """``DIR/stem.status.txt`` beside ``DIR/stem.txt``."""
-    p = Path(trajectory_path)
-    return p.with_name(p.stem + ".status.txt")
-
-
-def write_status(path: PathLike, timestamps: Sequence[float], status: Sequence[str],
-                 extra: Optional[Dict[str, Sequence[object]]] = None) -> None:
-    """Write ``timestamp status [extra columns...]`` per frame (``#`` header).
-
-    Status strings must not contain whitespace.  ``extra`` maps column names to
-    per-frame values (e.g. ``{"keyframe": [0, 1, ...]}``).
-    """
-    timestamps, status = list(timestamps), list(status)
-    if len(timestamps) != len(status):
-        raise ValueError(f"write_status: {len(timestamps)} timestamps for {len(status)} flags")
-    extra = dict(extra or {})
-    for k, v in extra.items():
-        if len(v) != len(status):
-            raise ValueError(f"write_status: column {k!r} has {len(v)} values for "
-                             f"{len(status)} frames")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lines = ["# timestamp status " + " ".join(extra)]
-    for i, (ts, s) in enumerate(zip(timestamps, status)):
-        s = str(s)
-        if not s or any(c.isspace() for c in s):
-            raise ValueError(f"write_status: invalid status {s!r}")
-        cols = [f"{float(ts):.6f}", s] + [str(v[i]) for v in extra.values()]
-        lines.append(" ".join(cols))
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-
-
-def read_status(path: PathLike) -> Tuple[np.ndarray, List[str]]:
-    """Read a status file written by :func:`write_status`: ``(timestamps, statuses)``."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"status file not found: {path}")
-    stamps, status = [], []
-    for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) < 2:
-            raise ValueError(f"{path}:{lineno}: expected 'timestamp status'")
-        try:
-            stamps.append(float(parts[0]))
-        except ValueError:
-            raise ValueError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from None
-        status.append(parts[1])
-    return np.array(stamps), status
+    return Trajectory(stamps, np.stack([np.asarray(p, dtype=np.float64) for p in poses])
+                      if len(poses) else np.zeros((0, 4, 4)))
 
 
 # ================================================================== ATE
@@ -299,7 +147,7 @@ class AteResult:
                 f"{self.n_associated} poses")
 
 
-def _to_evo(traj: TumTrajectory):
+def _to_evo(traj: Trajectory):
     from evo.core.trajectory import PoseTrajectory3D
 
     order = np.argsort(traj.timestamps, kind="stable")
@@ -314,7 +162,7 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
 
     Args:
         est, gt: ``(timestamps, poses)`` (camera-to-world 4x4) or
-            :class:`TumTrajectory` (or any object with ``timestamps`` and ``poses``).
+            :class:`~spgeo.trajectory.Trajectory` (or any object with ``timestamps`` and ``poses``).
             Estimated poses that are ``NaN`` (frames without a pose) are dropped;
             so are ground-truth poses that are non-finite.
         max_time_diff: largest timestamp difference for a nearest-time match

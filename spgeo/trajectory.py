@@ -1,0 +1,187 @@
+"""One trajectory type for every estimator (spgeo VO, feature VO, COLMAP).
+
+:class:`Trajectory` holds per-frame timestamps, camera-to-world poses
+``T_world_cam`` (NaN for a frame without a pose of its own), a
+:class:`FrameStatus` per frame, keyframe flags, map segments and optional extra
+per-frame columns.  :meth:`Trajectory.save` writes the TUM file plus the status
+file of :mod:`spgeo.io.tum`; :meth:`Trajectory.load` reads them back.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Union
+
+import numpy as np
+
+__all__ = ["FrameStatus", "Trajectory", "STATUSES"]
+
+
+class FrameStatus(str, Enum):
+    """Per-frame status, shared by every trajectory estimator.
+
+    ``INIT``: before a map exists (pose provisional or absent); ``OK``: tracked
+    (or registered); ``KEYFRAME``: tracked and made a keyframe; ``LOST``: no
+    pose of its own; ``RELOCALISED``: first tracked frame after a loss, or
+    tracked against an older keyframe; ``REINIT``: started a new map segment.
+    Members compare equal to their string values.
+    """
+
+    INIT = "init"
+    OK = "ok"
+    KEYFRAME = "keyframe"
+    LOST = "lost"
+    RELOCALISED = "relocalised"
+    REINIT = "reinit"
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def has_pose(self) -> bool:
+        """Whether a frame with this status carries a pose of its own."""
+        return self is not FrameStatus.LOST
+
+
+#: Every status value, in enum order.
+STATUSES = tuple(s.value for s in FrameStatus)
+
+
+def _as_status(value: Union[str, FrameStatus]) -> FrameStatus:
+    try:
+        return FrameStatus(value)
+    except ValueError:
+        raise ValueError(f"unknown frame status {value!r}; expected one of {STATUSES}") from None
+
+
+@dataclass
+class Trajectory:
+    """Per-frame poses and statuses of one run.
+
+    Attributes:
+        timestamps: (n,) float64 seconds (frame numbers for data without time).
+        poses: (n, 4, 4) float64 ``T_world_cam`` (camera-to-world); NaN rows
+            mark frames without a pose.
+        status: n :class:`FrameStatus` (default: all ``OK``); strings are
+            converted, an unknown one raises ``ValueError``.
+        is_keyframe: (n,) bool (default all False).
+        segment: (n,) int map segment (default 0; -1 for frames without a pose
+            where the estimator says so).
+        columns: extra per-frame columns written into the status file
+            (name -> n values), e.g. ``{"inliers": ...}``.
+    """
+
+    timestamps: np.ndarray
+    poses: np.ndarray
+    status: List[FrameStatus] = None  # type: ignore[assignment]
+    is_keyframe: np.ndarray = None  # type: ignore[assignment]
+    segment: np.ndarray = None  # type: ignore[assignment]
+    columns: Dict[str, Sequence[object]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
+        n = len(self.timestamps)
+        self.poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 4, 4)
+        if len(self.poses) != n:
+            raise ValueError(f"trajectory: {n} timestamps for {len(self.poses)} poses")
+        self.status = ([FrameStatus.OK] * n if self.status is None
+                       else [_as_status(s) for s in self.status])
+        self.is_keyframe = (np.zeros(n, dtype=bool) if self.is_keyframe is None
+                            else np.asarray(self.is_keyframe, dtype=bool).reshape(-1))
+        self.segment = (np.zeros(n, dtype=int) if self.segment is None
+                        else np.asarray(self.segment, dtype=int).reshape(-1))
+        for name, arr in (("status", self.status), ("is_keyframe", self.is_keyframe),
+                          ("segment", self.segment), *self.columns.items()):
+            if len(arr) != n:
+                raise ValueError(f"trajectory: {name!r} has {len(arr)} values for {n} frames")
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def statuses(self) -> List[FrameStatus]:
+        """Alias of :attr:`status`."""
+        return self.status
+
+    @property
+    def segments(self) -> np.ndarray:
+        """Alias of :attr:`segment`."""
+        return self.segment
+
+    @property
+    def finite(self) -> np.ndarray:
+        """(n,) bool: frames whose pose is finite."""
+        return np.all(np.isfinite(self.poses.reshape(len(self), -1)), axis=1)
+
+    @property
+    def tracked(self) -> np.ndarray:
+        """(n,) bool: frames with a pose of their own (finite, status not ``LOST``)."""
+        return self.finite & np.array([s.has_pose for s in self.status], dtype=bool)
+
+    @property
+    def keyframe_timestamps(self) -> np.ndarray:
+        return self.timestamps[self.is_keyframe]
+
+    @property
+    def keyframe_poses(self) -> np.ndarray:
+        return self.poses[self.is_keyframe]
+
+    def subset(self, mask_or_indices) -> "Trajectory":
+        """The frames selected by a boolean mask or an index array."""
+        idx = np.asarray(mask_or_indices)
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        return Trajectory(self.timestamps[idx], self.poses[idx],
+                          [self.status[i] for i in idx], self.is_keyframe[idx],
+                          self.segment[idx],
+                          {k: [v[i] for i in idx] for k, v in self.columns.items()})
+
+    def status_counts(self) -> Dict[str, int]:
+        """Frames per status value (every :class:`FrameStatus`, zeros included)."""
+        return {s.value: sum(1 for x in self.status if x is s) for s in FrameStatus}
+
+    def save(self, path: Union[str, Path], keyframes_only: bool = False,
+             header: Optional[Sequence[str]] = None, status_file: bool = True) -> Path:
+        """Write the posed frames (or keyframes) as a TUM file and, with
+        ``status_file``, every frame's status, keyframe flag, segment and
+        :attr:`columns` into ``<stem>.status.txt`` beside it.  Returns ``path``."""
+        from spgeo.io.tum import status_path_for, write_status, write_tum
+
+        path = Path(path)
+        mask = self.is_keyframe if keyframes_only else np.ones(len(self), dtype=bool)
+        write_tum(path, self.timestamps[mask], list(self.poses[mask]), header=header)
+        if status_file:
+            extra = {"keyframe": self.is_keyframe.astype(int).tolist(),
+                     "segment": self.segment.tolist()}
+            extra.update({k: list(v) for k, v in self.columns.items()})
+            write_status(status_path_for(path), self.timestamps,
+                         [s.value for s in self.status], extra)
+        return path
+
+    @classmethod
+    def load(cls, path: Union[str, Path]) -> "Trajectory":
+        """Read a TUM file and, when present, its ``<stem>.status.txt``.
+
+        With a status file the trajectory has one entry per status line (frames
+        missing from the TUM file get NaN poses) and its keyframe / segment
+        columns; without one, every pose line is an ``OK`` frame.
+        """
+        from spgeo.io.tum import read_status, read_tum, status_path_for
+
+        traj = read_tum(path)
+        spath = status_path_for(path)
+        if not spath.is_file():
+            return traj
+        stamps, status, extra = read_status(spath, with_columns=True)
+        poses = np.full((len(stamps), 4, 4), np.nan)
+        lookup = {float(t): i for i, t in enumerate(np.round(traj.timestamps, 6))}
+        for i, t in enumerate(np.round(stamps, 6)):
+            j = lookup.get(float(t))
+            if j is not None:
+                poses[i] = traj.poses[j]
+        kf = extra.pop("keyframe", None)
+        seg = extra.pop("segment", None)
+        return cls(stamps, poses, status,
+                   None if kf is None else np.array(kf, dtype=int).astype(bool),
+                   None if seg is None else np.array(seg, dtype=int), extra)
