@@ -51,7 +51,7 @@ from tqdm import tqdm
 from spgeo.camera import PinholeCamera
 from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
 from spgeo.cli_args import parse_resolution as _parse_resolution
-from spgeo.frame import Frame
+from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
 
@@ -318,36 +318,6 @@ def default_max_time_diff(timestamps: Sequence[float]) -> float:
     if stamps.size and np.all(np.isfinite(stamps)) and np.allclose(stamps, np.round(stamps)):
         return 0.1
     return 0.02
-
-
-def resize_frame(frame: Frame, resolution: Optional[Tuple[int, int]],
-                 keep_depth: bool = False) -> Frame:
-    """``frame`` undistorted (if its camera has distortion) and resized to
-    ``resolution = (width, height)`` pixels with ``cv2.INTER_AREA`` (depth, if
-    kept, with nearest neighbour), as the VO runner does; the camera follows
-    (:meth:`PinholeCamera.resized`).  The same frame is returned when nothing
-    changes.  Ground truth, timestamp, name and meta are kept."""
-    from spgeo.images import to_float_image
-
-    cam = frame.camera
-    image = frame.image
-    depth = frame.depth if keep_depth else None
-    if cam.distortion is not None:
-        image = cam.undistort_image(to_float_image(image))
-        if depth is not None:
-            depth = cam.undistort_image(depth, interpolation=cv2.INTER_NEAREST)
-        cam = cam.undistorted()
-    if resolution is None or tuple(resolution) == cam.size:
-        if cam is frame.camera and (keep_depth or frame.depth is None):
-            return frame
-        return Frame(image=image, camera=cam, timestamp=frame.timestamp, depth=depth,
-                     T_world_cam=frame.T_world_cam, name=frame.name, meta=dict(frame.meta))
-    w, h = (int(v) for v in resolution)
-    img = cv2.resize(to_float_image(image), (w, h), interpolation=cv2.INTER_AREA)
-    if depth is not None:
-        depth = cv2.resize(np.asarray(depth, np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
-    return Frame(image=img, camera=cam.resized(w, h), timestamp=frame.timestamp, depth=depth,
-                 T_world_cam=frame.T_world_cam, name=frame.name, meta=dict(frame.meta))
 
 
 def _as_frames(frames: Iterable[ImageOrFrame], camera: Optional[PinholeCamera],

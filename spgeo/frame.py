@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Tuple
 
 import numpy as np
 
 from .camera import PinholeCamera
 
-__all__ = ["Frame"]
+__all__ = ["Frame", "resize_frame"]
 
 
 @dataclass
@@ -52,3 +52,35 @@ class Frame:
         from .images import to_gray
 
         return to_gray(self.image)
+
+
+def resize_frame(frame: Frame, resolution: Optional[Tuple[int, int]],
+                 keep_depth: bool = False) -> Frame:
+    """``frame`` undistorted (if its camera has distortion) and resized to
+    ``resolution = (width, height)`` pixels with ``cv2.INTER_AREA`` (depth, if
+    kept, with nearest neighbour), the camera follows
+    (:meth:`PinholeCamera.resized`).  The same frame is returned when nothing
+    changes.  Ground truth, timestamp, name and meta are kept."""
+    import cv2
+
+    from .images import to_float_image
+
+    cam = frame.camera
+    image = frame.image
+    depth = frame.depth if keep_depth else None
+    if cam.distortion is not None:
+        image = cam.undistort_image(to_float_image(image))
+        if depth is not None:
+            depth = cam.undistort_image(depth, interpolation=cv2.INTER_NEAREST)
+        cam = cam.undistorted()
+    if resolution is None or tuple(resolution) == cam.size:
+        if cam is frame.camera and (keep_depth or frame.depth is None):
+            return frame
+        return Frame(image=image, camera=cam, timestamp=frame.timestamp, depth=depth,
+                     T_world_cam=frame.T_world_cam, name=frame.name, meta=dict(frame.meta))
+    w, h = (int(v) for v in resolution)
+    img = cv2.resize(to_float_image(image), (w, h), interpolation=cv2.INTER_AREA)
+    if depth is not None:
+        depth = cv2.resize(np.asarray(depth, np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    return Frame(image=img, camera=cam.resized(w, h), timestamp=frame.timestamp, depth=depth,
+                 T_world_cam=frame.T_world_cam, name=frame.name, meta=dict(frame.meta))
