@@ -20,28 +20,16 @@ convention is 0); negative or infinite values raise ``ValueError``.
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
-from typing import Tuple
 
 import cv2
 import numpy as np
 
 from spgeo.completion import check_sparse_depth, linear_fill, nearest_fill
 
-__all__ = ["check_sparse_depth", "sparse_points", "linear_interpolation_completion",
-           "nearest_fill", "IPBasicConfig", "ip_basic_completion", "diamond_kernel",
-           "OracleNormals", "oracle_frontend"]
-
-log = logging.getLogger(__name__)
-
-
-def sparse_points(sparse_depth: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """``(uv (K, 2) float, depth (K,))`` of the valid points of a sparse map
-    (u = column, v = row), in raster order."""
-    d = check_sparse_depth(sparse_depth)
-    v, u = np.nonzero(d > 0)
-    return np.stack([u, v], 1).astype(np.float64), d[v, u]
+__all__ = ["check_sparse_depth", "linear_interpolation_completion", "nearest_fill",
+           "IPBasicConfig", "ip_basic_completion", "diamond_kernel", "OracleNormals",
+           "oracle_frontend"]
 
 
 def linear_interpolation_completion(sparse_depth: np.ndarray, space: str = "depth"

@@ -8,7 +8,7 @@ Four measurements on one rendered synthetic sequence
 1. *Tracking alone*: every frame after the first tracked against keyframe 0
    built from ground-truth depth (frames that see less than half of it are
    skipped), median seconds per frame -> tracking FPS.
-2. *Whole pipeline* (:class:`spgeo.odometry.Odometry`, default config, the
+2. *Whole pipeline* (:class:`spgeo.vo.Odometry`, default config, the
    chosen front-end): FPS over all frames, mapping seconds per keyframe and
    seconds per stage (tracking, front-end, mapping, two-view initialisation).
 3. *Mapping resolution*: the same pipeline mapping at full resolution on the
@@ -33,8 +33,8 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
-from spgeo.odometry import OdometryConfig
-from spgeo.tracking import Keyframe, TrackerConfig, track_frame
+from spgeo.vo import OdometryConfig
+from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
 
 __all__ = ["bench_tracking", "main"]
 

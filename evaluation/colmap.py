@@ -8,66 +8,59 @@ small-baseline views, intrinsics never refined) and, for views the mapper does
 not register, an optional fallback to calibrated two-view geometry against the
 reference.  Poses come back in spgeo's convention: ``T_ref_view`` is the pose of
 each supporting view in the reference camera (camera-to-reference, reference
-at identity; DESIGN.md §1).  COLMAP stores world-to-camera ``cam_from_world``,
+at identity; docs/design.md §1).  COLMAP stores world-to-camera ``cam_from_world``,
 so ``T_world_cam = inv(cam_from_world)`` and
-``T_ref_view = inv(T_world_ref) @ T_world_view``; the tests check this on
-synthetic views with known poses.
+``T_ref_view = inv(T_world_ref) @ T_world_view``.
 
-:func:`compare_fewview` / :func:`compare_methods` report rotation and
-translation-direction errors of several methods against ground truth and
-against each other; :func:`compare_on_dataset` runs pluggable estimators
-(``callable(ref_frame, view_frames) -> list of T_ref_view``) on data-set frames;
-:func:`main` is the command line::
+:func:`colmap_estimator` wraps it as an estimator for
+:func:`~.colmap_compare.compare_on_dataset` (the comparison tables live in
+:mod:`.colmap_compare`); :func:`main` is the command line::
 
     python -m spgeo.evaluation.colmap --dataset tum PATH --frames 0 4 8
 
 Everything is deterministic: one thread, fixed RANSAC / mapper seeds, CPU
-SIFT and brute-force matching.
+SIFT and brute-force matching (shared helpers: :mod:`.colmap_common`).
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
-import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
+from spgeo.cli.args import add_dataset_arguments, add_verbose_argument, setup_logging
 from spgeo.geometry import invert_pose, relative_pose
 from spgeo.jsonio import json_default
 
-from .pose_metrics import compare_pose_lists, relative_pose_errors
+from .colmap_common import (ColmapOptions, ImageInput, cam_from_world, extract_sift,
+                            load_images, mapper_options, pose_from_rigid, quiet,
+                            sift_matching_options, verification_options, workspace)
+from .colmap_compare import Estimator, compare_on_dataset, format_comparison
 
-__all__ = [
-    "COLMAP_STATUSES", "ColmapConfig", "ColmapResult", "run_colmap_fewview", "compare_methods",
-    "compare_fewview", "colmap_estimator", "compare_on_dataset", "format_comparison", "main",
-]
+__all__ = ["COLMAP_STATUSES", "ColmapConfig", "ColmapResult", "run_colmap_fewview",
+           "colmap_estimator", "main"]
 
 logger = logging.getLogger(__name__)
 
 #: Values of :attr:`ColmapResult.status`.
 COLMAP_STATUSES = ("ok", "partial", "inconsistent", "failed")
 
-ImageInput = Union[np.ndarray, str, os.PathLike]
 PoseList = List[Optional[np.ndarray]]
-Estimator = Callable[[object, Sequence[object]], Sequence[Optional[np.ndarray]]]
 
 
 # ==================================================================== config
 @dataclass(frozen=True)
-class ColmapConfig:
-    """Options of :func:`run_colmap_fewview` (COLMAP's own defaults in brackets).
+class ColmapConfig(ColmapOptions):
+    """Options of :func:`run_colmap_fewview` (COLMAP's own defaults in brackets;
+    the common ones are :class:`~.colmap_common.ColmapOptions`).
 
     Attributes:
         max_num_features: SIFT features per image, default 8192 [8192].
@@ -105,36 +98,18 @@ class ColmapConfig:
         quiet: silence COLMAP's INFO logging while running, default True.
     """
 
-    max_num_features: int = 8192
     max_image_size: int = 0
-    max_ratio: float = 0.8
-    ransac_max_error_px: float = 2.0
     two_view_max_error_px: float = 1.0
-    min_num_matches: int = 15
-    init_min_num_inliers: int = 50
-    init_min_tri_angle_deg: float = 1.0
-    filter_min_tri_angle_deg: float = 0.5
-    abs_pose_min_num_inliers: int = 15
     fallback_two_view: bool = True
     fallback_min_inliers: int = 30
     fallback_min_parallax_deg: float = 0.5
     check_two_view: bool = True
     max_rotation_disagreement_deg: float = 2.0
-    num_threads: int = 1
-    random_seed: int = 0
-    quiet: bool = True
 
     def __post_init__(self) -> None:
-        if int(self.max_num_features) < 8:
-            raise ValueError(f"ColmapConfig.max_num_features must be >= 8, "
-                             f"got {self.max_num_features}")
-        if not 0 < float(self.max_ratio) <= 1:
-            raise ValueError(f"ColmapConfig.max_ratio must be in (0, 1], got {self.max_ratio}")
-        if not (float(self.ransac_max_error_px) > 0 and float(self.two_view_max_error_px) > 0):
-            raise ValueError("ColmapConfig.ransac_max_error_px and two_view_max_error_px "
-                             "must be > 0")
-        if int(self.num_threads) == 0 or int(self.num_threads) < -1:
-            raise ValueError("ColmapConfig.num_threads must be >= 1 or -1 (all cores)")
+        super().__post_init__()
+        if not float(self.two_view_max_error_px) > 0:
+            raise ValueError("ColmapConfig.two_view_max_error_px must be > 0")
 
 
 # ==================================================================== result
@@ -213,71 +188,6 @@ class ColmapResult:
 
 
 # ================================================================== helpers
-def _load_images(images: Sequence[ImageInput], camera: PinholeCamera) -> List[np.ndarray]:
-    """uint8 RGB (H, W, 3) images, undistorted when ``camera`` has distortion."""
-    from spgeo.images import load_image, to_float_image
-
-    out = []
-    for i, im in enumerate(images):
-        name = "reference image" if i == 0 else f"view {i}"
-        if isinstance(im, (str, os.PathLike)):
-            arr = load_image(im)
-        else:
-            try:
-                arr = to_float_image(np.asarray(im))
-            except ValueError as exc:
-                raise ValueError(f"run_colmap_fewview: {name}: {exc}") from None
-        camera.check_image(arr, f"run_colmap_fewview: {name}")
-        if camera.distortion is not None:
-            arr = camera.undistort_image(arr)
-        if arr.ndim == 2:
-            arr = np.repeat(arr[..., None], 3, axis=2)
-        out.append(np.clip(np.round(arr * 255.0), 0, 255).astype(np.uint8))
-    return out
-
-
-def _pose_from_rigid(rigid) -> np.ndarray:
-    """4x4 of a ``pycolmap.Rigid3d`` (``x_b = R x_a + t`` for ``b_from_a``)."""
-    M = np.eye(4)
-    M[:3] = np.asarray(rigid.matrix(), np.float64)
-    return M
-
-
-def _cam_from_world(image) -> np.ndarray:
-    cfw = image.cam_from_world
-    return _pose_from_rigid(cfw() if callable(cfw) else cfw)
-
-
-def _mapper_options(config: ColmapConfig):
-    import pycolmap
-
-    po = pycolmap.IncrementalPipelineOptions()
-    po.num_threads = int(config.num_threads)
-    po.random_seed = int(config.random_seed)
-    po.min_num_matches = int(config.min_num_matches)
-    po.ba_refine_focal_length = False
-    po.ba_refine_principal_point = False
-    po.ba_refine_extra_params = False
-    po.multiple_models = False
-    po.min_model_size = 2
-    po.extract_colors = False
-    m = po.mapper
-    m.init_min_num_inliers = int(config.init_min_num_inliers)
-    m.init_min_tri_angle = float(config.init_min_tri_angle_deg)
-    m.filter_min_tri_angle = float(config.filter_min_tri_angle_deg)
-    m.ba_local_min_tri_angle = max(float(config.filter_min_tri_angle_deg), 1.0)
-    m.abs_pose_min_num_inliers = int(config.abs_pose_min_num_inliers)
-    m.abs_pose_refine_focal_length = False
-    m.abs_pose_refine_extra_params = False
-    m.num_threads = int(config.num_threads)
-    m.random_seed = int(config.random_seed)
-    tri = po.triangulation
-    tri.min_angle = float(config.filter_min_tri_angle_deg)
-    tri.ignore_two_view_tracks = False  # with 2-4 images most tracks have two views
-    tri.random_seed = int(config.random_seed)
-    return po
-
-
 def _two_view_pose(db, cam, id_ref: int, id_view: int, config: ColmapConfig,
                        spg_camera: PinholeCamera) -> Tuple[Optional[np.ndarray], str]:
     """``T_ref_view`` (unit translation) from the calibrated two-view geometry of
@@ -307,7 +217,7 @@ def _two_view_pose(db, cam, id_ref: int, id_view: int, config: ColmapConfig,
         return None, f"two-view configuration {getattr(geom.config, 'name', geom.config)}"
     if len(inl) < config.fallback_min_inliers:
         return None, f"{len(inl)} two-view inliers < {config.fallback_min_inliers}"
-    T_view_ref = _pose_from_rigid(geom.cam2_from_cam1)
+    T_view_ref = pose_from_rigid(geom.cam2_from_cam1)
     t = T_view_ref[:3, 3]
     if not np.all(np.isfinite(T_view_ref)) or np.linalg.norm(t) < 1e-12:
         return None, "no translation (pure rotation)"
@@ -344,8 +254,6 @@ def run_colmap_fewview(images: Sequence[ImageInput], camera: PinholeCamera,
     """
     import cv2
 
-    from spgeo.twoview import _quiet_colmap
-
     config = config or ColmapConfig()
     if not isinstance(camera, PinholeCamera):
         raise TypeError(f"camera must be a PinholeCamera, got {type(camera).__name__}")
@@ -354,80 +262,26 @@ def run_colmap_fewview(images: Sequence[ImageInput], camera: PinholeCamera,
         raise ValueError(f"run_colmap_fewview needs a reference and at least one view, "
                          f"got {len(images)} image(s)")
     t0 = time.perf_counter()
-    arrays = _load_images(images, camera)
+    arrays = load_images(images, camera)
     cam = camera.undistorted()
     n = len(arrays)
     timings: Dict[str, float] = {}
-
-    tmp = None
-    if workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="spgeo_colmap_")
-        root = Path(tmp.name)
-    else:
-        root = Path(workdir)
-        root.mkdir(parents=True, exist_ok=True)
-    try:
-        image_dir = root / "images"
-        sparse_dir = root / "sparse"
-        db_path = root / "database.db"
-        if db_path.exists():
-            db_path.unlink()
-        if sparse_dir.exists():
-            shutil.rmtree(sparse_dir)
-        image_dir.mkdir(exist_ok=True)
-        sparse_dir.mkdir()
+    with workspace(workdir, "spgeo_colmap_", clear_sparse=True) as (image_dir, sparse_dir,
+                                                                     db_path):
         names = [f"{i:03d}_ref.png" if i == 0 else f"{i:03d}.png" for i in range(n)]
         for name, arr in zip(names, arrays):
             if not cv2.imwrite(str(image_dir / name), cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"cannot write {image_dir / name}")
         timings["prepare"] = time.perf_counter() - t0
-        quiet = _quiet_colmap() if config.quiet else contextlib.nullcontext()
-        with quiet:
+        with quiet(config):
             result = _run_pipeline(db_path, image_dir, sparse_dir, names, cam, config, timings)
-        result.workdir = None if tmp is not None else str(root)
+        result.workdir = None if workdir is None else str(Path(workdir))
         timings["total"] = time.perf_counter() - t0
         result.timings = timings
         logger.info("COLMAP few-view: %s, %d/%d images posed, %d points (%s)", result.status,
                     result.num_registered, result.num_images, result.num_points3D,
                     result.message or "all views registered")
         return result
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
-
-
-def extract_sift(db_path, image_dir, names: List[str], cam: PinholeCamera, num_threads: int,
-                 max_num_features: int, max_image_size: int = 0) -> float:
-    """SIFT features of ``names`` into the database with one shared, known
-    PINHOLE camera (CPU); ``max_image_size`` 0 = the image size.  Returns seconds."""
-    import pycolmap
-
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # COLMAP pixel centres are at half-integers: shift the principal point by +0.5
-    reader.camera_params = f"{cam.fx!r},{cam.fy!r},{cam.cx + 0.5!r},{cam.cy + 0.5!r}"
-    ext = pycolmap.FeatureExtractionOptions()
-    ext.num_threads = int(num_threads)
-    ext.use_gpu = False
-    ext.max_image_size = int(max_image_size) if max_image_size > 0 else max(cam.width, cam.height)
-    ext.sift.max_num_features = int(max_num_features)
-    t = time.perf_counter()
-    pycolmap.extract_features(db_path, image_dir, image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=ext, device=pycolmap.Device.cpu)
-    return time.perf_counter() - t
-
-
-def sift_matching_options(num_threads: int, max_ratio: float):
-    """CPU brute-force SIFT matching options."""
-    import pycolmap
-
-    mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = int(num_threads)
-    mo.use_gpu = False
-    mo.sift.max_ratio = float(max_ratio)
-    mo.sift.cpu_brute_force_matcher = True
-    return mo
 
 
 def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[str],
@@ -441,13 +295,9 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     timings["extract"] = extract_sift(db_path, image_dir, names, cam, config.num_threads,
                                       config.max_num_features, max_size)
     mo = sift_matching_options(config.num_threads, config.max_ratio)
-    vo = pycolmap.TwoViewGeometryOptions()
-    vo.min_num_inliers = int(config.min_num_matches)
-    vo.ransac.max_error = float(config.ransac_max_error_px)
-    vo.ransac.random_seed = int(config.random_seed)
-    vo.detect_watermark = False
     t = time.perf_counter()
-    pycolmap.match_exhaustive(db_path, matching_options=mo, verification_options=vo,
+    pycolmap.match_exhaustive(db_path, matching_options=mo,
+                              verification_options=verification_options(config),
                               device=pycolmap.Device.cpu)
     timings["match"] = time.perf_counter() - t
 
@@ -477,7 +327,7 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     recs: Dict[int, object] = {}
     try:
         recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir,
-                                            options=_mapper_options(config))
+                                            options=mapper_options(config))
     except Exception as exc:  # COLMAP raises on hopeless inputs
         reasons.append(f"incremental mapping failed: {exc}")
     timings["map"] = time.perf_counter() - t
@@ -490,11 +340,11 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
         reasons.append("the reference is in no reconstruction")
     if best is not None:
         posed = {im.name: im for im in best.images.values() if im.has_pose}
-        T_world_ref = invert_pose(_cam_from_world(posed[names[0]]))
+        T_world_ref = invert_pose(cam_from_world(posed[names[0]]))
         for j in range(1, n):
             im = posed.get(names[j])
             if im is not None:
-                result.T_ref_view[j - 1] = relative_pose(T_world_ref, invert_pose(_cam_from_world(im)))
+                result.T_ref_view[j - 1] = relative_pose(T_world_ref, invert_pose(cam_from_world(im)))
                 result.view_method[j - 1] = "incremental"
         result.num_points3D = int(best.num_points3D())
         result.mean_reprojection_error = float(best.compute_mean_reprojection_error())
@@ -545,104 +395,6 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     return result
 
 
-# ================================================================ comparison
-def compare_methods(estimates: Mapping[str, Sequence[Optional[np.ndarray]]],
-                    T_ref_view_gt: Optional[Sequence[Optional[np.ndarray]]] = None,
-                    view_names: Optional[Sequence[str]] = None) -> Dict[str, object]:
-    """Rotation / translation-direction errors of several methods' relative poses.
-
-    Args:
-        estimates: method name -> list of ``T_ref_view`` (None = not posed), all
-            of the same length (one per supporting view).
-        T_ref_view_gt: optional ground truth, same length.
-        view_names: optional names of the views.
-    Returns:
-        dict with ``"views"`` (names), ``"vs_gt"`` (method -> per-view rows and
-        summary of :func:`~spgeo.evaluation.pose_metrics.compare_pose_lists`;
-        empty without ground truth), ``"pairwise"`` (``"a_vs_b"`` -> the same
-        between each pair of methods) and ``"gt_motion"`` (per view rotation
-        angle in degrees and translation norm of the ground truth, if given).
-    """
-    names = list(estimates)
-    lengths = {len(list(v)) for v in estimates.values()}
-    if T_ref_view_gt is not None:
-        lengths.add(len(list(T_ref_view_gt)))
-    if len(lengths) > 1:
-        raise ValueError(f"compare_methods: pose lists of different lengths {sorted(lengths)}")
-    n = lengths.pop() if lengths else 0
-    vnames = [f"view{j + 1}" for j in range(n)] if view_names is None else list(view_names)
-    out: Dict[str, object] = {"views": vnames, "vs_gt": {}, "pairwise": {}, "gt_motion": []}
-    if T_ref_view_gt is not None:
-        gt = list(T_ref_view_gt)
-        for name in names:
-            out["vs_gt"][name] = compare_pose_lists(list(estimates[name]), gt, vnames).to_dict()
-        out["gt_motion"] = [
-            None if T is None else {
-                "rotation_deg": relative_pose_errors(np.eye(4), T)["gt_rotation_deg"],
-                "translation_norm": float(np.linalg.norm(np.asarray(T)[:3, 3]))}
-            for T in gt]
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            out["pairwise"][f"{a}_vs_{b}"] = compare_pose_lists(
-                list(estimates[a]), list(estimates[b]), vnames).to_dict()
-    return out
-
-
-def compare_fewview(T_ref_view_spgeo: Sequence[Optional[np.ndarray]],
-                    T_ref_view_colmap: Sequence[Optional[np.ndarray]],
-                    T_ref_view_gt: Optional[Sequence[Optional[np.ndarray]]] = None,
-                    view_names: Optional[Sequence[str]] = None) -> Dict[str, object]:
-    """spgeo vs COLMAP (vs ground truth when given): :func:`compare_methods` with
-    the methods ``"spgeo"`` and ``"colmap"``; the pairwise entry is
-    ``result["pairwise"]["spgeo_vs_colmap"]``."""
-    return compare_methods({"spgeo": T_ref_view_spgeo, "colmap": T_ref_view_colmap},
-                           T_ref_view_gt, view_names)
-
-
-def _fmt(x: object, digits: int = 2) -> str:
-    if x is None:
-        return "-"
-    try:
-        v = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return str(x)
-    return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
-
-
-def format_comparison(comparison: Mapping[str, object]) -> str:
-    """Plain-text table of a :func:`compare_methods` / :func:`compare_on_dataset`
-    result: one row per view, rotation error / translation-direction error in
-    degrees for each method vs ground truth and for each pair of methods."""
-    views = list(comparison.get("views", []))
-    blocks = [("vs GT", k, v) for k, v in dict(comparison.get("vs_gt", {})).items()]
-    blocks += [("pair", k, v) for k, v in dict(comparison.get("pairwise", {})).items()]
-    gt_motion = list(comparison.get("gt_motion", []) or [])
-    header = ["view"] + (["gt rot", "gt |t|"] if gt_motion else [])
-    for kind, name, _ in blocks:
-        label = name if kind == "pair" else f"{name} vs gt"
-        header += [f"{label} rot", f"{label} tdir"]
-    rows = [header]
-    for j, v in enumerate(views):
-        row = [str(v)]
-        if gt_motion:
-            g = gt_motion[j] if j < len(gt_motion) else None
-            row += [_fmt(None if g is None else g["rotation_deg"]),
-                    _fmt(None if g is None else g["translation_norm"], 3)]
-        for _, _, block in blocks:
-            r = block["rows"][j]
-            if not r.get("available", False):
-                row += ["-", "-"]
-            else:
-                row += [_fmt(r["rotation_error_deg"], 3), _fmt(r["translation_direction_error_deg"])]
-        rows.append(row)
-    widths = [max(len(r[c]) for r in rows) for c in range(len(header))]
-    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)) for r in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    lines.append("(errors in degrees: rotation angle, translation-direction angle; "
-                 "'-' = not posed)")
-    return "\n".join(lines)
-
-
 # ================================================================ data sets
 def colmap_estimator(config: Optional[ColmapConfig] = None,
                      workdir: Optional[Union[str, os.PathLike]] = None) -> Estimator:
@@ -659,57 +411,6 @@ def colmap_estimator(config: Optional[ColmapConfig] = None,
 
     estimate.last_result = None  # type: ignore[attr-defined]
     return estimate
-
-
-def compare_on_dataset(frames: Sequence[object],
-                       estimators: Mapping[str, Estimator]) -> Dict[str, object]:
-    """Run pose estimators on a reference frame plus supporting frames and
-    compare them with the frames' ground truth and with each other.
-
-    Args:
-        frames: :class:`spgeo.frame.Frame` objects, reference first (at least
-            two); ground truth comes from their ``T_world_cam`` (views without
-            one are skipped in the ground-truth comparison).
-        estimators: name -> ``callable(ref_frame, view_frames)`` returning one
-            ``T_ref_view`` (4x4 or None) per supporting view.  An estimator that
-            raises is recorded (``"error"``) and counted as posing nothing.
-    Returns:
-        :func:`compare_methods`'s dict plus ``"frames"`` (frame names),
-        ``"estimates"`` (name -> poses as nested lists or None), ``"errors"``
-        (name -> message or None) and ``"time_s"`` (name -> seconds).
-    """
-    frames = list(frames)
-    if len(frames) < 2:
-        raise ValueError("compare_on_dataset needs a reference and at least one view")
-    ref, views = frames[0], frames[1:]
-    gt: Optional[PoseList] = None
-    if ref.T_world_cam is not None:
-        gt = [None if f.T_world_cam is None else relative_pose(ref.T_world_cam, f.T_world_cam)
-              for f in views]
-    estimates: Dict[str, PoseList] = {}
-    errors: Dict[str, Optional[str]] = {}
-    times: Dict[str, float] = {}
-    for name, fn in estimators.items():
-        t = time.perf_counter()
-        try:
-            poses = list(fn(ref, views))
-            if len(poses) != len(views):
-                raise ValueError(f"returned {len(poses)} poses for {len(views)} views")
-            estimates[name] = [None if T is None else np.asarray(T, np.float64) for T in poses]
-            errors[name] = None
-        except Exception as exc:  # an evaluation must report, not die
-            logger.exception("estimator %r failed", name)
-            estimates[name] = [None] * len(views)
-            errors[name] = f"{type(exc).__name__}: {exc}"
-        times[name] = time.perf_counter() - t
-    names = [getattr(f, "name", "") or f"view{j + 1}" for j, f in enumerate(views)]
-    out = compare_methods(estimates, gt, names)
-    out["frames"] = [getattr(f, "name", "") for f in frames]
-    out["estimates"] = {k: [None if T is None else T.tolist() for T in v]
-                        for k, v in estimates.items()}
-    out["errors"] = errors
-    out["time_s"] = times
-    return out
 
 
 # ====================================================================== CLI
@@ -775,8 +476,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump(payload, fh, indent=2, default=json_default)
     return 0 if res is not None and res.status != "failed" else 1
-
-
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,9 +4,8 @@
 sparse pipeline and returns one camera-to-world pose per frame:
 
 1. **Frames**: each frame is undistorted (if its camera has distortion), resized
-   like the VO input (``cv2.INTER_AREA``, default 160x120; the camera via
-   :meth:`~spgeo.camera.PinholeCamera.resized`) and written as
-   ``000000.png, 000001.png, ...`` into a temporary folder.
+   like the VO input (:func:`spgeo.frame.resize_frame`, default 160x120) and
+   written as ``000000.png, 000001.png, ...`` into a temporary folder.
 2. **Features**: CPU SIFT into **one shared PINHOLE camera with known, fixed
    intrinsics** (the frames' camera, resized; COLMAP's pixel centres are at
    half-integers, so ``cx + 0.5``, ``cy + 0.5``).
@@ -20,11 +19,13 @@ sparse pipeline and returns one camera-to-world pose per frame:
 COLMAP stores world-to-camera ``cam_from_world``; here
 ``T_world_cam = inv(cam_from_world)``, re-expressed so that the first
 registered frame of the largest model is the identity (arbitrary scale:
-evaluate with Sim(3)-aligned ATE, :meth:`ColmapVOResult.ate`).
+evaluate with Sim(3)-aligned ATE, :meth:`ColmapVOResult.ate`).  Registered
+frames have status ``ok``, the others ``lost``
+(:class:`~spgeo.trajectory.FrameStatus`).
 
 Determinism: one thread (default), fixed RANSAC / mapper seeds, CPU SIFT and
-brute-force matching.  The helpers of :mod:`.colmap` (image conversion,
-mapper options, pose conversion) are reused.
+brute-force matching (helpers shared with the few-view reference:
+:mod:`.colmap_common`).
 
 Command line (prints registration and the Sim(3) ATE, writes the trajectory)::
 
@@ -34,11 +35,9 @@ Command line (prints registration and the Sim(3) ATE, writes the trajectory)::
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -49,32 +48,37 @@ import numpy as np
 from tqdm import tqdm
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
-from spgeo.cli_args import parse_resolution as _parse_resolution
+from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
+                            setup_logging)
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
+from spgeo.trajectory import FrameStatus, Trajectory
 
-from .colmap import (ColmapConfig, _cam_from_world, _load_images, _mapper_options, extract_sift,
-                     sift_matching_options)
-from .trajectory import (AteResult, TrajectoryLike, ate_sim3, status_path_for, write_status,
-                         write_tum)
+from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, load_images,
+                            mapper_options, quiet, sift_matching_options, verification_options,
+                            workspace)
+from .trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
+                         default_max_time_diff)
 
-__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo",
-           "resize_frame", "default_max_time_diff", "parse_resolution", "main"]
+__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo", "main"]
 
 logger = logging.getLogger(__name__)
 
-#: Per-frame statuses of :class:`ColmapVOResult`.
-COLMAP_VO_STATUSES = ("registered", "unregistered")
+#: Per-frame statuses of :class:`ColmapVOResult` (registered, unregistered).
+COLMAP_VO_STATUSES = (FrameStatus.OK.value, FrameStatus.LOST.value)
 
 ImageOrFrame = Union[Frame, np.ndarray]
 
 
 # ==================================================================== config
 @dataclass(frozen=True)
-class ColmapVOConfig:
-    """Options of :func:`run_colmap_vo` (COLMAP's own defaults in brackets).
+class ColmapVOConfig(ColmapOptions):
+    """Options of :func:`run_colmap_vo` (COLMAP's own defaults in brackets; the
+    fields shared with the few-view reference are
+    :class:`~.colmap_common.ColmapOptions`; ``max_ratio``, ``min_num_matches``,
+    ``init_min_num_inliers``, ``num_threads``, ``random_seed`` and ``quiet``
+    keep its defaults).
 
     Attributes:
         resolution: ``(width, height)`` in pixels the frames are resized to
@@ -88,17 +92,10 @@ class ColmapVOConfig:
             needs ``vocab_tree_path``.
         vocab_tree_path: COLMAP vocabulary tree file for ``loop_detection``.
         max_num_features: SIFT features per image, default 4096 [8192].
-        max_ratio: descriptor ratio test, default 0.8 [0.8].
         ransac_max_error_px: epipolar RANSAC threshold of the geometric
-            verification, in pixels of the resized images, default 1.0 [4.0]
-            (1 px at 160x120 is 4 px at 640x480).
-        min_num_matches: verified matches for a pair to be used, default 15 [15].
-        init_min_num_inliers: inliers of the mapper's initial pair, default 50 [100]
-            (low-resolution frames have a few hundred features).
+            verification, in pixels of the resized images, default 1.0 [4.0].
         init_min_tri_angle_deg: triangulation angle of the initial pair in
-            degrees, default 2.0 [16]: hand-held sequences have small baselines
-            (same ATE as 4.0 on 7-Scenes frames 0-299; 4.0 found no initial pair
-            on a 20-frame synthetic sequence).
+            degrees, default 2.0 [16]: hand-held sequences have small baselines.
         filter_min_tri_angle_deg: minimum triangulation angle of kept 3-D
             points in degrees, default 1.5 [1.5].
         abs_pose_min_num_inliers: 2D-3D inliers to register a frame, default 20 [30].
@@ -113,13 +110,7 @@ class ColmapVOConfig:
         ba_global_max_num_iterations: solver iterations of a global bundle
             adjustment, default 50 [-1 = COLMAP's internal default].
         ba_global_function_tolerance: relative cost change that stops a global
-            bundle adjustment, default 1e-6 [0.0]: with COLMAP's 0.0 every
-            global adjustment ran to its iteration limit on 7-Scenes frames at
-            160x120 (ill-conditioned steps), mapping 300 frames took 270 s
-            instead of 28 s for the same ATE (2.77 vs 2.74 cm).
-        num_threads: threads of every stage, default 1 (deterministic); -1 = all cores.
-        random_seed: seed of RANSAC and of the mapper, default 0.
-        quiet: silence COLMAP's INFO logging while running, default True.
+            bundle adjustment, default 1e-6 [0.0].
         show_progress: tqdm bar while the frames are prepared, default False.
     """
 
@@ -129,10 +120,7 @@ class ColmapVOConfig:
     loop_detection: bool = False
     vocab_tree_path: Optional[str] = None
     max_num_features: int = 4096
-    max_ratio: float = 0.8
     ransac_max_error_px: float = 1.0
-    min_num_matches: int = 15
-    init_min_num_inliers: int = 50
     init_min_tri_angle_deg: float = 2.0
     filter_min_tri_angle_deg: float = 1.5
     abs_pose_min_num_inliers: int = 20
@@ -143,9 +131,6 @@ class ColmapVOConfig:
     ba_global_max_refinements: int = 5
     ba_global_max_num_iterations: int = 50
     ba_global_function_tolerance: float = 1e-6
-    num_threads: int = 1
-    random_seed: int = 0
-    quiet: bool = True
     show_progress: bool = False
 
     def __post_init__(self) -> None:
@@ -162,36 +147,18 @@ class ColmapVOConfig:
                              "vocabulary tree file)")
         if int(self.min_model_size) < 2:
             raise ValueError("ColmapVOConfig.min_model_size must be >= 2")
-        # the remaining checks are ColmapConfig's
-        self.to_colmap_config()
-
-    def to_colmap_config(self) -> ColmapConfig:
-        """The matching / mapper options as a :class:`~.colmap.ColmapConfig`
-        (used with :func:`.colmap._mapper_options`)."""
-        return ColmapConfig(
-            max_num_features=int(self.max_num_features), max_ratio=float(self.max_ratio),
-            ransac_max_error_px=float(self.ransac_max_error_px),
-            min_num_matches=int(self.min_num_matches),
-            init_min_num_inliers=int(self.init_min_num_inliers),
-            init_min_tri_angle_deg=float(self.init_min_tri_angle_deg),
-            filter_min_tri_angle_deg=float(self.filter_min_tri_angle_deg),
-            abs_pose_min_num_inliers=int(self.abs_pose_min_num_inliers),
-            fallback_two_view=False, check_two_view=False,
-            num_threads=int(self.num_threads), random_seed=int(self.random_seed),
-            quiet=bool(self.quiet))
+        super().__post_init__()
 
 
 # ==================================================================== result
 @dataclass
-class ColmapVOResult:
+class ColmapVOResult(TrajectoryResult):
     """Output of :func:`run_colmap_vo`.
 
     Attributes:
-        timestamps: (n,) frame timestamps (seconds, or frame numbers for data
-            sets without time).
-        T_world_cam: per frame its 4x4 camera-to-world pose in the largest
-            model (first registered frame = identity, arbitrary scale), None
-            when the frame is not registered in that model.
+        trajectory: one entry per frame: camera-to-world pose in the largest
+            model (first registered frame = identity, arbitrary scale), NaN and
+            status ``lost`` when the frame is not registered in that model.
         names: frame names.
         camera: the (resized, undistorted) camera given to COLMAP, fixed.
         num_models: models COLMAP built (0 when mapping failed).
@@ -206,8 +173,7 @@ class ColmapVOResult:
         config: the options used.
     """
 
-    timestamps: np.ndarray
-    T_world_cam: List[Optional[np.ndarray]]
+    trajectory: Trajectory
     names: List[str]
     camera: PinholeCamera
     num_models: int = 0
@@ -220,13 +186,14 @@ class ColmapVOResult:
     config: ColmapVOConfig = field(default_factory=ColmapVOConfig)
 
     @property
-    def n_frames(self) -> int:
-        return len(self.T_world_cam)
-
-    @property
     def registered(self) -> np.ndarray:
         """(n,) bool: frames with a pose in the largest model."""
-        return np.array([T is not None for T in self.T_world_cam], dtype=bool)
+        return self.trajectory.tracked
+
+    @property
+    def T_world_cam(self) -> List[Optional[np.ndarray]]:
+        """Per frame its 4x4 camera-to-world pose, None when unregistered."""
+        return [T.copy() if ok else None for T, ok in zip(self.poses, self.registered)]
 
     @property
     def num_registered(self) -> int:
@@ -235,21 +202,6 @@ class ColmapVOResult:
     @property
     def registered_fraction(self) -> float:
         return self.num_registered / self.n_frames if self.n_frames else float("nan")
-
-    @property
-    def poses(self) -> np.ndarray:
-        """(n, 4, 4) camera-to-world, NaN for unregistered frames."""
-        out = np.full((self.n_frames, 4, 4), np.nan)
-        for i, T in enumerate(self.T_world_cam):
-            if T is not None:
-                out[i] = T
-        return out
-
-    @property
-    def status(self) -> List[str]:
-        """Per frame ``"registered"`` / ``"unregistered"``."""
-        return [COLMAP_VO_STATUSES[0] if T is not None else COLMAP_VO_STATUSES[1]
-                for T in self.T_world_cam]
 
     @property
     def fps(self) -> float:
@@ -266,10 +218,10 @@ class ColmapVOResult:
             gt_poses: one ground-truth camera-to-world pose per frame of this
                 result (None where unknown) when ``gt_timestamps`` is None, else
                 the ground-truth poses at ``gt_timestamps``; a
-                :class:`~.trajectory.TumTrajectory` is accepted too.
+                :class:`~spgeo.trajectory.Trajectory` is accepted too.
             gt_timestamps: see ``gt_poses``.
             max_time_diff: association tolerance, default
-                :func:`default_max_time_diff` of the timestamps.
+                :func:`~.trajectory.default_max_time_diff` of the timestamps.
         Raises ``ValueError`` when fewer than 3 registered frames have ground truth.
         """
         if hasattr(gt_poses, "timestamps") and hasattr(gt_poses, "poses"):
@@ -289,14 +241,11 @@ class ColmapVOResult:
     def save_tum(self, path: Union[str, Path]) -> Path:
         """Write the registered frames as a TUM file (camera-to-world) and every
         frame's status into ``<stem>.status.txt`` beside it.  Returns ``path``."""
-        path = Path(path)
         header = ["COLMAP incremental SfM reference (pycolmap, SIFT, sequential matching, "
                   "fixed PINHOLE intrinsics); largest model; monocular: scale arbitrary",
                   f"frames {self.n_frames}, registered {self.num_registered}, "
                   f"models {self.num_models} {self.model_sizes}; camera {self.camera}"]
-        write_tum(path, self.timestamps, self.T_world_cam, header=header)
-        write_status(status_path_for(path), self.timestamps, self.status)
-        return path
+        return self.trajectory.save(path, header=header)
 
     def summary(self) -> Dict[str, object]:
         """JSON-friendly summary (no poses)."""
@@ -311,15 +260,6 @@ class ColmapVOResult:
 
 
 # ================================================================== helpers
-def default_max_time_diff(timestamps: Sequence[float]) -> float:
-    """ATE association tolerance: 0.1 for frame-number timestamps (all
-    integral, e.g. 7-Scenes), else 0.02 s (TUM)."""
-    stamps = np.asarray(timestamps, dtype=np.float64)
-    if stamps.size and np.all(np.isfinite(stamps)) and np.allclose(stamps, np.round(stamps)):
-        return 0.1
-    return 0.02
-
-
 def _as_frames(frames: Iterable[ImageOrFrame], camera: Optional[PinholeCamera],
                timestamps: Optional[Sequence[float]]) -> Iterable[Frame]:
     """Frames from Frame objects or raw images (+ camera, timestamps)."""
@@ -333,6 +273,34 @@ def _as_frames(frames: Iterable[ImageOrFrame], camera: Optional[PinholeCamera],
         from spgeo.images import to_float_image
 
         yield Frame(image=to_float_image(f), camera=camera, timestamp=ts, name=f"{i:06d}")
+
+
+def _write_frames(frames: Iterable[Frame], image_dir: Path, resolution, show_progress: bool):
+    """Resize and write the frames as ``000000.png, ...``; returns (file names,
+    frame names, timestamps, the resized camera).  Raises ``ValueError`` for
+    frames of different cameras."""
+    names: List[str] = []
+    frame_names: List[str] = []
+    stamps: List[float] = []
+    cam: Optional[PinholeCamera] = None
+    first_cam: Optional[PinholeCamera] = None
+    for i, f in enumerate(tqdm(frames, disable=not show_progress, desc="colmap frames",
+                               unit="frame")):
+        if first_cam is None:
+            first_cam = f.camera
+        elif f.camera != first_cam:
+            raise ValueError(f"run_colmap_vo: frame {i} ({f.name!r}) has camera {f.camera}, "
+                             f"the first frame {first_cam}: one shared camera is required")
+        small = resize_frame(f, resolution)
+        cam = small.camera
+        arr = load_images([small.image], cam)[0]
+        name = f"{i:06d}.png"
+        if not cv2.imwrite(str(image_dir / name), cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"cannot write {image_dir / name}")
+        names.append(name)
+        frame_names.append(f.name or f"{i:06d}")
+        stamps.append(float(f.timestamp))
+    return names, frame_names, stamps, cam
 
 
 def _extract_and_match(db_path: Path, image_dir: Path, names: List[str], cam: PinholeCamera,
@@ -350,15 +318,52 @@ def _extract_and_match(db_path: Path, image_dir: Path, names: List[str], cam: Pi
     if config.loop_detection:
         po.vocab_tree_path = str(config.vocab_tree_path)
     po.num_threads = int(config.num_threads)
-    vo = pycolmap.TwoViewGeometryOptions()
-    vo.min_num_inliers = int(config.min_num_matches)
-    vo.ransac.max_error = float(config.ransac_max_error_px)
-    vo.ransac.random_seed = int(config.random_seed)
-    vo.detect_watermark = False
     t = time.perf_counter()
     pycolmap.match_sequential(db_path, matching_options=mo, pairing_options=po,
-                              verification_options=vo, device=pycolmap.Device.cpu)
+                              verification_options=verification_options(config),
+                              device=pycolmap.Device.cpu)
     timings["match"] = time.perf_counter() - t
+
+
+def _vo_mapper_options(config: ColmapVOConfig):
+    """:func:`~.colmap_common.mapper_options` with several models and the VO's
+    bundle-adjustment schedule."""
+    po = mapper_options(config)
+    po.multiple_models = True
+    po.max_num_models = int(config.max_num_models)
+    po.min_model_size = int(config.min_model_size)
+    po.triangulation.ignore_two_view_tracks = bool(config.ignore_two_view_tracks)
+    po.ba_global_frames_ratio = float(config.ba_global_frames_ratio)
+    po.ba_global_points_ratio = float(config.ba_global_frames_ratio)
+    po.ba_global_max_refinements = int(config.ba_global_max_refinements)
+    po.ba_global_max_num_iterations = int(config.ba_global_max_num_iterations)
+    po.ba_global_function_tolerance = float(config.ba_global_function_tolerance)
+    return po
+
+
+def _largest_model_poses(recs, names: List[str]) -> Tuple[np.ndarray, List[int], object]:
+    """(n, 4, 4) camera-to-world poses in the largest model (first registered
+    frame = identity, NaN elsewhere), the model sizes (largest first) and the
+    largest ``pycolmap.Reconstruction`` (None without a model)."""
+    models = []
+    for rec in (recs or {}).values():
+        posed = {im.name: im for im in rec.images.values() if im.has_pose}
+        models.append((len(posed), rec, posed))
+    models.sort(key=lambda m: -m[0])
+    poses = np.full((len(names), 4, 4), np.nan)
+    if not models:
+        return poses, [], None
+    _, best, posed = models[0]
+    T_first_inv: Optional[np.ndarray] = None
+    for i, nm in enumerate(names):
+        im = posed.get(nm)
+        if im is None:
+            continue
+        T_world_cam = invert_pose(cam_from_world(im))
+        if T_first_inv is None:
+            T_first_inv = invert_pose(T_world_cam)
+        poses[i] = T_first_inv @ T_world_cam
+    return poses, [m[0] for m in models], best
 
 
 # ===================================================================== runner
@@ -380,7 +385,7 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
         workdir: keep COLMAP's files (``images/``, ``database.db``,
             ``sparse/``) here; None (default) uses a temporary folder.
     Returns:
-        :class:`ColmapVOResult`; frames COLMAP cannot register are None, a
+        :class:`ColmapVOResult`; frames COLMAP cannot register are ``lost``, a
         failed mapping is reported in ``message`` (never raised).
     Raises:
         ValueError for no frames, raw images without a camera, or frames of
@@ -388,102 +393,44 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
     """
     import pycolmap
 
-    from spgeo.twoview import _quiet_colmap
-
     cfg = config or ColmapVOConfig()
     t0 = time.perf_counter()
     timings: Dict[str, float] = {}
-    tmp = None
-    if workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="spgeo_colmap_vo_")
-        root = Path(tmp.name)
-    else:
-        root = Path(workdir)
-        root.mkdir(parents=True, exist_ok=True)
-    try:
-        image_dir, sparse_dir, db_path = root / "images", root / "sparse", root / "database.db"
-        if db_path.exists():
-            db_path.unlink()
-        image_dir.mkdir(exist_ok=True)
-        sparse_dir.mkdir(exist_ok=True)
-        names: List[str] = []
-        frame_names: List[str] = []
-        stamps: List[float] = []
-        cam: Optional[PinholeCamera] = None
-        first_cam: Optional[PinholeCamera] = None
-        it = _as_frames(frames, camera, timestamps)
-        for i, f in enumerate(tqdm(it, disable=not cfg.show_progress, desc="colmap frames",
-                                   unit="frame")):
-            if first_cam is None:
-                first_cam = f.camera
-            elif f.camera != first_cam:
-                raise ValueError(f"run_colmap_vo: frame {i} ({f.name!r}) has camera {f.camera}, "
-                                 f"the first frame {first_cam}: one shared camera is required")
-            small = resize_frame(f, cfg.resolution)
-            cam = small.camera
-            arr = _load_images([small.image], cam)[0]
-            name = f"{i:06d}.png"
-            if not cv2.imwrite(str(image_dir / name), cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)):
-                raise OSError(f"cannot write {image_dir / name}")
-            names.append(name)
-            frame_names.append(f.name or f"{i:06d}")
-            stamps.append(float(f.timestamp))
+    with workspace(workdir, "spgeo_colmap_vo_") as (image_dir, sparse_dir, db_path):
+        names, frame_names, stamps, cam = _write_frames(
+            _as_frames(frames, camera, timestamps), image_dir, cfg.resolution, cfg.show_progress)
         if not names or cam is None:
             raise ValueError("run_colmap_vo: no frames")
         n = len(names)
         timings["prepare"] = time.perf_counter() - t0
-        result = ColmapVOResult(timestamps=np.asarray(stamps, np.float64),
-                                T_world_cam=[None] * n, names=frame_names, camera=cam,
-                                config=cfg)
-        quiet = _quiet_colmap() if cfg.quiet else contextlib.nullcontext()
-        with quiet:
+        message = ""
+        with quiet(cfg):
             _extract_and_match(db_path, image_dir, names, cam, cfg, timings)
             with pycolmap.Database.open(db_path) as db:
                 db_images = {im.name: im for im in db.read_all_images()}
-                result.num_keypoints = [int(db.num_keypoints_for_image(db_images[nm].image_id))
-                                        if nm in db_images else 0 for nm in names]
-            po = _mapper_options(cfg.to_colmap_config())
-            po.multiple_models = True
-            po.max_num_models = int(cfg.max_num_models)
-            po.min_model_size = int(cfg.min_model_size)
-            po.triangulation.ignore_two_view_tracks = bool(cfg.ignore_two_view_tracks)
-            po.ba_global_frames_ratio = float(cfg.ba_global_frames_ratio)
-            po.ba_global_points_ratio = float(cfg.ba_global_frames_ratio)
-            po.ba_global_max_refinements = int(cfg.ba_global_max_refinements)
-            po.ba_global_max_num_iterations = int(cfg.ba_global_max_num_iterations)
-            po.ba_global_function_tolerance = float(cfg.ba_global_function_tolerance)
+                num_keypoints = [int(db.num_keypoints_for_image(db_images[nm].image_id))
+                                 if nm in db_images else 0 for nm in names]
             t = time.perf_counter()
             recs: Dict[int, object] = {}
             try:
-                recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir, options=po)
+                recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir,
+                                                    options=_vo_mapper_options(cfg))
             except Exception as exc:  # COLMAP raises on hopeless inputs
-                result.message = f"incremental mapping failed: {exc}"
+                message = f"incremental mapping failed: {exc}"
             timings["map"] = time.perf_counter() - t
-        models = []
-        for rec in (recs or {}).values():
-            posed = {im.name: im for im in rec.images.values() if im.has_pose}
-            models.append((len(posed), rec, posed))
-        models.sort(key=lambda m: -m[0])
-        result.num_models = len(models)
-        result.model_sizes = [m[0] for m in models]
-        if models:
-            _, best, posed = models[0]
-            index = {nm: i for i, nm in enumerate(names)}
-            T_first_inv: Optional[np.ndarray] = None
-            for nm in names:
-                im = posed.get(nm)
-                if im is None:
-                    continue
-                T_world_cam = invert_pose(_cam_from_world(im))
-                if T_first_inv is None:
-                    T_first_inv = invert_pose(T_world_cam)
-                result.T_world_cam[index[nm]] = T_first_inv @ T_world_cam
+        poses, sizes, best = _largest_model_poses(recs, names)
+        registered = np.all(np.isfinite(poses.reshape(n, -1)), axis=1)
+        traj = Trajectory(np.asarray(stamps, np.float64), poses,
+                          [FrameStatus.OK if r else FrameStatus.LOST for r in registered])
+        result = ColmapVOResult(trajectory=traj, names=frame_names, camera=cam,
+                                num_models=len(sizes), model_sizes=sizes,
+                                num_keypoints=num_keypoints, message=message, config=cfg)
+        if best is not None:
             result.num_points3D = int(best.num_points3D())
             result.mean_reprojection_error = float(best.compute_mean_reprojection_error())
             if result.num_registered < n:
                 msg = (f"{n - result.num_registered} of {n} frames not in the largest model"
-                       + (f" (other models: {result.model_sizes[1:]})"
-                          if len(models) > 1 else ""))
+                       + (f" (other models: {sizes[1:]})" if len(sizes) > 1 else ""))
                 result.message = "; ".join(m for m in (result.message, msg) if m)
         elif not result.message:
             result.message = "COLMAP built no model (no initial pair found)"
@@ -493,18 +440,9 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
                     "%.1f s", result.num_registered, n, result.num_models, result.model_sizes,
                     result.num_points3D, timings["total"])
         return result
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
 
 
 # ======================================================================= CLI
-def parse_resolution(text: str) -> Optional[Tuple[int, int]]:
-    """``"160x120"`` -> (160, 120) (width, height in pixels); ``"native"`` ->
-    None (keep the frames' size).  Raises ``ValueError``."""
-    return _parse_resolution(text, allow_native=True, min_size=1)
-
-
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """``python -m spgeo.evaluation.colmap_vo``: COLMAP reference trajectory of a
     data-set range; prints registration and Sim(3) ATE, writes ``trajectory.txt``
@@ -528,7 +466,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     kind, path = args.dataset
     try:
-        config = ColmapVOConfig(resolution=parse_resolution(args.resolution),
+        resolution = parse_resolution(args.resolution, allow_native=True, min_size=1)
+        config = ColmapVOConfig(resolution=resolution,
                                 overlap=args.overlap, num_threads=args.threads,
                                 show_progress=True)
         seq = open_dataset(kind, path, frames=args.frames, load_depth=False)

@@ -42,7 +42,7 @@ def depth_metrics(pred: np.ndarray, gt: np.ndarray, mask: Optional[np.ndarray] =
 
 def primitive_fit_errors(primitives, gt_depth: np.ndarray) -> Dict[str, float]:
     """Shape accuracy of primitives: fit one log-scale per primitive to
-    ``gt_depth`` (median, DESIGN.md §5), then :func:`depth_metrics` of the
+    ``gt_depth`` (median, docs/design.md §5), then :func:`depth_metrics` of the
     resulting depth map.  Primitives with no valid ground truth are dropped."""
     s, _ = primitives.fit_log_scales(gt_depth)
     keep = np.flatnonzero(np.isfinite(s))

@@ -1,6 +1,6 @@
 """Relative-pose error metrics (rotation angle, translation direction).
 
-Conventions (DESIGN.md §1, :mod:`spgeo.geometry`): poses are 4x4 float
+Conventions (docs/design.md §1, :mod:`spgeo.geometry`): poses are 4x4 float
 matrices; ``T_ref_view`` is the pose of a view in the reference camera
 (camera-to-reference, ``inv(T_world_ref) @ T_world_view``).  Monocular
 estimates have an unknown scale, so translations are compared by *direction*

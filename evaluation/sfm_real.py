@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
-from spgeo.evaluation.colmap import colmap_estimator, compare_on_dataset
+from spgeo.evaluation.colmap import colmap_estimator
+from spgeo.evaluation.colmap_compare import compare_on_dataset
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 
@@ -34,7 +35,7 @@ CASES = {
 
 def spgeo_estimator(frontend: str = "classical", config: SfMConfig = SfMConfig(marginals=False)
                     ) -> Callable:
-    """An estimator for :func:`spgeo.evaluation.colmap.compare_on_dataset`."""
+    """An estimator for :func:`spgeo.evaluation.colmap_compare.compare_on_dataset`."""
 
     def estimate(ref, views):
         fe = make_frontend(frontend, FrontEndConfig(working_size=(320, 240)))

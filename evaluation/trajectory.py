@@ -19,16 +19,17 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from spgeo.io.tum import read_status, read_tum, status_path_for, write_status, write_tum
-from spgeo.trajectory import Trajectory
+from spgeo.trajectory import FrameStatus, Trajectory
 
 __all__ = [
     "TumTrajectory", "read_tum", "write_tum", "status_path_for", "write_status", "read_status",
     "AteResult", "ate_sim3", "ate_per_frame_and_keyframes", "path_length", "umeyama_sim3",
+    "default_max_time_diff", "TrajectoryResult",
 ]
 
 logger = logging.getLogger(__name__)
@@ -54,7 +55,46 @@ def _as_trajectory(traj: TrajectoryLike, name: str) -> Trajectory:
                       if len(poses) else np.zeros((0, 4, 4)))
 
 
+class TrajectoryResult:
+    """Base of the estimators' result objects that hold a ``trajectory``
+    (:class:`~spgeo.trajectory.Trajectory`): its per-frame arrays as attributes."""
+
+    trajectory: Trajectory
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        """(n,) frame timestamps (seconds, or frame numbers for data without time)."""
+        return self.trajectory.timestamps
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(n, 4, 4) camera-to-world, NaN for frames without a pose."""
+        return self.trajectory.poses
+
+    @property
+    def status(self) -> List[FrameStatus]:
+        """Per-frame :class:`~spgeo.trajectory.FrameStatus`."""
+        return self.trajectory.status
+
+    @property
+    def is_keyframe(self) -> np.ndarray:
+        return self.trajectory.is_keyframe
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.trajectory)
+
+
 # ================================================================== ATE
+def default_max_time_diff(timestamps: Sequence[float]) -> float:
+    """ATE association tolerance: 0.1 for frame-number timestamps (all
+    integral, e.g. 7-Scenes), else 0.02 s (TUM)."""
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    if stamps.size and np.all(np.isfinite(stamps)) and np.allclose(stamps, np.round(stamps)):
+        return 0.1
+    return 0.02
+
+
 def path_length(positions: np.ndarray) -> float:
     """Sum of the distances between consecutive positions (n, 3)."""
     p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)

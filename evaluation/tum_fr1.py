@@ -42,11 +42,10 @@ from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli_args import add_verbose_argument, setup_logging
-from spgeo.frame import Frame
+from spgeo.cli.args import add_verbose_argument, setup_logging
+from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
-from .colmap_vo import resize_frame
 from .vo_compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
                          write_results)
 

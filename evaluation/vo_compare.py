@@ -49,19 +49,18 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 from tqdm import tqdm
 
-from spgeo.cli_args import add_dataset_arguments, add_verbose_argument, setup_logging
-from spgeo.frame import Frame
+from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
+                            setup_logging)
+from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
-from .colmap_vo import (ColmapVOConfig, default_max_time_diff, parse_resolution, resize_frame,
-                        run_colmap_vo)
+from .colmap_vo import ColmapVOConfig, run_colmap_vo
 from .feature_vo import FeatureVOConfig, run_feature_vo
-from .trajectory import (AteResult, ate_per_frame_and_keyframes, path_length, status_path_for,
-                         write_status, write_tum)
+from .trajectory import (AteResult, ate_per_frame_and_keyframes, default_max_time_diff,
+                         path_length, status_path_for, write_status, write_tum)
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "VOCompareConfig", "VOCompareRow",
-           "prepare_frames", "compare_vo", "format_markdown_table", "write_results",
-           "parse_resolution", "main"]
+           "prepare_frames", "compare_vo", "format_markdown_table", "write_results", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -87,7 +86,7 @@ class VOCompareConfig:
             (160, 120); None keeps the frames' size.
         max_time_diff: ATE timestamp association tolerance; None (default):
             0.1 for frame-number timestamps, 0.02 s otherwise
-            (:func:`~spgeo.evaluation.colmap_vo.default_max_time_diff`).
+            (:func:`~spgeo.evaluation.trajectory.default_max_time_diff`).
         feature: :class:`~spgeo.evaluation.feature_vo.FeatureVOConfig` of the
             baseline (default options).
         colmap: :class:`~spgeo.evaluation.colmap_vo.ColmapVOConfig` (its
@@ -187,7 +186,7 @@ def prepare_frames(frames: Iterable[Frame], resolution: Optional[Tuple[int, int]
 
 # ================================================================= methods
 def _run_spgeo(frames: List[Frame], frontend: str, config: VOCompareConfig):
-    from .vo_run import run_vo
+    from spgeo.apps.vo_run import run_vo
 
     kwargs = {} if config.odometry is None else {"config": config.odometry}
     size = config.resolution or frames[0].camera.size
@@ -413,7 +412,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     kind, path = args.dataset
     try:
-        resolution = parse_resolution(args.resolution)
+        resolution = parse_resolution(args.resolution, allow_native=True, min_size=1)
         load_depth = any(m in ORACLE_METHODS for m in args.methods)
         seq = open_dataset(kind, path, frames=args.frames, load_depth=load_depth)
         config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,

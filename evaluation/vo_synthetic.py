@@ -9,11 +9,11 @@ whose translation is frozen on the ``--rotation`` frame range (a rotation-only
 part: the hard case for monocular keyframe selection).  A run is
 ``FRONTEND[:MODEL]``: front-end ``depth`` (normals and initial scales from the
 rendered depth: oracle) or ``classical`` (monocular, never reads depth), and
-an :data:`spgeo.odometry.PRIMITIVE_MODELS` ablation (default ``integrated``).
+an :data:`spgeo.vo.PRIMITIVE_MODELS` ablation (default ``integrated``).
 Reported per run and seed: per-frame and keyframe-only Sim(3) ATE RMSE as %
 of the trajectory length (frames flagged ``lost`` excluded, their count
 shown), keyframes, FPS (tracking + mapping, rendering excluded) and seconds
-per stage.  The defaults of :class:`spgeo.odometry.OdometryConfig` are what
+per stage.  The defaults of :class:`spgeo.vo.OdometryConfig` are what
 this script measures; nothing here is tuned to a real data set.
 """
 from __future__ import annotations
@@ -32,7 +32,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.odometry import Odometry, OdometryConfig
+from spgeo.vo import Odometry, OdometryConfig
 
 __all__ = ["SyntheticVOConfig", "synthetic_sequence", "run_synthetic_vo", "main"]
 

@@ -1,4 +1,4 @@
-"""Sparse metric depth on one primitive's log-scale (DESIGN.md §2, §5).
+"""Sparse metric depth on one primitive's log-scale (docs/design.md §2, §5).
 
 A primitive's true log-depth at pixel ``u`` is ``l(u) + s`` with ``l = log D``
 its unscaled (integrated) log-depth and ``s`` its log-scale.  For sparse depth

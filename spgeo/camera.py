@@ -1,6 +1,6 @@
 """Pinhole camera with optional OpenCV (Brown-Conrady) distortion.
 
-Conventions (DESIGN.md §1): pixel ``u = (u, v)`` with ``u`` the column and ``v``
+Conventions (docs/design.md §1): pixel ``u = (u, v)`` with ``u`` the column and ``v``
 the row, pixel centres at integer coordinates.  The camera frame is OpenCV's:
 x right, y down, z forward (along the optical axis).  Depths ``z`` are metres
 along the optical axis (not ray length).

@@ -1,4 +1,4 @@
-"""Batched integration of surface normals into log-depth (DESIGN.md §3).
+"""Batched integration of surface normals into log-depth (docs/design.md §3).
 
 For a surface point seen at pixel ``(u, v)`` with camera-frame unit normal ``n``
 and ray ``r = K^-1 [u, v, 1]``, the tangent plane ``n . X = d`` gives
@@ -26,7 +26,7 @@ problem solved at once (the normal equations are a weighted graph Laplacian).
 
 Each connected part of a mask is determined up to an additive constant (the
 log depth-scale).  We fix it as documented in :class:`IntegrationConfig`:
-``"anchor"`` sets the anchor pixel's log-depth to 0 (DESIGN.md §2), ``"mean"``
+``"anchor"`` sets the anchor pixel's log-depth to 0 (docs/design.md §2), ``"mean"``
 sets the mean over the mask to 0.  Parts of one mask that no 4/8-neighbour
 chain links carry no relative information; they are aligned at equal mean
 log-depth and counted in :attr:`IntegrationResult.n_components`.
@@ -57,15 +57,15 @@ class IntegrationConfig:
 
     Attributes:
         solver: ``"direct"`` (default: exact red-black elimination, then sparse
-            LU (SuperLU) of the half-size Schur complement; fastest measured on
-            a 2-core CPU, see ``evaluation/bench_integration.py``) or ``"cg"``
+            LU (SuperLU) of the half-size Schur complement) or ``"cg"``
             (Jacobi-preconditioned conjugate gradients, as the authors ran on a
-            GPU; much slower here and kept for comparison).
+            GPU; kept for comparison).  ``evaluation/bench_integration.py``
+            compares them (results in docs/results.md).
         natural_order_max_band: use SuperLU's natural ordering when every
             region's raster bandwidth is at most this (small masks), else a
-            minimum-degree ordering (default 96, measured).
-        cg_tol: relative residual tolerance of CG (default 1e-6; the authors'
-            1e-3 leaves ~1% depth error on large masks at 240x320).
+            minimum-degree ordering (default 96).
+        cg_tol: relative residual tolerance of CG (default 1e-6; the authors
+            used 1e-3).
         cg_maxiter: iteration cap for CG (default 1000, as the authors).
         constant: ``"anchor"`` (log-depth 0 at each mask's anchor pixel) or
             ``"mean"`` (zero mean over each mask).
@@ -288,7 +288,7 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     if config.solver == "direct":
         # Entries are block (region) ordered and raster ordered inside each
         # region, so the natural order is already banded per block; for wide
-        # regions a fill-reducing ordering wins (threshold measured).
+        # regions a fill-reducing ordering (threshold: natural_order_max_band).
         widths = np.zeros(n, dtype=np.int64)
         np.maximum.at(widths, rid[P], Q - P)
         permc = "NATURAL" if widths.max(initial=0) <= config.natural_order_max_band else "MMD_AT_PLUS_A"

@@ -11,15 +11,14 @@ Downloads go to a temporary file in the cache directory with a progress bar,
 are checked against the size and sha256 and then renamed into place
 atomically.  An entry without a published sha256 is refused unless
 ``allow_unverified=True``; the hash actually downloaded is then recorded in
-``<file>.sha256`` next to it.  Every function that takes a model also accepts
-a path to a local ``.onnx`` file instead of a registry name.
+``<file>.sha256`` next to it.  :func:`resolve_model` also accepts a path to a
+local ``.onnx`` file instead of a registry name.  Front-ends built from these
+names are in :mod:`spgeo.frontend.from_cache` (this module imports no front-end).
 
-The ``models`` command line (``spgeo models list|fetch|path``) is added to
-the main parser by :func:`add_cli`.
+The ``spgeo models list|fetch|path`` command is :mod:`spgeo.cli.models`.
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import logging
 import os
@@ -35,7 +34,6 @@ from typing import List, Mapping, Optional, Tuple, Union
 __all__ = [
     "ModelEntry", "REGISTRY", "ModelDownloadError", "model_dir", "list_models", "get_entry",
     "model_path", "fetch_model", "register_local", "resolve_model", "sha256_file",
-    "sam_model_from_cache", "sam_frontend_from_cache", "normal_model_from_cache", "add_cli",
 ]
 
 logger = logging.getLogger(__name__)
@@ -362,115 +360,3 @@ def resolve_model(name_or_path: PathLike, registry: Optional[Mapping[str, ModelE
     raise FileNotFoundError(f"model file not found: {path} (and {text!r} is not a registry "
                             f"name; known: {sorted(reg)})")
 
-
-# -------------------------------------------------------------- factories
-def sam_model_from_cache(family: Optional[str] = "efficientsam-vitt",
-                         encoder: Optional[PathLike] = None,
-                         decoder: Optional[PathLike] = None, preset: Optional[str] = None,
-                         registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
-    """A :class:`~spgeo.frontend.onnx_sam.SegmentModel` from the cache or from files.
-
-    Args:
-        family: registry family (``<family>-encoder`` / ``<family>-decoder``),
-            e.g. ``"efficientsam-vitt"`` or ``"sam-vit-h"``.
-        encoder, decoder: registry names or paths overriding the family's files.
-        preset: SAM preset; default: the registry entry's, else ``"sam-official"``.
-        overrides: :class:`~spgeo.frontend.onnx_sam.SamOnnxConfig` fields
-            (e.g. ``upsample_to=(960, 1280)``).
-    """
-    from .frontend.onnx_sam import SegmentModel
-
-    if encoder is None or decoder is None:
-        if family is None:
-            raise ValueError("give a model family or both encoder and decoder")
-    enc_path, enc_entry = resolve_model(encoder if encoder is not None else f"{family}-encoder",
-                                        registry)
-    dec_path, dec_entry = resolve_model(decoder if decoder is not None else f"{family}-decoder",
-                                        registry)
-    if preset is None:
-        preset = (enc_entry or dec_entry).preset if (enc_entry or dec_entry) else "sam-official"
-    return SegmentModel.from_paths(enc_path, dec_path, preset=preset, **overrides)
-
-
-def sam_frontend_from_cache(family: Optional[str] = "efficientsam-vitt",
-                            encoder: Optional[PathLike] = None, decoder: Optional[PathLike] = None,
-                            generator_config=None, preset: Optional[str] = None,
-                            registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
-    """A :class:`~spgeo.frontend.onnx_sam.SamMaskGenerator` (a ``Segmenter``) built by
-    :func:`sam_model_from_cache`; ``generator_config`` is a ``SamMaskGeneratorConfig``."""
-    from .frontend.onnx_sam import SamMaskGenerator, SamMaskGeneratorConfig
-
-    model = sam_model_from_cache(family, encoder, decoder, preset, registry, **overrides)
-    return SamMaskGenerator(model, generator_config or SamMaskGeneratorConfig())
-
-
-def normal_model_from_cache(name_or_path: PathLike = "metric3d-vit-small-fp16",
-                            preset: Optional[str] = None,
-                            registry: Optional[Mapping[str, ModelEntry]] = None, **overrides):
-    """A :class:`~spgeo.frontend.onnx_normals.NormalModel` from a registry name or a path;
-    ``overrides`` are :class:`~spgeo.frontend.onnx_normals.NormalOnnxConfig` fields."""
-    from .frontend.onnx_normals import NormalModel
-
-    path, entry = resolve_model(name_or_path, registry)
-    preset = preset or (entry.preset if entry else "generic-480x640")
-    return NormalModel.from_path(path, preset=preset, **overrides)
-
-
-# --------------------------------------------------------------------- CLI
-def _cli_list(args: argparse.Namespace) -> int:
-    print(f"model directory: {model_dir()}")
-    for entry, path, present in list_models():
-        size = f"{entry.size / 1e6:.0f} MB" if entry.size else "? MB"
-        sha = "sha256" if entry.sha256 else "unverified"
-        print(f"{'*' if present else ' '} {entry.name:28s} {entry.kind:12s} {size:>8s}  "
-              f"{sha:10s} {entry.licence:12s} {entry.preset}")
-    print("(* = present)")
-    return 0
-
-
-def _cli_fetch(args: argparse.Namespace) -> int:
-    try:
-        path = fetch_model(args.name, force=args.force, allow_unverified=args.allow_unverified,
-                           progress=not args.no_progress)
-    except (KeyError, ValueError, ModelDownloadError) as exc:
-        print(f"error: {exc.args[0] if exc.args else exc}")
-        return 1
-    print(path)
-    return 0
-
-
-def _cli_path(args: argparse.Namespace) -> int:
-    try:
-        path, present = model_path(args.name)
-    except KeyError as exc:
-        print(f"error: {exc.args[0]}")
-        return 1
-    print(path if present else f"{path} (missing)")
-    return 0 if present else 1
-
-
-def add_cli(subparsers) -> argparse.ArgumentParser:
-    """Add the ``models`` sub-command (``list``, ``fetch NAME``, ``path NAME``).
-
-    ``subparsers`` is the object returned by ``ArgumentParser.add_subparsers()``;
-    every leaf sets ``func`` so the caller runs ``args.func(args)`` (returns an
-    exit code).
-    """
-    parser = subparsers.add_parser("models", help="list, fetch and locate ONNX models",
-                                   description="Model cache in $SPGEO_MODEL_DIR (or the user "
-                                               "cache directory).")
-    sub = parser.add_subparsers(dest="models_command", metavar="{list,fetch,path}")
-    sub.required = True
-    p_list = sub.add_parser("list", help="known models and whether they are cached")
-    p_list.set_defaults(func=_cli_list)
-    p_fetch = sub.add_parser("fetch", help="download a model into the cache")
-    p_fetch.add_argument("name", help="registry name (see `models list`)")
-    p_fetch.add_argument("--force", action="store_true", help="download again")
-    p_fetch.add_argument("--allow-unverified", action="store_true",
-                         help="accept a model without a published sha256")
-    p_fetch.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p_fetch.set_defaults(func=_cli_fetch)
-    p_path = sub.add_parser("path", help="print where a model is (exit 1 if missing)")
-    p_path.add_argument("name")
-    p_path.set_defaults(func=_cli_path)
-    return parser

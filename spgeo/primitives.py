@@ -1,18 +1,17 @@
-"""SuperPrimitives: a connected mask plus an unscaled log-depth on it (DESIGN.md §2).
+"""SuperPrimitives: a connected mask plus an unscaled log-depth on it (docs/design.md §2).
 
 True log-depth of primitive ``i`` at pixel ``u`` is ``log D_i(u) + s_i`` where the
 unscaled ``log D_i`` is stored normalised to ``log D_i(p_i) = 0`` at the anchor
 pixel ``p_i``; the log depth-scale ``s_i`` is therefore the log-depth (log metres)
 at the anchor, and a sparse depth at the anchor sets ``s_i`` directly.
 
-Storage is compressed (CSR-like) for the hot paths: the pixels of all primitives
-are concatenated as flat indices ``v * width + u`` with ``offsets`` delimiting
-each primitive, so 400 primitives at 640x480 cost memory proportional to the
-pixels they cover, not 400 dense masks.
+Storage is compressed (CSR-like): the pixels of all primitives are concatenated as
+flat indices ``v * width + u`` with ``offsets`` delimiting each primitive, so memory
+grows with the pixels covered, not with the number of dense masks.
 """
 from __future__ import annotations
 
-import logging
+import json
 import os
 from dataclasses import dataclass
 from typing import Iterator, Optional, Sequence, Tuple, Union
@@ -22,8 +21,6 @@ import numpy as np
 from .camera import PinholeCamera
 
 __all__ = ["SuperPrimitive", "PrimitiveSet", "PointCloud", "interior_anchor"]
-
-log = logging.getLogger(__name__)
 
 _FORMAT_VERSION = 1
 
@@ -424,7 +421,7 @@ class PrimitiveSet:
                        ) -> Tuple[np.ndarray, np.ndarray]:
         """Per-primitive robust scale from a (possibly sparse) metric depth map.
 
-        ``s_i = median over valid pixels of (log depth - log D_i)`` (DESIGN.md §5).
+        ``s_i = median over valid pixels of (log depth - log D_i)`` (docs/design.md §5).
         Args:
             depth: (H, W) metres; NaN / <= 0 are missing.
             min_points: primitives with fewer valid pixels get NaN.
@@ -470,8 +467,6 @@ class PrimitiveSet:
 
     def save(self, path: Union[str, os.PathLike]) -> None:
         """Save to a compressed ``.npz`` (camera, arrays and JSON meta)."""
-        import json
-
         path = os.fspath(path)
         arrays = dict(pixels=self.pixels.astype(np.int32), offsets=self.offsets,
                       log_depth=self.log_depth.astype(np.float32), anchors=self.anchors,
@@ -485,8 +480,6 @@ class PrimitiveSet:
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "PrimitiveSet":
         """Load a set written by :meth:`save`."""
-        import json
-
         path = os.fspath(path)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"primitive file not found: {path}")

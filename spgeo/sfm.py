@@ -1,4 +1,4 @@
-"""Few-view structure from motion on SuperPrimitives (DESIGN.md §4, §5).
+"""Few-view structure from motion on SuperPrimitives (docs/design.md §4, §5).
 
 A reference image is primified; its primitives' log-scales and the poses of
 1..n *unposed* supporting views (plus an affine brightness per view) are
@@ -27,33 +27,21 @@ import numpy as np
 import gtsam
 
 from .camera import PinholeCamera
-from .factors.photometric import (PhotometricConfig, PhotometricFactorGroup, PlanarShape,
-                                  ScaledShape)
-from .factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
-                             pose_gauge_prior)
+from .factors.photometric import PhotometricConfig, PlanarShape
+from .factors.photometric_group import PhotometricFactorGroup
 from .frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from .geometry import invert_pose, rotation_angle_deg
 from .images import gaussian_pyramid, to_float_image, to_gray
 from .primitives import PointCloud, PrimitiveSet
+from .sfm_graph import (brightness_key, build_graph, hold_translation_and_shape, pose_key,
+                        scale_key)
+from .sfm_init import twoview_initialisation
 
 __all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
 
+_build_graph = build_graph  # old private name, still imported by tests/test_tracking.py
+
 log = logging.getLogger(__name__)
-
-
-def pose_key(j: int) -> int:
-    """Key of ``T_world_cam`` of image ``j`` (0 = reference)."""
-    return gtsam.symbol("x", j)
-
-
-def scale_key(i: int) -> int:
-    """Key of primitive ``i``'s shape variable (log-scale or plane)."""
-    return gtsam.symbol("s", i)
-
-
-def brightness_key(j: int) -> int:
-    """Key of view ``j``'s affine brightness ``(a, b)``."""
-    return gtsam.symbol("b", j)
 
 
 @dataclass(frozen=True)
@@ -83,10 +71,8 @@ class SfMConfig:
             (:func:`spgeo.twoview.estimate_relative_pose`, OpenCV SIFT +
             essential matrix), inliers triangulated into a sparse reference
             depth that sets each primitive's initial log-scale by robust median;
-            views whose two-view estimate fails start at identity.  Measured
-            on synthetic view sets (``evaluation/bench_sfm.py``): identity
-            converges on some scenes only (orbit-like motion makes rotation
-            and translation ambiguous while all depths start equal).
+            views whose two-view estimate fails start at identity
+            (:func:`spgeo.sfm_init.twoview_initialisation`).
         rotation_first: when a view starts at identity, at the coarsest
             level first solve the views' rotations and brightness with translations held at their initial
             values (a tight translation prior) and scales fixed: rotational
@@ -107,12 +93,7 @@ class SfMConfig:
         lm_lambda_initial: initial LM damping.
         chunk: primitives per gtsam factor (default 32; 1 = one factor per
             primitive and view; the cost and its linear system are the same,
-            :class:`PhotometricFactorGroup`).  Measured on the VO
-            initialisation (two supporting views, 160x120): ``python -m
-            spgeo.evaluation.vo_synthetic --frames 35 --seeds 1 --runs
-            classical --out DIR [--set sfm.chunk=1]`` spent 4.75 s in the
-            ``init`` stage with one factor per primitive and 1.16 s with
-            chunks of 32 (``DIR/results.json``), for the same ATE.
+            :class:`PhotometricFactorGroup`; timings in docs/results.md).
     """
 
     shape_model: str = "scaled"
@@ -215,13 +196,6 @@ def _prepare_image(image: np.ndarray, camera: PinholeCamera, work_cam: PinholeCa
     return grey.astype(np.float32)
 
 
-def _level_pixels(prims: PrimitiveSet, stride: int):
-    """Per primitive: entry indices whose pixel lies on the level's lattice."""
-    w = prims.camera.width
-    on = ((prims.pixels % w) % stride == 0) & ((prims.pixels // w) % stride == 0)
-    return [np.flatnonzero(on[a:b]) + a for a, b in zip(prims.offsets[:-1], prims.offsets[1:])]
-
-
 def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camera: PinholeCamera,
                  frontend: Union[None, str, PrimitiveFrontEnd, PrimitiveSet] = None,
                  config: SfMConfig = SfMConfig(), ref_depth: Optional[np.ndarray] = None,
@@ -275,7 +249,7 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     init_report: Dict[str, object] = {"method": "given" if init_T_ref_view is not None
                                       else config.init}
     if init_T_ref_view is None and config.init == "twoview":
-        init_T_ref_view, prims = _twoview_init(ref_image, views, camera, prims, init_report)
+        init_T_ref_view, prims = twoview_initialisation(ref_image, views, camera, prims, init_report)
     values = gtsam.Values()
     values.insert(pose_key(0), gtsam.Pose3())
     for j in range(len(views)):
@@ -300,9 +274,9 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     if config.rotation_first and any_identity:
         stages.insert(0, (n_levels - 1, True))
     for lvl, rotation_only in stages:
-        graph, builders = _build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
+        graph, builders = build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
         if rotation_only:
-            _hold_translation_and_shape(graph, values, len(views), len(prims))
+            hold_translation_and_shape(graph, values, len(views), len(prims))
         params = gtsam.LevenbergMarquardtParams()
         iters = config.max_iterations[min(n_levels - 1 - lvl, len(config.max_iterations) - 1)]
         params.setMaxIterations(int(iters))
@@ -368,7 +342,7 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
                                           photometric=dataclasses.replace(
                                               config.photometric, normalise="none",
                                               pixel_sigma=sigma))
-            mgraph, _ = _build_graph(prims, rays_all, ref_pyr, view_pyrs, 0, values, pix_cfg)
+            mgraph, _ = build_graph(prims, rays_all, ref_pyr, view_pyrs, 0, values, pix_cfg)
             marg = gtsam.Marginals(mgraph, values)
             for j in range(len(views)):
                 covs[j] = marg.marginalCovariance(pose_key(j + 1))
@@ -414,129 +388,6 @@ def _gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
     prior_only = np.ones(n, dtype=bool)
     prior_only[con] = False
     return std, prior_only
-
-
-def _triangulate(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np.ndarray,
-                 pts_tgt: np.ndarray) -> np.ndarray:
-    """Reference-frame depths (units of ``|t|``) of matched pixels; NaN if behind
-    either camera."""
-    T_tr = invert_pose(T_ref_tgt)
-    Kinv = camera.K_inv
-    x1 = (np.c_[pts_ref, np.ones(len(pts_ref))] @ Kinv.T)[:, :2].T
-    x2 = (np.c_[pts_tgt, np.ones(len(pts_tgt))] @ Kinv.T)[:, :2].T
-    P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
-    P2 = T_tr[:3]
-    Xh = cv2.triangulatePoints(P1, P2, x1.astype(np.float64), x2.astype(np.float64))
-    X = (Xh[:3] / Xh[3]).T
-    z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
-    return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
-
-
-def _twoview_init(ref_image, views, camera: PinholeCamera, prims: PrimitiveSet, report: dict):
-    """Initial poses (and log-scales) from feature-based two-view geometry."""
-    from .twoview import estimate_relative_pose
-
-    cam = prims.camera
-    sx, sy = cam.width / camera.width, cam.height / camera.height
-    results = [estimate_relative_pose(ref_image, v, camera) for v in views]
-    report["twoview_status"] = [r.status for r in results]
-    poses = [np.eye(4) if r.T_ref_tgt is None else r.T_ref_tgt.copy() for r in results]
-    ok = [j for j, r in enumerate(results) if r.ok]
-    if not ok:
-        log.info("two-view initialisation failed for every view; starting at identity")
-        return [p if results[j].status == "low_parallax" else np.eye(4)
-                for j, p in enumerate(poses)], prims
-    # sparse reference depth from the view with the most inliers (its baseline = 1)
-    best = max(ok, key=lambda j: results[j].num_inliers)
-    r = results[best]
-    z = _triangulate(r.T_ref_tgt, camera, r.points_ref, r.points_tgt)
-    sparse = np.full(cam.shape, np.nan)
-    u = np.round((r.points_ref[:, 0] + 0.5) * sx - 0.5).astype(int)
-    v = np.round((r.points_ref[:, 1] + 0.5) * sy - 0.5).astype(int)
-    keep = np.isfinite(z) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-    sparse[v[keep], u[keep]] = z[keep]
-    s, n = prims.fit_log_scales(sparse)
-    if np.any(np.isfinite(s)):
-        s = np.where(np.isfinite(s), s, np.nanmedian(s))
-        prims = prims.with_log_scales(s)
-    report["twoview_points"] = int(keep.sum())
-    report["primitives_with_points"] = int(np.sum(n > 0))
-    # other views: translation magnitude from their own triangulation vs the map
-    depth_map = prims.depth_map()
-    for j in ok:
-        if j == best:
-            continue
-        rj = results[j]
-        zj = _triangulate(rj.T_ref_tgt, camera, rj.points_ref, rj.points_tgt)
-        uj = np.clip(np.round((rj.points_ref[:, 0] + 0.5) * sx - 0.5).astype(int), 0, cam.width - 1)
-        vj = np.clip(np.round((rj.points_ref[:, 1] + 0.5) * sy - 0.5).astype(int), 0, cam.height - 1)
-        ratio = depth_map[vj, uj] / zj
-        ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-        if ratio.size >= 5:
-            poses[j][:3, 3] *= float(np.median(ratio))
-    return poses, prims
-
-
-def _hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                                n_views: int, n_prims: int) -> None:
-    """Tight priors that keep view translations and primitive shapes at their
-    current values (rotation-only stage)."""
-    sig = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e3, 1e3, 1e3, 1e-6, 1e-6, 1e-6]))
-    for j in range(n_views):
-        k = pose_key(j + 1)
-        graph.add(gtsam.PriorFactorPose3(k, values.atPose3(k), sig))
-    for i in range(n_prims):
-        theta = values.atVector(scale_key(i))
-        graph.add(gtsam.PriorFactorVector(scale_key(i), theta,
-                                          gtsam.noiseModel.Isotropic.Sigma(theta.size, 1e-6)))
-
-
-def _build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
-                 values: gtsam.Values, config: SfMConfig):
-    """The graph of one pyramid level; returns ``(graph, groups)``: one
-    :class:`PhotometricFactorGroup` per view over the primitives with at least
-    ``min_level_pixels`` pixels on the level's lattice."""
-    graph = gtsam.NonlinearFactorGraph()
-    builders: List[PhotometricFactorGroup] = []
-    graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
-    n_views = len(view_pyrs)
-    if config.brightness:
-        for j in range(n_views):
-            graph.add(brightness_prior(brightness_key(j + 1), config.brightness_prior_sigma))
-    if config.shape_model == "scaled":
-        for i in range(len(prims)):
-            graph.add(log_scale_prior(scale_key(i), prims.log_scales[i], config.scale_prior_weight))
-    else:
-        for i in range(len(prims)):
-            c0 = values.atVector(scale_key(i))[2]
-            graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
-                                         1.0 / np.sqrt(config.scale_prior_weight)))
-    stride = 2 ** lvl
-    ref_img = ref_pyr.images[lvl]
-    w = prims.camera.width
-    per_prim = _level_pixels(prims, stride)
-    keep = [i for i, ent in enumerate(per_prim) if ent.size >= config.min_level_pixels]
-    if not keep:
-        return graph, builders
-    ent = np.concatenate([per_prim[i] for i in keep])
-    sizes = np.array([per_prim[i].size for i in keep])
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    pix = prims.pixels[ent]
-    ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
-    rays = rays_all[ent]
-    shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
-             else PlanarShape(rays))
-    keys = [scale_key(i) for i in keep]
-    for j in range(n_views):
-        g = PhotometricFactorGroup(
-            pose_key(0), pose_key(j + 1), keys, shape, offsets, ref_int,
-            view_pyrs[j].images[lvl], view_pyrs[j].cameras[lvl],
-            brightness_key(j + 1) if config.brightness else None, config.photometric,
-            chunk=config.chunk)
-        for f in g.factors:
-            graph.add(f)
-        builders.append(g)
-    return graph, builders
 
 
 def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: SfMConfig,

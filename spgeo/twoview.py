@@ -3,7 +3,7 @@
 :func:`estimate_relative_pose` matches local features between a reference and
 a target image and estimates the essential matrix, returning the pose of the
 target camera in the reference camera, ``T_ref_tgt`` (4x4, camera-to-reference,
-DESIGN.md §1: ``x_ref = T_ref_tgt @ x_tgt``), with a **unit-norm translation**
+docs/design.md §1: ``x_ref = T_ref_tgt @ x_tgt``), with a **unit-norm translation**
 (monocular scale is unknown).  It is used by the few-view SfM as an optional
 initialisation and by visual odometry for its two-view start.
 
@@ -58,6 +58,7 @@ from .geometry import so3_exp
 __all__ = [
     "TWO_VIEW_STATUSES", "TwoViewConfig", "TwoViewResult", "estimate_relative_pose",
     "to_gray_uint8", "colmap_camera", "rotation_only_fit", "parallax_angles_deg",
+    "quiet_colmap",
 ]
 
 logger = logging.getLogger(__name__)
@@ -209,11 +210,6 @@ class TwoViewResult:
     def ok(self) -> bool:
         """True when ``status == "ok"``."""
         return self.status == "ok"
-
-    @property
-    def R_ref_tgt(self) -> Optional[np.ndarray]:
-        """3x3 rotation block of :attr:`T_ref_tgt` (None when unavailable)."""
-        return None if self.T_ref_tgt is None else self.T_ref_tgt[:3, :3].copy()
 
     @property
     def translation_direction(self) -> Optional[np.ndarray]:
@@ -467,7 +463,7 @@ def _ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray], config: T
 
 
 @contextlib.contextmanager
-def _quiet_colmap(level: int = 1):
+def quiet_colmap(level: int = 1):
     """Temporarily raise glog's minimum level (COLMAP logs every step at INFO)."""
     import pycolmap
 
@@ -553,7 +549,7 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
         norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
         matches = _ratio_matches(d1, d2, config, norm)
     else:
-        with _quiet_colmap():
+        with quiet_colmap():
             p1, p2, matches, t_feat = _pycolmap_features_and_matches(g1, g2, config)
         p1, p2 = p1 - 0.5, p2 - 0.5  # COLMAP pixel centres -> spgeo
     t_match = time.perf_counter()
@@ -765,7 +761,7 @@ def _pycolmap_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray,
     opts.ransac.num_threads = 1
     opts.detect_watermark = False
     idx = np.arange(len(x1), dtype=np.uint32)
-    with _quiet_colmap():
+    with quiet_colmap():
         geom = pycolmap.estimate_calibrated_two_view_geometry(
             ccam, x1 + 0.5, ccam, x2 + 0.5, np.stack([idx, idx], 1), opts)
     Cfg = pycolmap.TwoViewGeometryConfiguration

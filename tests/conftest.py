@@ -1,3 +1,7 @@
+"""Shared test set-up: BLAS threads, ``tests/`` on ``sys.path``, the ``slow`` marker.
+
+``python3 -m pytest -q -m "not slow" tests`` runs the fast tier; CI runs everything.
+"""
 import os
 import sys
 from pathlib import Path
@@ -24,3 +28,51 @@ def shared_data() -> Path:
     if not path.is_dir():
         pytest.skip(f"shared sample data not found at {path}")
     return path
+
+
+# ------------------------------------------------------------------ the ``slow`` marker
+# Chosen by measuring ``python3 -m pytest -q --durations=0 tests``: a test is slow when its
+# call, or the set-up of a module-scoped fixture it requests, takes more than about 1.5 s.
+# A test that requests a slow fixture is slow too (else the fixture's cost moves to it).
+SLOW_FILES = {"test_notebooks.py"}
+SLOW_FIXTURES = {
+    "test_completion.py": {"synthetic_results"},
+    "test_demo_vo.py": {"vo_demo"},
+    "test_odometry.py": {"run", "run_frequent_kf"},
+    "test_vo_cli.py": {"depth_run"},
+    "test_vo_evaluation.py": {"synthetic_sequence"},
+    "test_vo_references.py": {"colmap_result"},
+}
+SLOW_TESTS = {
+    "test_colmap.py": {"test_colmap_fewview_paths_uint8_deterministic",
+                       "test_colmap_two_view_fallback"},
+    "test_odometry.py": {"test_classical_planar_monocular_accuracy",
+                         "test_fixed_lag_marginalises_old_keyframes",
+                         "test_mapping_failure_restarts_the_window",
+                         "test_reinitialisation_after_a_long_loss"},
+    "test_scannet_protocol.py": {"test_runner_end_to_end"},
+    "test_sfm.py": {"test_cli_writes_documented_outputs", "test_depth_frontend_accuracy",
+                    "test_planar_model_classical_frontend",
+                    "test_unconstrained_primitives_are_flagged_not_reported"},
+    "test_sfm_real.py": {"test_tum_bundled_frames_rotation_error"},
+    "test_vo_evaluation.py": {"test_feature_vo_7scenes"},
+    "test_vo_references.py": {"test_compare_vo_feature_and_colmap"},
+}
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "slow: end-to-end test (> ~1.5 s); deselect with -m \"not slow\"")
+
+
+def is_slow(item) -> bool:
+    name = item.path.name
+    return (name in SLOW_FILES
+            or item.originalname in SLOW_TESTS.get(name, ())
+            or not SLOW_FIXTURES.get(name, set()).isdisjoint(item.fixturenames))
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if is_slow(item):
+            item.add_marker(pytest.mark.slow)

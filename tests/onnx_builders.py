@@ -124,6 +124,19 @@ def _disc_nodes(px: str, py: str, rows: str, cols: str, radii, slopes, prefix: s
     return nodes, inits, p + "logits"
 
 
+def _touch_inputs(names: Sequence[str], out: str) -> list:
+    """Nodes computing ``out = 0 * sum of every input`` (needs the "zero" constant), so that
+    every named input is part of the graph."""
+    nodes = [helper.make_node("ReduceSum", [n], [f"touch_{i}"], keepdims=0)
+             for i, n in enumerate(names)]
+    acc = "touch_0"
+    for i in range(1, len(names)):
+        nodes.append(helper.make_node("Add", [acc, f"touch_{i}"], [f"touch_sum{i}"]))
+        acc = f"touch_sum{i}"
+    nodes.append(helper.make_node("Mul", [acc, "zero"], [out]))
+    return nodes
+
+
 def sam_decoder(path, radii: Sequence[float] = (4.0, 10.5, 20.5),
                 slopes: Sequence[float] = (0.2, 30.0, 30.0),
                 ious: Sequence[float] = (0.99, 0.9, 0.8), iou_slope_u: float = 1e-4,
@@ -173,15 +186,7 @@ def sam_decoder(path, radii: Sequence[float] = (4.0, 10.5, 20.5),
     inits += di
     nodes += [
         helper.make_node("Unsqueeze", [logits, "ax0"], ["masks"]),
-        # touch every input so all are part of the graph (x0)
-        helper.make_node("ReduceSum", [emb], ["s_emb"], keepdims=0),
-        helper.make_node("ReduceSum", [pl], ["s_pl"], keepdims=0),
-        helper.make_node("ReduceSum", [mi], ["s_mi"], keepdims=0),
-        helper.make_node("ReduceSum", [hm], ["s_hm"], keepdims=0),
-        helper.make_node("Add", ["s_emb", "s_pl"], ["s_a"]),
-        helper.make_node("Add", ["s_mi", "s_hm"], ["s_b"]),
-        helper.make_node("Add", ["s_a", "s_b"], ["s_c"]),
-        helper.make_node("Mul", ["s_c", "zero"], ["s_zero"]),
+        *_touch_inputs([emb, pl, mi, hm], "s_zero"),
         helper.make_node("Mul", ["px", "iou_slope"], ["iou_u"]),
         helper.make_node("Add", ["iou_base", "iou_u"], ["iou_a"]),
         helper.make_node("Add", ["iou_a", "s_zero"], ["iou_predictions"]),
@@ -265,10 +270,7 @@ def efficientsam_decoder(path, radii: Sequence[float] = (4.0, 10.5, 20.5),
         helper.make_node("Mul", ["px", "iou_slope"], ["iu"]),                           # (Q,)
         helper.make_node("Unsqueeze", ["iu", "ax0"], ["iu1"]),                          # (1,Q)
         helper.make_node("Unsqueeze", ["iu1", "ax2"], ["iu2"]),                         # (1,Q,1)
-        helper.make_node("ReduceSum", ["image_embeddings"], ["s_emb"], keepdims=0),
-        helper.make_node("ReduceSum", ["batched_point_labels"], ["s_pl"], keepdims=0),
-        helper.make_node("Add", ["s_emb", "s_pl"], ["s_a"]),
-        helper.make_node("Mul", ["s_a", "zero"], ["s_zero"]),
+        *_touch_inputs(["image_embeddings", "batched_point_labels"], "s_zero"),
         helper.make_node("Add", ["iou_base", "iu2"], ["iou_a"]),
         helper.make_node("Add", ["iou_a", "s_zero"], ["iou_predictions"]),
         helper.make_node("Identity", ["lg"], ["low_res_logits"]),

@@ -1,4 +1,4 @@
-"""Photometric factor: Jacobians vs numerical derivatives, cost vs DESIGN.md §4."""
+"""Photometric factor: Jacobians vs numerical derivatives, cost vs docs/design.md §4."""
 import numpy as np
 import pytest
 
@@ -179,7 +179,7 @@ def test_factor_group_equals_individual_factors(model, normalise):
     leaving the image and a primitive behind the camera in the mix), the
     batch is evaluated once per linearisation, and a changed variable is never
     served from the cache."""
-    from spgeo.factors.photometric import PhotometricFactorGroup
+    from spgeo.factors.photometric_group import PhotometricFactorGroup
 
     rng = np.random.default_rng(3)
     cfg = PhotometricConfig(robust="huber", normalise=normalise)
@@ -242,7 +242,7 @@ def test_factor_group_chunks_give_the_same_cost_and_linear_system(model, brightn
     same total error, same Hessian / gradient of the linearised system as one
     factor each (pixels outside the image and a primitive behind the camera in
     the mix), and c * dim + m + 1 rows per chunk whatever its pixel count."""
-    from spgeo.factors.photometric import PhotometricFactorGroup
+    from spgeo.factors.photometric_group import PhotometricFactorGroup
 
     rng = np.random.default_rng(5)
     sizes = [9, 14, 1, 20, 7, 40, 3]

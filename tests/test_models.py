@@ -10,9 +10,12 @@ import pytest
 import onnx_builders as B
 from spgeo import models
 from spgeo.camera import PinholeCamera
+from spgeo.frontend import from_cache
 from spgeo.frontend.base import Segmenter
 from spgeo.frontend.onnx_normals import NORMAL_PRESETS, NormalModel
-from spgeo.frontend.onnx_sam import SAM_PRESETS, SamMaskGeneratorConfig, SegmentModel
+from spgeo.frontend.mask_generator import SamMaskGeneratorConfig
+from spgeo.frontend.onnx_sam import SAM_PRESETS, SegmentModel
+from spgeo.cli.models import add_cli
 from spgeo.models import ModelDownloadError, ModelEntry
 
 
@@ -140,7 +143,7 @@ def test_register_local_and_resolve(tmp_path, cache):
 def _parser():
     parser = argparse.ArgumentParser(prog="spgeo")
     sub = parser.add_subparsers(dest="command")
-    models.add_cli(sub)
+    add_cli(sub)
     return parser
 
 
@@ -191,10 +194,10 @@ def test_factories_from_cache_and_paths(tmp_path, cache):
     }
     models.register_local("toy-encoder", enc, registry=reg)
     models.register_local("toy-decoder", dec, registry=reg)
-    model = models.sam_model_from_cache("toy", registry=reg, prompt_batch_size=4)
+    model = from_cache.sam_model_from_cache("toy", registry=reg, prompt_batch_size=4)
     assert isinstance(model, SegmentModel) and model.config.flavour == "efficientsam"
     assert model.max_prompts_per_call == 4
-    gen = models.sam_frontend_from_cache(
+    gen = from_cache.sam_frontend_from_cache(
         "toy", registry=reg, generator_config=SamMaskGeneratorConfig(num_prompts=10,
                                                                      num_active_prompts=5))
     assert isinstance(gen, Segmenter)
@@ -203,11 +206,11 @@ def test_factories_from_cache_and_paths(tmp_path, cache):
     assert seg.meta["queries"] == 15
     # explicit paths (no registry entry): preset must be given or defaults to sam-official
     with pytest.raises(ValueError, match="point_coords"):
-        models.sam_model_from_cache(None, encoder=enc, decoder=dec, registry=reg)
-    assert models.sam_model_from_cache(None, encoder=enc, decoder=dec, preset="efficientsam",
-                                       registry=reg).config.flavour == "efficientsam"
+        from_cache.sam_model_from_cache(None, encoder=enc, decoder=dec, registry=reg)
+    assert from_cache.sam_model_from_cache(None, encoder=enc, decoder=dec, preset="efficientsam",
+                                           registry=reg).config.flavour == "efficientsam"
     nfile = B.normal_model(d / "n.onnx", input_size=(480, 640))
-    nmodel = models.normal_model_from_cache(nfile)
+    nmodel = from_cache.normal_model_from_cache(nfile)
     assert isinstance(nmodel, NormalModel) and nmodel.config.input_size == (480, 640)
     with pytest.raises(FileNotFoundError, match="spgeo models fetch"):
-        models.normal_model_from_cache("metric3d-vit-small-fp16")
+        from_cache.normal_model_from_cache("metric3d-vit-small-fp16")

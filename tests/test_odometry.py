@@ -11,7 +11,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_sim3, read_status, read_tum
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.odometry import (Odometry, OdometryConfig, kf_pose_key, kf_scale_key)
+from spgeo.vo import (Odometry, OdometryConfig, kf_pose_key, kf_scale_key)
 
 log = logging.getLogger(__name__)
 CAM = synthetic.default_camera(160, 120)
@@ -182,7 +182,7 @@ def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
     """Each mapping update links the previous keyframe to up to 4 supporting
     non-keyframes whose poses are smoother variables; result() reports them at
     their smoothed poses."""
-    from spgeo.odometry import support_pose_key
+    from spgeo.vo import support_pose_key
 
     vo = run_frequent_kf
     rep = vo.report()
@@ -230,7 +230,7 @@ def test_reinitialisation_after_a_long_loss(frames):
 
 @pytest.mark.parametrize("model", ["constant_depth", "constant_normal"])
 def test_primitive_model_ablations_reshape_primitives(frames, model):
-    from spgeo.odometry import apply_primitive_model
+    from spgeo.vo import apply_primitive_model
 
     prims = frontend().primify(frames[0].image, CAM, frames[0].depth)
     out = apply_primitive_model(prims, model)

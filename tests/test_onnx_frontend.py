@@ -1,4 +1,4 @@
-"""ONNX front-end: SAM-style segmenter (DESIGN.md §3 rules) and ONNX normals.
+"""ONNX front-end: SAM-style segmenter (docs/design.md §3 rules) and ONNX normals.
 
 Every test runs real onnxruntime sessions on small models built in
 ``onnx_builders`` that follow the official I/O contracts.
@@ -13,12 +13,12 @@ import pytest
 import onnx_builders as B
 from spgeo.camera import PinholeCamera
 from spgeo.frontend.base import NormalEstimator, Segmenter
-from spgeo.frontend.onnx_normals import (NormalModel, NormalOnnxConfig, check_convention_on_plane,
-                                         parse_convention, render_synthetic_room,
-                                         signed_permutations)
-from spgeo.frontend.onnx_sam import (SamMaskGenerator, SamMaskGeneratorConfig, SamOnnxConfig,
-                                     SegmentModel, box_nms, mask_boxes, resize_longest_side,
-                                     stability_scores)
+from spgeo.frontend.mask_generator import (SamMaskGenerator, SamMaskGeneratorConfig, box_nms,
+                                           mask_boxes, stability_scores)
+from spgeo.frontend.normal_conventions import (check_convention_on_plane, parse_convention,
+                                               render_synthetic_room, signed_permutations)
+from spgeo.frontend.onnx_normals import NormalModel, NormalOnnxConfig
+from spgeo.frontend.onnx_sam import SamOnnxConfig, SegmentModel, resize_longest_side
 
 MEAN = np.array([123.675, 116.28, 103.53])
 STABLE = (5.5, 10.5, 20.5)
@@ -557,7 +557,7 @@ def test_onnx_frontend_end_to_end_primitives(mdir, nmodels):
     (a tilted plane, encoded in the image) integrates to that plane's depth."""
     from analytic import plane, scale_fitted_rel_error
     from spgeo.frontend import FrontEndConfig, make_frontend
-    from spgeo.frontend.onnx_sam import SamMaskGeneratorConfig
+    from spgeo.frontend.mask_generator import SamMaskGeneratorConfig
 
     h, w = 120, 160
     c = cam(h, w)

@@ -5,7 +5,7 @@ import pytest
 from spgeo import synthetic
 from spgeo.frontend import make_frontend
 
-from spgeo.rendering import init_scales_from_render, render_depth, render_primitives
+from spgeo.vo.rendering import init_scales_from_render, render_depth, render_primitives
 
 CAM = synthetic.default_camera(160, 120)
 

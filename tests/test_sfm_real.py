@@ -1,7 +1,8 @@
 """Few-view SfM on real frames: spgeo vs ground truth, not to regress.
 
-Bounds come from ``python -m spgeo.evaluation.sfm_real`` (see its output in
-the closing notes); COLMAP on the same frames is measured in test_colmap.py.
+Bounds come from ``python -m spgeo.evaluation.sfm_real`` (measurements in
+docs/results_parts/baselines.md); COLMAP on the same frames is tested in
+test_colmap.py.
 """
 from pathlib import Path
 
@@ -21,7 +22,6 @@ def test_tum_bundled_frames_rotation_error():
     comp = run_case("tum_fr1_desk_0_4_8", None, {"spgeo": est})
     rot = np.asarray(_errors(comp, "spgeo"), float)
     assert est.last_result.status == "ok"
-    # measured 1.05 / 2.24 deg (COLMAP 0.66 / 1.41, SIFT two-view 0.92 / 1.40)
     assert np.all(rot < [1.6, 3.0]), rot
 
 
@@ -33,4 +33,4 @@ def test_icl_frames_flag_what_they_cannot_pose(shared_data):
     res = est.last_result
     assert res.view_status[0] == "unverified" and res.status != "ok"
     rot = np.asarray(_errors(comp, "spgeo"), float)
-    assert rot[1] < 1.5, rot  # measured 0.89 deg (COLMAP 1.58, SIFT two-view 0.26)
+    assert rot[1] < 1.5, rot

@@ -13,7 +13,7 @@ from spgeo.factors.priors import brightness_prior
 from spgeo.frontend import make_frontend
 from spgeo.geometry import relative_pose, rotation_angle_deg, so3_exp
 from spgeo.sfm import SfMConfig, _build_graph, brightness_key, pose_key, scale_key
-from spgeo.tracking import (Keyframe, TrackerConfig, TrackingCost, constant_velocity_guess,
+from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, constant_velocity_guess,
                             track_frame)
 
 log = logging.getLogger(__name__)

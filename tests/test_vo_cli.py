@@ -1,4 +1,4 @@
-"""``spgeo vo`` and the library batch runner (spgeo.vo_runner) on a tiny
+"""``spgeo vo`` and the library batch runner (spgeo.apps.vo_run) on a tiny
 synthetic 7-Scenes-style sequence (40 frames rendered at 160x120, stored at
 640x480 with nearest-neighbour upsampling so that the runner's INTER_AREA
 downsampling gives the rendered images back)."""
@@ -12,7 +12,7 @@ from spgeo import synthetic
 from spgeo.cli import main
 from spgeo.evaluation.trajectory import read_status, read_tum
 from spgeo.frame import Frame
-from spgeo.vo_runner import VORunConfig, parse_resolution, run_dataset, run_odometry
+from spgeo.apps.vo_run import VORunConfig, parse_resolution, run_dataset, run_odometry
 
 N = 20
 CAM = synthetic.default_camera(160, 120)
@@ -169,7 +169,7 @@ def test_parse_resolution():
     with pytest.raises(ValueError):
         VORunConfig(resolution=(0, 120))
     # the shared parser behind it: 'native' and the minimum size are the caller's choice
-    from spgeo.cli_args import parse_resolution as parse_any
+    from spgeo.cli.args import parse_resolution as parse_any
     assert parse_any("native", allow_native=True) is None
     assert parse_any("8x8", min_size=1) == (8, 8)
     with pytest.raises(ValueError):
@@ -177,7 +177,7 @@ def test_parse_resolution():
 
 
 def test_cli_dataset_kinds_are_the_readers():
-    from spgeo.cli_args import DATASET_KINDS
+    from spgeo.cli.args import DATASET_KINDS
     from spgeo.datasets import DATASET_KINDS as READERS
 
     assert set(DATASET_KINDS) == set(READERS)
@@ -263,9 +263,21 @@ def test_no_ground_truth_gives_no_ate(frames):
 
 def test_evaluation_run_vo_wrapper(frames):
     """evaluation.vo_run.run_vo keeps its signature and return value."""
-    from spgeo.evaluation.vo_run import run_vo
-    from spgeo.odometry import Odometry, OdometryConfig
+    from spgeo.apps.vo_run import run_vo
+    from spgeo.vo import Odometry, OdometryConfig
 
     vo, gt, fps = run_vo(frames[:3], (160, 120), "classical", OdometryConfig(), progress=False)
     assert isinstance(vo, Odometry) and len(vo.result().timestamps) == 3
     assert len(gt) == 3 and gt[0] is not None and fps > 0
+
+
+def test_cli_report_has_effective_config(depth_run):
+    """report.json: the OdometryConfig under "config", the rest of the run config under
+    "run_config" (spgeo vo --set / --config)."""
+    from spgeo.odometry import OdometryConfig
+
+    rc, out = depth_run
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["config"]["window"] == OdometryConfig().window
+    assert rep["run_config"]["frontend"] == "depth"
+    assert rep["run_config"]["resolution"] == [160, 120] and "odometry" not in rep["run_config"]

@@ -157,7 +157,6 @@ def test_feature_vo_synthetic(synthetic_sequence, tmp_path):
     assert res.is_keyframe.sum() >= 2 and res.n_segments == 1
     ate = res.ate(ts, gt)
     per_frame, kf = ate["per-frame"], ate["keyframe-only"]
-    # measured (seed 0, 60 frames, 320x240): per-frame ATE ~2.3 cm = ~3 % of the path
     assert per_frame.rmse_percent_of_length < 6.0, str(per_frame)
     assert kf is not None and kf.rmse_percent_of_length < 8.0
     assert res.timings["total"] > 0 and np.all(res.frame_time_s >= 0)
@@ -178,7 +177,7 @@ def test_feature_vo_blank_frame_is_flagged(synthetic_sequence):
     res = run_feature_vo(frames)
     assert res.status[k] == "lost" and not res.valid[k]
     # the next frames re-localise against the same map
-    assert all(s == "tracked" for s in res.status[k + 1:])
+    assert all(s == "ok" for s in res.status[k + 1:])
     assert res.n_segments == 1
     gt = np.array([f.T_world_cam for f in synthetic_sequence[:50]])
     ts = np.array([f.timestamp for f in frames])
@@ -189,7 +188,7 @@ def test_feature_vo_never_crashes_on_bad_input():
     camera = default_camera(64, 48)
     blank = [np.zeros((48, 64)) for _ in range(8)]
     res = run_feature_vo(blank, camera, FeatureVOConfig())
-    assert not res.valid.any() and set(res.status) == {"initialising"}
+    assert not res.valid.any() and set(res.status) == {"init"}
     with pytest.raises(ValueError):
         run_feature_vo([], camera)
     with pytest.raises(ValueError):
@@ -210,7 +209,6 @@ def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
     ts = [f.timestamp for f in frames]
     gt = [f.T_world_cam for f in frames]
     ate = res.ate(ts, gt, max_time_diff=0.1)["per-frame"]
-    # measured: ~100 posed frames; ATE a few cm (see the report in the issue)
     assert res.valid.sum() >= 50
     assert np.isfinite(ate.rmse) and ate.rmse < 0.25, str(ate)
     # CLI on a short range writes the outputs

@@ -7,8 +7,12 @@
 * :class:`ICLSequence` (``"icl"``): ICL-NUIM PNG release, converted to the
   OpenCV camera convention.
 * :class:`FolderSequence` (``"folder"``): plain image folder + intrinsics.
+* :class:`ScanNetScene`: one ScanNet scene in the SensReader export layout
+  (:mod:`spgeo.datasets.scannet`; not an :func:`open_dataset` kind).
+* :class:`VOIDDataset`: VOID depth-completion samples (:mod:`spgeo.datasets.void`;
+  yields :class:`~spgeo.datasets.void.VOIDSample` s, not frames).
 
-:func:`open_dataset` is the factory the CLI uses; :func:`parse_frame_range`
+:func:`open_dataset` is the factory the CLI uses (the kinds in quotes above); :func:`parse_frame_range`
 parses ``--frames A:B[:S]`` (selection by frame number ``A <= n < B``, step S).
 The 9-frame TUM fr1/desk sample ships with the package: :func:`bundled_tum_path`,
 :func:`load_bundled_tum`.
@@ -18,13 +22,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Union
 
-from .common import (FrameSelection, FrameSequence, parse_frame_range, photometric_error,
-                     select_frames, warp_image)
+from .common import FrameSelection, FrameSequence, parse_frame_range, select_frames
 from .folder import FolderConfig, FolderSequence
 from .icl import ICL_CAMERA, ICLConfig, ICLSequence, icl_pose_to_opencv
+from .scannet import ScanNetConfig, ScanNetScene
 from .sevenscenes import SEVEN_SCENES_CAMERA, SevenScenesConfig, SevenScenesSequence
 from .tum import (TUM_CALIBRATIONS, TUMConfig, TUMSequence, associate, interpolate_poses,
                   read_tum_groundtruth, read_tum_list, tum_camera)
+from .void import VOIDDataset, VOIDSample
+from .warp import photometric_error, warp_image
 
 __all__ = [
     "FrameSelection", "FrameSequence", "parse_frame_range", "select_frames", "warp_image",
@@ -32,6 +38,7 @@ __all__ = [
     "associate", "interpolate_poses", "read_tum_list", "read_tum_groundtruth",
     "SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA", "ICLConfig",
     "ICLSequence", "ICL_CAMERA", "icl_pose_to_opencv", "FolderConfig", "FolderSequence",
+    "ScanNetConfig", "ScanNetScene", "VOIDDataset", "VOIDSample",
     "DATASET_KINDS", "open_dataset", "bundled_tum_path", "load_bundled_tum",
 ]
 

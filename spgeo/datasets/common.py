@@ -3,42 +3,39 @@
 * :func:`parse_frame_range` / :func:`select_frames`: the ``--frames A:B[:S]``
   selection by *frame number* (``A <= n < B`` and ``(n - A) % S == 0``).
 * :class:`FrameSequence`: the lazy random-access sequence every reader is
-  (``len``, ``seq[i]``, ``seq[a:b]`` -> list, iteration, ``.camera``, ``.name``).
-* image / depth / pose file helpers that raise clear errors naming the file.
-* :func:`warp_image` / :func:`photometric_error`: warp a target image into a
-  reference view with the reference depth and a relative pose (used to check
-  pose conventions of data sets).
+  (``len``, ``seq[i]``, ``seq[a:b]`` -> list, iteration, ``.camera``, ``.name``),
+  with the shared constructor steps (:meth:`FrameSequence._open`,
+  :func:`numbered_frames`, :func:`check_camera`, :func:`config_from_kwargs`).
+
+The file readers (:mod:`spgeo.datasets.files`) and :func:`warp_image` /
+:func:`photometric_error` (:mod:`spgeo.datasets.warp`) are re-exported here.
 """
 from __future__ import annotations
 
-import json
-import logging
-import os
 import re
 from abc import abstractmethod
 from collections.abc import Sequence as _SequenceABC
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
-from ..geometry import transform_points
-from ..images import load_image, sample_bilinear, to_gray
+from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json,
+                    read_depth_png, read_rgb)
+from .warp import photometric_error, warp_image
 
 __all__ = [
-    "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "read_rgb",
+    "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "FileRecord",
+    "numbered_frames", "check_camera", "config_from_kwargs", "PathLike", "read_rgb",
     "read_depth_png", "read_camera_json", "nearest_rigid", "warp_image", "photometric_error",
 ]
-
-logger = logging.getLogger(__name__)
 
 #: A frame selection: ``None`` (all), a ``slice`` / ``range`` over frame numbers,
 #: an explicit list of frame numbers, or a string ``"A:B[:S]"``.
 FrameSelection = Union[None, slice, range, Sequence[int], str]
-
-PathLike = Union[str, os.PathLike]
 
 
 # --------------------------------------------------------------------- frames
@@ -76,35 +73,26 @@ def parse_frame_range(spec: str) -> slice:
     return slice(start, stop, step)
 
 
-def read_matrix_file(path: PathLike, shape) -> np.ndarray:
-    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"file not found: {path}")
-    try:
-        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
-    except ValueError as exc:
-        raise ValueError(f"malformed matrix file {path}: {exc}") from None
-    if values.size != int(np.prod(shape)):
-        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
-                         f"({shape[0]}x{shape[1]}), got {values.size}")
-    return values.reshape(shape)
+def numbered_frames(folder: Path, pattern: "re.Pattern", what: str, selection: FrameSelection,
+                    missing: Callable[[], str]) -> Tuple[Dict[int, Path], List[int]]:
+    """Index the files of ``folder`` by frame number (:func:`index_frame_files`) and
+    apply ``selection`` (:func:`select_frames`).
+
+    Returns ``(files by frame number, selected frame numbers)``.  Raises
+    ``FileNotFoundError(missing())`` when no file matches ``pattern``.
+    """
+    found = index_frame_files(folder, pattern, what)
+    if not found:
+        raise FileNotFoundError(missing())
+    numbers = sorted(found)
+    return found, [numbers[k] for k in select_frames(numbers, selection)]
 
 
-def index_frame_files(folder: Path, pattern: "re.Pattern", what: str) -> Dict[int, Path]:
-    """Files of ``folder`` whose name matches ``pattern`` (group 1 = frame
-    number) -> ``{frame number: path}``.  Two files for one number raise
-    ``ValueError`` naming both."""
-    found: Dict[int, Path] = {}
-    for p in folder.iterdir():
-        m = pattern.match(p.name)
-        if m:
-            n = int(m.group(1))
-            if n in found:
-                raise ValueError(f"{folder}: frame {n} has two {what} "
-                                 f"({found[n].name}, {p.name})")
-            found[n] = p
-    return found
+def check_camera(camera: Any, field: str) -> PinholeCamera:
+    """``camera`` itself; ``TypeError("<field> must be a PinholeCamera")`` if it is not one."""
+    if not isinstance(camera, PinholeCamera):
+        raise TypeError(f"{field} must be a PinholeCamera")
+    return camera
 
 
 def select_frames(numbers: Sequence[int], selection: FrameSelection) -> List[int]:
@@ -152,6 +140,18 @@ def select_frames(numbers: Sequence[int], selection: FrameSelection) -> List[int
         raise ValueError(f"frame selection {desc} selects no frames (available frame numbers: "
                          f"{rng}, {len(numbers)} frames)")
     return keep
+
+
+# ------------------------------------------------------------------ records
+@dataclass
+class FileRecord:
+    """One frame of a reader's selection: its data-set frame number, timestamp
+    (seconds, or the frame number where the data set has no times) and files."""
+
+    number: int
+    timestamp: float
+    color_path: Path
+    depth_path: Optional[Path]
 
 
 # ------------------------------------------------------------------ sequence
@@ -206,8 +206,8 @@ class FrameSequence(_SequenceABC):
 
     def ground_truth(self) -> List[Optional[np.ndarray]]:
         """Camera-to-world ground-truth poses of the selection, ``None`` where unknown,
-        without reading images (readers with ground truth override this)."""
-        return [None] * len(self)
+        without reading images."""
+        return [self._pose(r) for r in self._records]
 
     def __len__(self) -> int:
         return len(self._records)
@@ -235,6 +235,35 @@ class FrameSequence(_SequenceABC):
                 f"camera={self.camera!r})")
 
     # -- helpers for subclasses
+    def _open(self, path: PathLike, config_cls, config, kwargs: Dict[str, Any], what: str):
+        """Shared start of a reader constructor; returns the config.
+
+        The config is built by :func:`config_from_kwargs` and checked by
+        :meth:`_check_config`; then ``self.config``, ``self.root`` (``path``;
+        ``FileNotFoundError`` "``<what>`` not found: ``<path>``" unless it is a
+        folder), the name (the folder name) and undistortion
+        (``config.undistort``; off for configs without that field) are set.
+        """
+        cfg = config_from_kwargs(config_cls, config, kwargs, type(self).__name__)
+        self._check_config(cfg)
+        self.config = cfg
+        root = Path(path).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"{what} not found: {root}")
+        self.root = root
+        self._name = root.resolve().name
+        self._undistort = bool(getattr(cfg, "undistort", False))
+        return cfg
+
+    def _check_config(self, config: Any) -> None:
+        """Raise ``ValueError`` for invalid option values (default: none checked)."""
+
+    def _pose(self, record: Any) -> Optional[np.ndarray]:
+        """Camera-to-world pose of a record: a copy of ``record.pose``, None where
+        the record has none (readers with pose files override this)."""
+        pose = getattr(record, "pose", None)
+        return None if pose is None else pose.copy()
+
     def _get(self, i: int) -> Frame:
         return self._load(i, self._records[i])
 
@@ -264,150 +293,6 @@ class FrameSequence(_SequenceABC):
             return depth
         return cv2.remap(depth, maps[0], maps[1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
-
-
-# ---------------------------------------------------------------- file I/O
-def read_rgb(path: PathLike, camera: Optional[PinholeCamera] = None) -> np.ndarray:
-    """Read a colour image as float32 RGB (H, W, 3) in [0, 1].
-
-    Grey files are replicated to three channels.  Raises ``FileNotFoundError``
-    for a missing file, ``ValueError`` for an undecodable one or (with
-    ``camera``) a size that does not match the camera; messages name the file.
-    """
-    image = load_image(path)
-    if image.ndim == 2:
-        image = np.repeat(image[..., None], 3, axis=2)
-    if camera is not None and image.shape[:2] != camera.shape:
-        raise ValueError(f"image {os.fspath(path)} has shape {image.shape}, expected "
-                         f"({camera.height}, {camera.width}, 3) for {camera!r}")
-    return np.ascontiguousarray(image, dtype=np.float32)
-
-
-def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera] = None,
-                   invalid_values: Sequence[int] = (0,), dtype=np.float32) -> np.ndarray:
-    """Read a uint16 depth PNG as metres (``raw / scale``, in ``dtype``), NaN where invalid.
-
-    ``invalid_values`` are raw values meaning "no measurement" (0 by default).
-    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
-    """
-    import cv2
-
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"depth file not found: {path}")
-    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot decode depth file: {path}")
-    if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise ValueError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
-                         f"got shape {raw.shape} dtype {raw.dtype}")
-    if camera is not None and raw.shape != camera.shape:
-        raise ValueError(f"depth file {path} has shape {raw.shape}, expected "
-                         f"({camera.height}, {camera.width}) for {camera!r}")
-    depth = raw.astype(dtype) / np.asarray(scale, dtype=dtype)
-    invalid = np.isin(raw, np.asarray(invalid_values, dtype=raw.dtype))
-    depth[invalid] = np.nan
-    return depth
-
-
-def read_camera_json(path: PathLike) -> PinholeCamera:
-    """Read a ``camera.json`` written with :meth:`PinholeCamera.to_dict`."""
-    path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-        return PinholeCamera.from_dict(data)
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"invalid camera file {path}: {exc}") from exc
-
-
-def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.ndarray:
-    """Project an almost-rigid 4x4 matrix onto SE(3) (SVD of the rotation block).
-
-    Data-set poses are often stored with a few 1e-4 of rotation error (7-Scenes);
-    :class:`~spgeo.frame.Frame` requires 1e-5.  Raises ``ValueError`` when the
-    matrix is non-finite or further than ``tol`` from a rigid transform.
-    """
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{name}: expected a finite 4x4 matrix, got shape {T.shape}")
-    R = T[:3, :3]
-    if (np.abs(R @ R.T - np.eye(3)).max() > tol or abs(np.linalg.det(R) - 1.0) > tol
-            or np.abs(T[3] - [0, 0, 0, 1]).max() > tol):
-        raise ValueError(f"{name}: not a rigid transform (rotation not orthonormal or last row "
-                         "not [0 0 0 1])")
-    U, _, Vt = np.linalg.svd(R)
-    out = np.eye(4)
-    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    out[:3, 3] = T[:3, 3]
-    return out
-
-
-
-def read_pose_file(path: PathLike, dataset: str, read_matrix) -> Optional[np.ndarray]:
-    """A 4x4 camera-to-world pose file -> rigid 4x4, or None (with a log line)
-    when the file is missing or holds non-finite values (invalid poses).
-
-    ``read_matrix(path)`` parses the file (raising ``FileNotFoundError`` /
-    ``ValueError`` naming it); a matrix too far from rigid raises ``ValueError``.
-    """
-    path = Path(path)
-    if not path.is_file():
-        logger.warning("%s: pose file missing: %s", dataset, path)
-        return None
-    T = read_matrix(path)
-    if not np.all(np.isfinite(T)):
-        logger.debug("%s: invalid (non-finite) pose in %s", dataset, path)
-        return None
-    try:
-        return nearest_rigid(T, str(path))
-    except ValueError as exc:
-        raise ValueError(f"invalid pose file {path}: {exc}") from None
-
-def check_selection_files(paths: Sequence[Path], what: str) -> None:
-    """Raise ``FileNotFoundError`` naming the first listed file that does not exist."""
-    for p in paths:
-        if not p.is_file():
-            raise FileNotFoundError(f"{what} file listed but missing: {p}")
-
-
-# ------------------------------------------------------------------- warping
-def warp_image(image_tgt: np.ndarray, depth_ref: np.ndarray, camera: PinholeCamera,
-               T_tgt_ref: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Warp ``image_tgt`` into the reference view.
-
-    Every reference pixel with valid depth is unprojected, mapped into the
-    target camera with ``T_tgt_ref = inv(T_world_tgt) @ T_world_ref``,
-    projected and sampled bilinearly.  Both images use ``camera`` (undistorted).
-
-    Returns:
-        ``(warped, valid)``: the target image as seen from the reference view
-        (float32, same shape as ``image_tgt``; 0 where invalid) and the (H, W)
-        mask of pixels with valid depth that land inside the target image in
-        front of the camera.
-    """
-    camera.check_image(image_tgt, "image_tgt")
-    points = camera.unproject_depth_map(depth_ref)  # NaN where invalid
-    uv, z = camera.project(transform_points(np.asarray(T_tgt_ref, dtype=np.float64), points))
-    values, valid = sample_bilinear(np.asarray(image_tgt, dtype=np.float32),
-                                    uv[..., 0], uv[..., 1])
-    with np.errstate(invalid="ignore"):
-        valid &= z > 0
-    mask = valid[..., None] if values.ndim == 3 else valid
-    return np.where(mask, values, 0.0).astype(np.float32), valid
-
-
-def photometric_error(image_ref: np.ndarray, image_tgt: np.ndarray, depth_ref: np.ndarray,
-                      camera: PinholeCamera, T_tgt_ref: np.ndarray) -> Tuple[float, float]:
-    """Mean absolute grey-level error between ``image_ref`` and the warped target.
-
-    Returns ``(error, valid_fraction)``; the error is NaN when no pixel is valid.
-    """
-    warped, valid = warp_image(to_gray(image_tgt), depth_ref, camera, T_tgt_ref)
-    frac = float(valid.mean())
-    if not valid.any():
-        return float("nan"), frac
-    return float(np.abs(warped - to_gray(image_ref))[valid].mean()), frac
 
 
 def config_from_kwargs(config_cls, config, kwargs: Dict[str, Any], reader: str):

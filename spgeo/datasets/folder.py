@@ -29,8 +29,8 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
-from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     read_camera_json, read_depth_png, read_rgb, select_frames)
+from .common import FrameSelection, FrameSequence, check_camera, select_frames
+from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
 
 __all__ = ["FolderConfig", "FolderSequence", "read_intrinsics_txt"]
 
@@ -98,14 +98,8 @@ class FolderSequence(FrameSequence):
 
     def __init__(self, path: PathLike, config: Optional[FolderConfig] = None, **kwargs) -> None:
         super().__init__()
-        cfg = config_from_kwargs(FolderConfig, config, kwargs, "FolderSequence")
-        self.config = cfg
-        root = Path(path).expanduser()
-        if not root.is_dir():
-            raise FileNotFoundError(f"image folder not found: {root}")
-        self.root = root
-        self._name = root.resolve().name
-        self._undistort = bool(cfg.undistort)
+        cfg = self._open(path, FolderConfig, config, kwargs, "image folder")
+        root = self.root
         exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in cfg.extensions)
         images = sorted((p for p in root.iterdir() if p.is_file() and p.suffix.lower() in exts),
                         key=lambda p: _natural_key(p.name))
@@ -127,9 +121,7 @@ class FolderSequence(FrameSequence):
 
     def _resolve_camera(self, camera, first_image: Path) -> PinholeCamera:
         if camera is not None:
-            if not isinstance(camera, PinholeCamera):
-                raise TypeError("FolderConfig.camera must be a PinholeCamera")
-            return camera
+            return check_camera(camera, "FolderConfig.camera")
         if (self.root / "camera.json").is_file():
             return read_camera_json(self.root / "camera.json")
         if (self.root / "intrinsics.txt").is_file():
@@ -145,12 +137,7 @@ class FolderSequence(FrameSequence):
             s = line.strip()
             if not s or s.startswith("#"):
                 continue
-            try:
-                t = float(s)
-            except ValueError:
-                raise ValueError(f"{path}:{lineno}: malformed timestamp {s!r}") from None
-            if not np.isfinite(t):
-                raise ValueError(f"{path}:{lineno}: timestamp is not finite")
+            t = parse_stamp(s, path, lineno)
             if stamps and not t > stamps[-1]:
                 raise ValueError(f"{path}:{lineno}: timestamps are not strictly increasing")
             stamps.append(t)

@@ -16,14 +16,8 @@ Layout::
   ``S x_ours``, so the reader keeps the images unchanged, uses fy = +480 and
   returns ``T_world_cam = S @ T_file @ S`` (a proper rigid transform, in a
   world frame whose y axis is the file's y negated).  Relative poses are then
-  ``S T_rel S``.  This was determined on the sample data by warping frames into
-  each other with depth and the ground-truth relative pose: e.g. frame 4 -> 2
-  mean |dI| 0.0064 with ``S T S`` vs 0.056 with the file's poses unchanged and
-  0.138 without motion (see ``tests/test_datasets.py``).
-* **Depth** in these PNGs is z-depth along the optical axis (not ray length):
-  the flat back wall of frame 1 is planar to a median 0.25 mm as z-depth but
-  off by ~8 cm when read as ray length, and warps are more consistent as
-  z-depth.
+  ``S T_rel S`` (checked by photometric warps in ``tests/test_datasets.py``).
+* **Depth** in these PNGs is z-depth along the optical axis (not ray length).
 """
 from __future__ import annotations
 
@@ -38,8 +32,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..frame import Frame
 from ..geometry import pose_from_tum
-from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     read_depth_png, read_rgb, select_frames)
+from .common import FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames
+from .files import PathLike, read_depth_png, read_rgb
 
 __all__ = ["ICLConfig", "ICLSequence", "ICL_CAMERA", "icl_pose_to_opencv", "read_icl_poses"]
 
@@ -122,11 +116,7 @@ class ICLConfig:
 
 
 @dataclass
-class _Record:
-    number: int
-    timestamp: float
-    color_path: Path
-    depth_path: Path
+class _Record(FileRecord):
     pose: Optional[np.ndarray]
 
 
@@ -135,35 +125,23 @@ class ICLSequence(FrameSequence):
 
     def __init__(self, path: PathLike, config: Optional[ICLConfig] = None, **kwargs) -> None:
         super().__init__()
-        cfg = config_from_kwargs(ICLConfig, config, kwargs, "ICLSequence")
-        self.config = cfg
-        root = Path(path).expanduser()
-        if not root.is_dir():
-            raise FileNotFoundError(f"ICL-NUIM sequence folder not found: {root}")
-        self.root = root
-        self._name = root.resolve().name
-        self._undistort = False
-        cam = cfg.intrinsics if cfg.intrinsics is not None else ICL_CAMERA
-        if not isinstance(cam, PinholeCamera):
-            raise TypeError("ICLConfig.intrinsics must be a PinholeCamera")
-        self._raw_camera = cam
+        cfg = self._open(path, ICLConfig, config, kwargs, "ICL-NUIM sequence folder")
+        root = self.root
+        self._raw_camera = check_camera(
+            cfg.intrinsics if cfg.intrinsics is not None else ICL_CAMERA, "ICLConfig.intrinsics")
 
         color_dir = next((root / d for d in ("color", "rgb") if (root / d).is_dir()), None)
         if color_dir is None:
             raise FileNotFoundError(f"no color/ (or rgb/) folder in ICL-NUIM sequence {root}")
-        found = {int(m.group(1)): p for p in color_dir.iterdir()
-                 if (m := _NUM_RE.match(p.name))}
-        if not found:
-            raise FileNotFoundError(f"no N.png images in {color_dir}")
-        numbers = sorted(found)
-        keep = select_frames(numbers, cfg.frames)
+        found, selected = numbered_frames(color_dir, _NUM_RE, "images", cfg.frames,
+                                          lambda: f"no N.png images in {color_dir}")
 
         poses: Dict[int, np.ndarray] = {}
         if cfg.load_pose:
             pose_path = root / cfg.pose_file
             if pose_path.is_file():
                 poses = read_icl_poses(pose_path, cfg.pose_first_frame)
-                missing = [numbers[k] for k in keep if numbers[k] not in poses]
+                missing = [n for n in selected if n not in poses]
                 if missing:
                     logger.warning("%s: no pose for %d selected frames (e.g. %s)", pose_path,
                                    len(missing), missing[:5])
@@ -171,15 +149,10 @@ class ICLSequence(FrameSequence):
                 logger.info("%s: no %s, frames will have no pose", root, cfg.pose_file)
 
         self._records: List[_Record] = []
-        for k in keep:
-            n = numbers[k]
+        for n in selected:
             T = poses.get(n)
             self._records.append(_Record(n, float(n), found[n], root / "depth" / found[n].name,
                                          None if T is None else icl_pose_to_opencv(T)))
-
-    def ground_truth(self) -> List[Optional[np.ndarray]]:
-        """Converted camera-to-world poses of the selection (no image I/O)."""
-        return [None if r.pose is None else r.pose.copy() for r in self._records]
 
     def _load(self, index: int, rec: _Record) -> Frame:
         image = read_rgb(rec.color_path, self._raw_camera)
@@ -192,5 +165,5 @@ class ICLSequence(FrameSequence):
                 "depth_registered": True, "timestamp_is_frame_number": True,
                 "pose_convention": "S @ T_file @ S, S = diag(1, -1, 1, 1)"}
         return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
-                     T_world_cam=None if rec.pose is None else rec.pose.copy(),
+                     T_world_cam=self._pose(rec),
                      name=rec.color_path.stem, meta=meta)

@@ -30,9 +30,8 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
-from .common import (FrameSelection, FrameSequence, PathLike, config_from_kwargs,
-                     index_frame_files, read_depth_png, read_matrix_file, read_pose_file,
-                     read_rgb, select_frames)
+from .common import FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames
+from .files import PathLike, read_depth_png, read_matrix_file, read_pose_file, read_rgb
 
 __all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
            "read_matrix_file"]
@@ -70,11 +69,7 @@ class SevenScenesConfig:
 
 
 @dataclass
-class _Record:
-    number: int
-    timestamp: float
-    color_path: Path
-    depth_path: Path
+class _Record(FileRecord):
     pose_path: Path
     stem: str
 
@@ -85,27 +80,18 @@ class SevenScenesSequence(FrameSequence):
     def __init__(self, path: PathLike, config: Optional[SevenScenesConfig] = None,
                  **kwargs) -> None:
         super().__init__()
-        cfg = config_from_kwargs(SevenScenesConfig, config, kwargs, "SevenScenesSequence")
-        self.config = cfg
-        root = Path(path).expanduser()
-        if not root.is_dir():
-            raise FileNotFoundError(f"7-Scenes sequence folder not found: {root}")
-        self.root = root
-        self._name = root.resolve().name
-        self._undistort = bool(cfg.undistort)
+        cfg = self._open(path, SevenScenesConfig, config, kwargs, "7-Scenes sequence folder")
+        root = self.root
 
-        found = index_frame_files(root, _COLOR_RE, "colour images")
-        if not found:
+        def missing() -> str:
             subs = sorted(q.name for q in root.iterdir() if q.is_dir() and q.name.startswith("seq"))
             hint = f" (pass one of its sequence folders: {subs})" if subs else ""
-            raise FileNotFoundError(f"no frame-NNNNNN.color.png|jpg images in {root}{hint}")
-        numbers = sorted(found)
-        keep = select_frames(numbers, cfg.frames)
+            return f"no frame-NNNNNN.color.png|jpg images in {root}{hint}"
+
+        found, selected = numbered_frames(root, _COLOR_RE, "colour images", cfg.frames, missing)
 
         if cfg.intrinsics is not None:
-            if not isinstance(cfg.intrinsics, PinholeCamera):
-                raise TypeError("SevenScenesConfig.intrinsics must be a PinholeCamera")
-            self._raw_camera = cfg.intrinsics
+            self._raw_camera = check_camera(cfg.intrinsics, "SevenScenesConfig.intrinsics")
         elif (root / "camera-intrinsics.txt").is_file():
             K = read_matrix_file(root / "camera-intrinsics.txt", (3, 3))
             self._raw_camera = PinholeCamera.from_K(K, 640, 480)
@@ -113,19 +99,14 @@ class SevenScenesSequence(FrameSequence):
             self._raw_camera = SEVEN_SCENES_CAMERA
 
         self._records: List[_Record] = []
-        for k in keep:
-            n = numbers[k]
+        for n in selected:
             cp = found[n]
             stem = cp.name[:cp.name.lower().index(".color.")]
             self._records.append(_Record(n, float(n), cp, root / f"{stem}.depth.png",
                                          root / f"{stem}.pose.txt", stem))
 
-    def _read_pose(self, rec: _Record) -> Optional[np.ndarray]:
+    def _pose(self, rec: _Record) -> Optional[np.ndarray]:
         return read_pose_file(rec.pose_path, "7-Scenes", lambda p: read_matrix_file(p, (4, 4)))
-
-    def ground_truth(self) -> List[Optional[np.ndarray]]:
-        """Camera-to-world poses of the selection (reads only the pose files)."""
-        return [self._read_pose(r) for r in self._records]
 
     def _load(self, index: int, rec: _Record) -> Frame:
         image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
@@ -133,7 +114,7 @@ class SevenScenesSequence(FrameSequence):
         if self.config.load_depth:
             depth = self._finish_depth(read_depth_png(rec.depth_path, self.config.depth_scale,
                                                       self._raw_camera, invalid_values=(0, 65535)))
-        pose = self._read_pose(rec) if self.config.load_pose else None
+        pose = self._pose(rec) if self.config.load_pose else None
         meta = {"dataset": "7scenes", "sequence": self._name, "index": index,
                 "frame_number": rec.number, "rgb_path": str(rec.color_path),
                 "depth_path": str(rec.depth_path) if depth is not None else None,

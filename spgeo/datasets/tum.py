@@ -24,8 +24,7 @@ Folder layout (Sturm et al., IROS 2012)::
   maps computed once (depth with nearest-neighbour sampling); ``.camera`` is
   then ``raw_camera.undistorted()``.  (TUM's own page recommends the ROS
   default intrinsics without undistortion because the depth maps were
-  registered by the Kinect driver; on the bundled sample the ground-truth warp
-  error is about the same either way, 0.044 vs 0.041 mean |dI| over 7 pairs.)
+  registered by the Kinect driver.)
 """
 from __future__ import annotations
 
@@ -33,16 +32,16 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional, Tuple, Union
+from typing import Any, Callable, List, Optional, Tuple, Union
 
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
 from ..geometry import pose_from_tum
-from .common import (FrameSelection, FrameSequence, PathLike, check_selection_files,
-                     config_from_kwargs, read_camera_json, read_depth_png, read_rgb,
-                     select_frames)
+from .common import FileRecord, FrameSelection, FrameSequence, select_frames
+from .files import (PathLike, check_increasing, check_selection_files, parse_stamp,
+                    read_camera_json, read_depth_png, read_rgb)
 
 __all__ = ["TUMConfig", "TUMSequence", "tum_camera", "detect_tum_calibration", "read_tum_list",
            "read_tum_groundtruth", "associate", "interpolate_poses", "TUM_CALIBRATIONS"]
@@ -129,21 +128,23 @@ def _data_lines(path: Path):
         yield lineno, s.replace(",", " ").split()
 
 
-def _stamp(tok: str, path: Path, lineno: int) -> float:
-    try:
-        t = float(tok)
-    except ValueError:
-        raise ValueError(f"{path}:{lineno}: malformed timestamp {tok!r}") from None
-    if not np.isfinite(t):
-        raise ValueError(f"{path}:{lineno}: timestamp {tok!r} is not finite")
-    return t
-
-
-def _check_increasing(stamps: List[float], linenos: List[int], path: Path) -> None:
-    for k in range(1, len(stamps)):
-        if not stamps[k] > stamps[k - 1]:
-            raise ValueError(f"{path}:{linenos[k]}: timestamps are not strictly increasing "
-                             f"({stamps[k]:.6f} after {stamps[k - 1]:.6f})")
+def _read_stamped(path: Path, layout: str, parse: Callable[[List[str], int], Any]
+                  ) -> Tuple[np.ndarray, list]:
+    """``(stamps (N,), [parse(fields after the stamp, line number)])`` of a TUM
+    text file whose lines are ``layout`` (its words name the fields); raises
+    ``ValueError`` naming the file and line for a wrong field count, a bad
+    stamp or stamps not strictly increasing."""
+    n_fields = len(layout.split())
+    stamps, rows, linenos = [], [], []
+    for lineno, tok in _data_lines(path):
+        if len(tok) != n_fields:
+            raise ValueError(f"{path}:{lineno}: malformed line, expected '{layout}', "
+                             f"got {len(tok)} fields")
+        stamps.append(parse_stamp(tok[0], path, lineno))
+        rows.append(parse(tok[1:], lineno))
+        linenos.append(lineno)
+    check_increasing(stamps, linenos, path)
+    return np.asarray(stamps, dtype=np.float64), rows
 
 
 def read_tum_list(path: PathLike) -> Tuple[np.ndarray, List[str]]:
@@ -152,39 +153,27 @@ def read_tum_list(path: PathLike) -> Tuple[np.ndarray, List[str]]:
     Returns ``(stamps (N,), filenames)``.  Raises ``ValueError`` naming the file
     and line for malformed lines or non-increasing stamps.
     """
-    path = Path(path)
-    stamps, names, linenos = [], [], []
-    for lineno, tok in _data_lines(path):
-        if len(tok) != 2:
-            raise ValueError(f"{path}:{lineno}: malformed line, expected 'timestamp filename', "
-                             f"got {len(tok)} fields")
-        stamps.append(_stamp(tok[0], path, lineno))
-        names.append(tok[1])
-        linenos.append(lineno)
-    _check_increasing(stamps, linenos, path)
-    return np.asarray(stamps, dtype=np.float64), names
+    return _read_stamped(Path(path), "timestamp filename", lambda rest, lineno: rest[0])
 
 
+# Kept apart from spgeo.io.tum.read_tum (one 4x4 pose per line, inline '#' comments, any
+# order): interpolation needs the raw quaternion rows and strictly increasing stamps.
 def read_tum_groundtruth(path: PathLike) -> Tuple[np.ndarray, np.ndarray]:
     """Parse ``groundtruth.txt``: returns ``(stamps (N,), tum (N, 7) tx ty tz qx qy qz qw)``."""
     path = Path(path)
-    stamps, rows, linenos = [], [], []
-    for lineno, tok in _data_lines(path):
-        if len(tok) != 8:
-            raise ValueError(f"{path}:{lineno}: malformed line, expected 'timestamp tx ty tz "
-                             f"qx qy qz qw', got {len(tok)} fields")
-        stamps.append(_stamp(tok[0], path, lineno))
+
+    def pose_row(fields: List[str], lineno: int) -> List[float]:
         try:
-            vals = [float(x) for x in tok[1:]]
+            vals = [float(x) for x in fields]
         except ValueError:
-            raise ValueError(f"{path}:{lineno}: malformed pose values {tok[1:]}") from None
+            raise ValueError(f"{path}:{lineno}: malformed pose values {fields}") from None
         q = np.asarray(vals[3:])
         if not np.all(np.isfinite(vals)) or np.linalg.norm(q) < 1e-6:
             raise ValueError(f"{path}:{lineno}: pose is not finite or has a zero quaternion")
-        rows.append(vals)
-        linenos.append(lineno)
-    _check_increasing(stamps, linenos, path)
-    return np.asarray(stamps, dtype=np.float64), np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+        return vals
+
+    stamps, rows = _read_stamped(path, "timestamp tx ty tz qx qy qz qw", pose_row)
+    return stamps, np.asarray(rows, dtype=np.float64).reshape(-1, 7)
 
 
 def associate(stamps_a: np.ndarray, stamps_b: np.ndarray, max_difference: float = 0.02,
@@ -263,11 +252,7 @@ def interpolate_poses(gt_stamps: np.ndarray, gt_tum: np.ndarray, query: np.ndarr
 
 # --------------------------------------------------------------------- reader
 @dataclass
-class _TUMRecord:
-    number: int
-    timestamp: float
-    rgb_path: Path
-    depth_path: Optional[Path]
+class _TUMRecord(FileRecord):
     depth_timestamp: Optional[float]
     pose: Optional[np.ndarray]
 
@@ -282,14 +267,8 @@ class TUMSequence(FrameSequence):
 
     def __init__(self, path: PathLike, config: Optional[TUMConfig] = None, **kwargs) -> None:
         super().__init__()
-        cfg = config_from_kwargs(TUMConfig, config, kwargs, "TUMSequence")
-        self.config = cfg
-        root = Path(path).expanduser()
-        if not root.is_dir():
-            raise FileNotFoundError(f"TUM sequence folder not found: {root}")
-        self.root = root
-        self._name = root.resolve().name
-        self._undistort = bool(cfg.undistort)
+        cfg = self._open(path, TUMConfig, config, kwargs, "TUM sequence folder")
+        root = self.root
         self._raw_camera, self.calibration_source = self._resolve_camera(cfg.calibration)
 
         stamps, names = read_tum_list(root / "rgb.txt")
@@ -327,11 +306,11 @@ class TUMSequence(FrameSequence):
         for k in keep:
             j = int(depth_idx[k])
             self._records.append(_TUMRecord(
-                number=k, timestamp=float(stamps[k]), rgb_path=root / names[k],
+                number=k, timestamp=float(stamps[k]), color_path=root / names[k],
                 depth_path=root / d_names[j] if j >= 0 else None,
                 depth_timestamp=float(d_stamps[j]) if j >= 0 else None, pose=poses[k]))
         if cfg.check_files:
-            check_selection_files([r.rgb_path for r in self._records], "rgb")
+            check_selection_files([r.color_path for r in self._records], "rgb")
             check_selection_files([r.depth_path for r in self._records if r.depth_path],
                                   "depth")
         logger.debug("opened TUM sequence %s: %d frames, camera %r (%s)", root, len(self),
@@ -356,21 +335,17 @@ class TUMSequence(FrameSequence):
                        "calibration='fr1'|'fr2'|'fr3' to choose.", self.root)
         return tum_camera("ros"), "ros default"
 
-    def ground_truth(self) -> List[Optional[np.ndarray]]:
-        """Interpolated camera-to-world poses of the selection (no image I/O)."""
-        return [None if r.pose is None else r.pose.copy() for r in self._records]
-
     def _load(self, index: int, rec: _TUMRecord) -> Frame:
-        image = self._finish_image(read_rgb(rec.rgb_path, self._raw_camera))
+        image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
         depth = None
         if rec.depth_path is not None:
             depth = self._finish_depth(read_depth_png(rec.depth_path, self.config.depth_scale,
                                                       self._raw_camera))
         meta = {"dataset": "tum", "sequence": self._name, "index": index,
-                "frame_number": rec.number, "rgb_path": str(rec.rgb_path),
+                "frame_number": rec.number, "rgb_path": str(rec.color_path),
                 "depth_path": None if rec.depth_path is None else str(rec.depth_path),
                 "depth_timestamp": rec.depth_timestamp, "depth_registered": True,
                 "undistorted": self._undistort and self._raw_camera.distortion is not None}
         return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
-                     T_world_cam=None if rec.pose is None else rec.pose.copy(),
-                     name=rec.rgb_path.stem, meta=meta)
+                     T_world_cam=self._pose(rec),
+                     name=rec.color_path.stem, meta=meta)

@@ -29,9 +29,10 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
 
     ``segmenter`` replaces the default segmenter (e.g. a :class:`LabelSegmenter`
     of ground-truth surface ids for oracle ablations).  For ``onnx``, ``sam``
-    holds keyword arguments of :func:`spgeo.models.sam_frontend_from_cache`
+    holds keyword arguments of :func:`spgeo.frontend.from_cache.sam_frontend_from_cache`
     (registry family or ``encoder=``/``decoder=`` paths) and ``normals`` those
-    of :func:`spgeo.models.normal_model_from_cache` (registry name or path).
+    of :func:`spgeo.frontend.from_cache.normal_model_from_cache` (registry
+    name or path).  Raises ``ValueError`` for an unknown name.
     """
     from .classical import ClassicalSegmenter
     from .depth_normals import DepthNormalEstimator, FrontoParallelNormals
@@ -43,7 +44,7 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
         return PrimitiveFrontEnd(segmenter or ClassicalSegmenter(), DepthNormalEstimator(),
                                  config, name="depth (uses depth)")
     if name == "onnx":
-        from ..models import normal_model_from_cache, sam_frontend_from_cache
+        from .from_cache import normal_model_from_cache, sam_frontend_from_cache
 
         seg = segmenter or sam_frontend_from_cache(**(sam or {}))
         return PrimitiveFrontEnd(seg, normal_model_from_cache(**(normals or {})), config,

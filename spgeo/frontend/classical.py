@@ -18,17 +18,14 @@ then post-processes the label image identically for every method:
    between equal labels);
 2. components smaller than ``min_area_frac * H * W`` pixels are handled as
    ``small_components`` says: ``"drop"`` (default) removes them, so their
-   pixels are covered by no region — the same rule DESIGN.md §3 applies to
+   pixels are covered by no region — the same rule docs/design.md §3 applies to
    SAM masks and that the primitive pipeline applies after its own splitting;
    ``"merge"`` merges each into the adjacent region with which it shares the
    longest boundary, giving an exact partition (every pixel in exactly one
    region).  ``"drop"`` is the default because the tiny components are mostly
-   slivers along surface boundaries (anti-aliased edge pixels): on the
-   synthetic scenes (``evaluation/bench_segmenters.py``) merging them raises
-   the under-segmentation error of the default method from 0.0083 to 0.0104
-   (320x240) and 0.0100 to 0.0137 (160x120), while dropping leaves 2-4 % of
-   the pixels uncovered (SLIC's own connectivity enforcement leaves almost
-   nothing to drop);
+   slivers along surface boundaries (anti-aliased edge pixels) and merging
+   them raises the under-segmentation error (``evaluation/bench_segmenters.py``,
+   results in docs/results.md);
 3. anchors are each region's most interior pixel (maximum of the Euclidean
    distance to the nearest pixel of another region or the image border); scores
    are 1.0.
@@ -70,11 +67,9 @@ class ClassicalSegmenterConfig:
     """Configuration of :class:`ClassicalSegmenter`.
 
     Attributes:
-        method: one of :data:`METHODS`.  Default ``"graph"``, chosen by
-            ``evaluation/bench_segmenters.py`` on the synthetic scenes: about
-            half the under-segmentation error of SLIC (the best superpixel
-            method) at a comparable or lower segment count, higher boundary
-            recall, and faster.
+        method: one of :data:`METHODS`.  Default ``"graph"``, chosen with
+            ``evaluation/bench_segmenters.py`` on the synthetic scenes
+            (results in docs/results.md).
         num_segments: target number of superpixels for the SLIC family, SEEDS
             and LSC (independent of resolution; SLIC/LSC turn it into a region
             size ``sqrt(h * w / num_segments)`` at the working resolution).  The
@@ -95,21 +90,18 @@ class ClassicalSegmenterConfig:
         graph_k: graph method scale parameter ``k`` (larger: fewer, larger
             segments) for a working image 320 pixels wide; scaled linearly
             with the working width, which keeps the segment count roughly
-            resolution independent (about 130-170 regions on the synthetic
-            scenes at 320x240 and 160x120).  Default 150.
+            resolution independent.  Default 150.
         graph_min_size: graph method minimum component size in pixels of a
             320x240 working image (scaled with the pixel count).  Default 50.
         color_space: ``"rgb"`` (default) or ``"lab"`` (CIE L*a*b*): colour
             space the segmentation works in.  Grey images are used as they
-            are.  RGB measured slightly better than L*a*b* for the graph
-            method at an equal segment count (L*a*b* is the usual choice
-            for SLIC; both are within noise there).
+            are.
         blur_sigma: Gaussian pre-smoothing (pixels at the working resolution)
             before segmentation; 0 disables.  Default 0.
         working_width: segment a copy resized to this width (aspect kept) when
             the image is wider; ``None`` works at full resolution.  Default 320.
         min_area_frac: components smaller than ``min_area_frac * H * W`` pixels
-            (input resolution) are small (DESIGN.md §3).  Default 1e-3.
+            (input resolution) are small (docs/design.md §3).  Default 1e-3.
         small_components: ``"drop"`` (default; see the module docstring) or
             ``"merge"`` (exact partition of the image).
     """
@@ -360,7 +352,7 @@ class ClassicalSegmenter:
             return sp.getLabels()
         # graph
         # k scales with the image width (keeps the segment count roughly constant
-        # across resolutions, measured on the synthetic scenes); min_size with the area
+        # across resolutions); min_size with the area
         gs = cv2.ximgproc.segmentation.createGraphSegmentation(
             sigma=float(cfg.graph_sigma), k=float(cfg.graph_k) * (w / 320.0),
             min_size=max(1, int(round(cfg.graph_min_size * (h * w) / (320.0 * 240.0)))))

@@ -36,7 +36,7 @@ class FrontEndConfig:
             normals are computed and integrated (the primitives live there);
             None keeps the input resolution.  The authors integrated at 320x240.
         min_area_frac: connected parts smaller than this fraction of the image
-            are dropped (DESIGN.md §3: 1e-3).
+            are dropped (docs/design.md §3: 1e-3).
         split_depth_jumps: split regions where the log-depth jumps.
         jump_threshold: a jump is a step between neighbouring pixels with
             ``|d log z| * f > jump_threshold`` in the integrated log-depth (f the

@@ -1,19 +1,22 @@
-"""``spgeo vo``: argument wiring for :func:`spgeo.vo_runner.run_dataset`.
+"""``spgeo vo``: argument wiring for :func:`spgeo.apps.vo_run.run_dataset`.
 
     spgeo vo --dataset {tum,7scenes,icl,folder} PATH [--frames A:B[:STEP]]
-             [--resolution 160x120] [--frontend classical|depth|onnx] --out DIR
+             [--resolution 160x120] [--frontend classical|depth|onnx]
+             [--config FILE] [--set FIELD=VALUE ...] --out DIR
 
-Writes ``DIR/trajectory.txt`` (every processed frame, TUM format, camera-to-world;
-timestamps are frame numbers for data sets without timestamps),
-``DIR/keyframes.txt``, ``DIR/trajectory.status.txt``, ``DIR/report.json``
-(with the per-frame and keyframe-only Sim(3) ATE under ``"ate"`` when the data
-set has ground truth) and keyframe point clouds in ``DIR/clouds/``.
+``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
+name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
+explicit options (``--resolution``, ``--frontend``, ...) override
+``--config``, and ``--set`` overrides both.
 """
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
-from .cli_args import DATASET_KINDS
+from .args import DATASET_KINDS, parse_resolution
+from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
 
 __all__ = ["add_vo_cli"]
 
@@ -24,24 +27,45 @@ Writes OUT/trajectory.txt (every processed frame, TUM 'timestamp tx ty tz qx qy
 qz qw', camera-to-world; timestamps are frame numbers for data sets without
 timestamps such as 7-Scenes), OUT/keyframes.txt, OUT/trajectory.status.txt,
 OUT/report.json (with the per-frame and keyframe-only Sim(3) ATE under "ate"
-when the data set has ground truth) and keyframe point clouds in OUT/clouds/.
-The classical and onnx front-ends never read depth; 'depth' uses the sensor
-depth (RGB-D / oracle)."""
+when the data set has ground truth, the OdometryConfig under "config" and the
+rest of the run config under "run_config") and keyframe point clouds in
+OUT/clouds/.  The classical and onnx front-ends never read depth; 'depth' uses
+the sensor depth (RGB-D / oracle)."""
+
+
+def _run_config(args: argparse.Namespace):
+    """The effective ``VORunConfig``: defaults < --config < explicit options < --set."""
+    from ..apps.vo_run import VORunConfig
+
+    cfg = resolve_config(VORunConfig(), args.config_file, route="odometry")
+    explicit = {}
+    if args.resolution is not None:
+        explicit["resolution"] = parse_resolution(args.resolution)
+    if args.frontend is not None:
+        explicit["frontend"] = args.frontend
+    if args.no_progress:
+        explicit["progress"] = False
+    if args.sam_family is not None:
+        explicit["sam_family"] = args.sam_family
+    if args.normal_model is not None:
+        explicit["normal_model"] = args.normal_model
+    if explicit:
+        cfg = apply_overrides(cfg, explicit)
+    return resolve_config(cfg, sets=args.set, route="odometry")
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .vo_runner import VORunConfig, parse_resolution, run_dataset
+    from ..apps.vo_run import run_dataset
 
     kind, path = args.dataset
     if kind.lower() not in DATASET_KINDS:
         raise ValueError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
                          f"got {kind!r}")
-    cfg = VORunConfig(resolution=parse_resolution(args.resolution), frontend=args.frontend,
-                      progress=not args.no_progress, sam_family=args.sam_family,
-                      normal_model=args.normal_model)
+    cfg = _run_config(args)
     run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg)
     ate = run.ate()
     paths = run.save(args.out, ate=ate)
+    _add_run_config(Path(paths["report"]), cfg)
     for line in run.summary_lines(ate):
         print(line)
     n_clouds = len(paths.get("clouds") or [])
@@ -50,7 +74,18 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_run_config(report_path: Path, cfg) -> None:
+    """Add ``"run_config"`` (the ``VORunConfig`` without ``odometry``, which the
+    report already holds under ``"config"``) to the run's ``report.json``."""
+    from ..jsonio import json_default
+
+    report = json.loads(report_path.read_text(encoding="utf-8"))
+    report["run_config"] = {k: v for k, v in config_to_dict(cfg).items() if k != "odometry"}
+    report_path.write_text(json.dumps(report, indent=1, default=json_default), encoding="utf-8")
+
+
 def add_vo_cli(subparsers) -> argparse.ArgumentParser:
+    """Register ``spgeo vo`` on an argparse sub-parser collection."""
     p = subparsers.add_parser(
         "vo", help="monocular visual odometry on a data set -> trajectory, keyframes, ATE",
         description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -58,9 +93,9 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help=f"data-set kind ({', '.join(DATASET_KINDS)}) and sequence folder")
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
                    help="frame numbers A <= n < B, every STEP-th (default: all)")
-    p.add_argument("--resolution", default="160x120", metavar="WxH",
+    p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default 160x120)")
-    p.add_argument("--frontend", default="classical", choices=["classical", "onnx", "depth"],
+    p.add_argument("--frontend", default=None, choices=["classical", "onnx", "depth"],
                    help="classical (default, monocular), onnx (needs `spgeo models fetch`) or "
                         "depth (reads the sensor depth: RGB-D / oracle)")
     p.add_argument("--sam-family", default=None,
@@ -69,6 +104,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_config_arguments(p, "VORunConfig / OdometryConfig")
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")
     p.set_defaults(func=_run)

@@ -1,4 +1,4 @@
-"""``spgeo demo``: primify embedded data (a synthetic scene and the bundled TUM
+"""The ``spgeo demo`` application: primify embedded data (a synthetic scene and the bundled TUM
 fr1_desk frames), integrate, and report shape accuracy against ground truth
 after one scale per primitive; writes a picture and a point cloud.  Optional
 parts: few-view SfM, depth completion and visual odometry
@@ -17,8 +17,9 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
+from ..camera import PinholeCamera
+from ..frame import Frame, resize_frame
+from ..frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +41,7 @@ class DemoConfig:
         completion: also run zero-shot depth completion.
         vo: also run the visual odometry (:func:`run_vo_demo`; default True).
         vo_frames: frames of the rendered synthetic VO sequence (default 60,
-            i.e. 2 s at 30 fps of hand-held motion, about 0.7 m for seed 0).
+            i.e. 2 s at 30 fps of hand-held motion).
         vo_size: ``(width, height)`` of the VO input frames and front-end
             working size (pixels; default 160x120).
         vo_frontends: front-ends run on the synthetic VO sequence (default
@@ -131,7 +132,7 @@ class _ExactNormals:
 
 def _evaluate(scene: str, fe: PrimitiveFrontEnd, image, camera, depth_in, depth_gt,
               rows: List[DemoRow]):
-    from .evaluation.metrics import primitive_fit_errors
+    from ..evaluation.metrics import primitive_fit_errors
     import cv2
 
     t0 = time.perf_counter()
@@ -152,7 +153,7 @@ def _evaluate(scene: str, fe: PrimitiveFrontEnd, image, camera, depth_in, depth_
 def _picture(image, prims, gt, path: Path) -> None:
     import cv2
 
-    from .viz import colorize_depth, colorize_labels, colorize_normals, save_png, side_by_side
+    from ..viz import colorize_depth, colorize_labels, colorize_normals, save_png, side_by_side
 
     cam = prims.camera
     img = cv2.resize(np.asarray(image, np.float32), cam.size, interpolation=cv2.INTER_AREA)
@@ -173,8 +174,8 @@ def _picture(image, prims, gt, path: Path) -> None:
 
 def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
     """Run the demo; returns the accuracy table and the written files."""
-    from . import synthetic
-    from .datasets import load_bundled_tum
+    from .. import synthetic
+    from ..datasets import load_bundled_tum
 
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -206,13 +207,13 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
                               frame.depth, rows)
         if fe.name.startswith("depth"):
             best = (prims, gt)
-    _picture(cv2_resize_safe(frame.image), best[0], best[1], out / "tum_primitives.png")
+    _picture(frame.image, best[0], best[1], out / "tum_primitives.png")
     files["tum_png"] = str(out / "tum_primitives.png")
     prims, gt = best
     s, _ = prims.fit_log_scales(gt)
     keep = np.flatnonzero(np.isfinite(s))
     cloud = prims.subset(keep).with_log_scales(s[keep]).point_cloud(
-        cv2_resize_safe(frame.image, prims.camera.size))
+        resize_frame(frame, prims.camera.size).image)
     if frame.T_world_cam is not None:
         cloud = cloud.transformed(frame.T_world_cam)
     cloud.save_ply(out / "tum_primitives.ply")
@@ -233,10 +234,10 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
 def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: DemoResult) -> None:
     """Zero-shot depth completion from 150 sparse points at FAST keypoints (1% noise)
     against the two baselines, on the synthetic view and a bundled TUM frame."""
-    from .completion import complete_depth
-    from .evaluation.baselines_depth import (ip_basic_completion, linear_interpolation_completion,
-                                             oracle_frontend)
-    from .evaluation.void import keypoint_sparse_depth, void_metrics
+    from ..completion import complete_depth
+    from ..evaluation.baselines_depth import (ip_basic_completion, linear_interpolation_completion,
+                                              oracle_frontend)
+    from ..evaluation.void import keypoint_sparse_depth, void_metrics
 
     lines = [f"{'scene':12s} {'method':28s} {'MAE mm':>8s} {'RMSE mm':>8s} {'iMAE':>7s} "
              f"{'iRMSE':>7s}"]
@@ -262,7 +263,7 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
 
 
 def _rotation_errors(T_est: List[np.ndarray], T_gt: List[np.ndarray]) -> List[float]:
-    from .geometry import rotation_angle_deg
+    from ..geometry import rotation_angle_deg
 
     return [rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(T_est, T_gt)]
 
@@ -270,11 +271,11 @@ def _rotation_errors(T_est: List[np.ndarray], T_gt: List[np.ndarray]) -> List[fl
 def _demo_sfm(config: DemoConfig, scene, cam: PinholeCamera, seq, result: DemoResult) -> None:
     """Few-view SfM: a synthetic view set (7.5 deg, 5% baseline) and the bundled
     TUM frames 0 (reference), 4 and 8, against ground truth and SIFT two-view."""
-    from . import synthetic
-    from .geometry import relative_pose
-    from .sfm import SfMConfig, few_view_sfm
-    from .twoview import estimate_relative_pose
-    from .viz import colorize_depth, save_png, side_by_side
+    from .. import synthetic
+    from ..geometry import relative_pose
+    from ..sfm import SfMConfig, few_view_sfm
+    from ..twoview import estimate_relative_pose
+    from ..viz import colorize_depth, save_png, side_by_side
 
     T_ref, T_views = synthetic.make_view_set(scene, cam, 2, 7.5, 0.05, config.synthetic_seed)
     ref = scene.render(cam, T_ref, supersample=2)
@@ -295,7 +296,9 @@ def _demo_sfm(config: DemoConfig, scene, cam: PinholeCamera, seq, result: DemoRe
             res = few_view_sfm(ref_img, view_imgs, camera, fe, SfMConfig(marginals=False),
                                ref_depth=ref_depth if fe.uses_depth else None)
             dt = time.perf_counter() - t0
-            gt_d = _resize_nearest(ref_depth, res.camera.size)
+            small = resize_frame(Frame(ref_img, camera, 0.0, depth=ref_depth), res.camera.size,
+                                 keep_depth=True)
+            gt_d = small.depth
             ok = np.isfinite(res.depth) & np.isfinite(gt_d) & (gt_d > 0)
             med = float("nan")
             if ok.any():
@@ -306,7 +309,7 @@ def _demo_sfm(config: DemoConfig, scene, cam: PinholeCamera, seq, result: DemoRe
             if fe.name == "classical":
                 k = np.nanmedian(gt_d[ok] / res.depth[ok]) if ok.any() else 1.0
                 lo, hi = np.nanpercentile(gt_d[gt_d > 0], [2, 98]) if np.any(gt_d > 0) else (None, None)
-                pic = side_by_side([cv2_resize_safe(ref_img, res.camera.size),
+                pic = side_by_side([small.image,
                                     colorize_depth(res.depth * k, lo, hi), colorize_depth(gt_d, lo, hi)],
                                    ["reference", "SfM depth (median-scaled)", "ground truth"])
                 path = Path(config.out_dir) / f"{scene_name}_sfm.png"
@@ -339,7 +342,7 @@ class VORow:
         fps: frames per wall-clock second of the VO loop (resizing included;
             rendering / loading excluded).
         seconds: wall time of that loop (s).
-        out_dir: folder written by :meth:`spgeo.vo_runner.VORun.save`
+        out_dir: folder written by :meth:`spgeo.apps.vo_run.VORun.save`
             (trajectory, keyframes, status, report with the ATE, keyframe
             clouds) plus ``groundtruth.txt`` (TUM format).
     """
@@ -387,9 +390,9 @@ class VODemoResult:
 
 def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
             out_root: Path) -> VORow:
-    """One :func:`spgeo.vo_runner.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
-    from .evaluation.trajectory import write_tum
-    from .vo_runner import VORunConfig, run_odometry
+    """One :func:`spgeo.apps.vo_run.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
+    from ..io.tum import write_tum
+    from .vo_run import VORunConfig, run_odometry
 
     run = run_odometry(frames, VORunConfig(resolution=tuple(config.vo_size), frontend=frontend,
                                            progress=False))
@@ -435,7 +438,7 @@ def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODe
             generated from ``config.synthetic_seed``).
         tum: the bundled TUM sequence if already loaded.
     """
-    from . import synthetic
+    from .. import synthetic
 
     if config.vo_frames < 3:
         raise ValueError(f"DemoConfig.vo_frames must be >= 3, got {config.vo_frames}")
@@ -451,7 +454,7 @@ def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODe
             result.rows.append(_run_vo("synthetic", frames, fe, config, out_root))
     if config.vo_tum and config.vo_tum_frontends:
         if tum is None:
-            from .datasets import load_bundled_tum
+            from ..datasets import load_bundled_tum
 
             tum = load_bundled_tum()
         frames = list(tum)
@@ -461,17 +464,3 @@ def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODe
         result.files[f"vo_{Path(r.out_dir).name}"] = r.out_dir
     return result
 
-
-def _resize_nearest(depth: np.ndarray, size: Tuple[int, int]) -> np.ndarray:
-    import cv2
-
-    d = np.asarray(depth, np.float32)
-    return d if d.shape[::-1] == tuple(size) else cv2.resize(d, size, interpolation=cv2.INTER_NEAREST)
-
-
-def cv2_resize_safe(image: np.ndarray, size: Optional[Tuple[int, int]] = None) -> np.ndarray:
-    """Float copy of ``image``, resized to ``size`` (w, h) with area interpolation if given."""
-    import cv2
-
-    img = np.asarray(image, np.float32)
-    return img if size is None else cv2.resize(img, size, interpolation=cv2.INTER_AREA)

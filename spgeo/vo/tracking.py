@@ -1,8 +1,11 @@
 """Pose-only photometric tracking of a frame against a keyframe's primitives.
 
-The VO front-end (DESIGN.md §5) aligns every new frame to the latest keyframe
+(Over 500 lines: one job, the keyframe's batched pixels, the tracking cost
+with its Jacobian and the LM loop share the private per-level data.)
+
+The VO front-end (docs/design.md §5) aligns every new frame to the latest keyframe
 with the keyframe's primitive scales held fixed.  The cost minimised here is
-*exactly* the one of the factor graph (DESIGN.md §4): for every primitive
+*exactly* the one of the factor graph (docs/design.md §4): for every primitive
 ``i`` of the keyframe the :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor`
 of the pair (keyframe, frame) contributes ``0.5 |e_i|^2`` with
 
@@ -32,13 +35,6 @@ Pixel subsampling (``TrackerConfig.subsample``) keeps every ``s``-th lattice
 pixel along each axis at a level; it is a speed option that changes the cost
 (the per-primitive means are then taken over fewer pixels) and is off at the
 finest level by default.
-
-Speed: one LM iteration at 160x120 (~18k primitive pixels) costs ~1 ms
-(residuals) + ~0.8 ms (Jacobian); a frame 18-30 ms with the defaults
-(``subsample=(2, 1)``: ~18 ms, slightly less accurate), run
-with ``OPENBLAS_NUM_THREADS=1`` (as ``tests/conftest.py`` sets): with
-OpenBLAS's default threads the same tracking measured ~2x slower on the
-2-core machine (worker threads contend with the numpy main thread).
 """
 from __future__ import annotations
 
@@ -52,113 +48,17 @@ import numpy as np
 
 import gtsam
 
-from .camera import PinholeCamera
-from .factors.photometric import PhotometricConfig, robust_weights
-from .geometry import check_pose, invert_pose
-from .images import Pyramid, gaussian_pyramid, to_float_image, to_gray
-from .primitives import PrimitiveSet
+from ..camera import PinholeCamera
+from ..factors.photometric import robust_weights
+from ..geometry import check_pose, invert_pose
+from ..images import Pyramid, gaussian_pyramid, to_float_image, to_gray
+from ..primitives import PrimitiveSet
+from .config import TrackerConfig
 
 __all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame",
            "constant_velocity_guess", "TrackingCost"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Options of :func:`track_frame`.
-
-    Attributes:
-        levels: pyramid levels used, coarse-to-fine (default 3: 160x120 ->
-            40x30 coarsest).  Limited by the keyframe's pyramid.
-        iterations: maximum LM iterations per level, coarsest first (the last
-            value repeats for further levels); default ``(20, 12, 8)``.
-        photometric: per-pixel cost options, identical to the factors'
-            (:class:`PhotometricConfig`; default Huber 0.04, per-primitive
-            mean over valid pixels, behind-camera penalty 0.5).
-        brightness: estimate the frame's affine brightness ``(a, b)``
-            (``exp(-a) I_frame + b`` is compared with the keyframe).
-        brightness_prior_sigma: sigmas of the prior pulling ``(a, b)`` to
-            ``(0, 0)``, as :func:`spgeo.factors.priors.brightness_prior`;
-            None (default): no prior.  With the per-primitive mean cost the
-            contrast direction of ``(a, b)`` has a curvature of only about
-            ``N_primitives * var(I)`` (~4 for 200 primitives): the SfM
-            graph's ``(0.3, 0.3)`` (curvature 11) would pull a 0.8x gain
-            change most of the way back to 1 (measured: ``a`` = -0.03
-            instead of -0.22).
-        lm_lambda_initial: initial LM damping (multiplies ``diag(H)``).
-        lm_lambda_factor: damping multiplier on a rejected step / divisor
-            on an accepted one.
-        lm_lambda_max: a level stops when the damping exceeds this (no step
-            decreases the cost any more).
-        relative_cost_tol: a level stops when an accepted step decreases the
-            cost by less than this fraction (default 1e-3: against 1e-4,
-            ``bench_vo``'s tracking alone ran 1.3x faster with a median
-            translation error of 6.1 instead of 6.0 mm, and the 150-frame
-            synthetic VO runs, seeds 0-3, with level-0 mapping
-            (``vo_synthetic --set map_level=0 map_pixel_fraction=0.5``) kept
-            their mean per-frame ATE: 0.39 / 0.83 / 0.92 % against 0.38 /
-            0.82 / 0.92 % with 1e-4, depth / classical / planar).
-        rotation_tol: a level stops when a step (accepted or rejected) turns
-            by less than this (radians; default 5e-5, 0.003 deg) and moves by
-            less than ``translation_tol``.
-        translation_tol: translation step threshold as a fraction of the
-            keyframe's median depth (default 5e-5: 0.1 mm at 2 m).
-        min_level_pixels: primitives with fewer pixels at a level are left
-            out of that level (as :class:`spgeo.sfm.SfMConfig`; default 4).
-        subsample: extra pixel stride per level (level 0 first; the last
-            value repeats): at level ``l`` only pixels on the
-            ``2^l * subsample[l]`` lattice are used.  Default ``(1,)``: the
-            exact factor-graph cost at every level.
-        min_valid_fraction: status ``"lost"`` when fewer keyframe primitive
-            pixels (all of them, full resolution) project inside the frame at
-            the final pose (default 0.3).
-        max_relative_cost: status ``"lost"`` when the final photometric cost
-            exceeds this fraction of the cost of a featureless frame (every
-            residual ``mean(I_kf) - I_kf``, same valid pixels): default 0.35
-            (measured on synthetic 160x120 frames: tracked ~0.09; a different
-            scene or a 60-degree turn ~0.85, a blank or noise frame ~1).
-        max_cost_increase: with ``reference_cost`` given to
-            :func:`track_frame` (e.g. the previous frame's final cost against
-            the same keyframe), status ``"lost"`` when the final cost exceeds
-            ``max_cost_increase * reference_cost`` (default 10).
-    """
-
-    levels: int = 3
-    iterations: Tuple[int, ...] = (20, 12, 8)
-    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
-    brightness: bool = True
-    brightness_prior_sigma: Optional[Tuple[float, float]] = None
-    lm_lambda_initial: float = 1e-4
-    lm_lambda_factor: float = 10.0
-    lm_lambda_max: float = 1e5
-    relative_cost_tol: float = 1e-3
-    rotation_tol: float = 5e-5
-    translation_tol: float = 5e-5
-    min_level_pixels: int = 4
-    subsample: Tuple[int, ...] = (1,)
-    min_valid_fraction: float = 0.3
-    max_relative_cost: float = 0.35
-    max_cost_increase: float = 10.0
-
-    def __post_init__(self) -> None:
-        if self.levels < 1:
-            raise ValueError(f"TrackerConfig.levels must be >= 1, got {self.levels}")
-        if not self.iterations or any(int(i) < 0 for i in self.iterations):
-            raise ValueError("TrackerConfig.iterations must be a non-empty tuple of counts >= 0")
-        if not self.subsample or any(int(s) < 1 for s in self.subsample):
-            raise ValueError("TrackerConfig.subsample must be a non-empty tuple of strides >= 1")
-        if self.brightness_prior_sigma is not None and (
-                len(self.brightness_prior_sigma) != 2
-                or not all(s > 0 for s in self.brightness_prior_sigma)):
-            raise ValueError("TrackerConfig.brightness_prior_sigma must be None or two sigmas > 0")
-        if not (self.lm_lambda_initial > 0 and self.lm_lambda_factor > 1 and self.lm_lambda_max > 0):
-            raise ValueError("TrackerConfig: LM damping parameters must be positive "
-                             "(lambda_factor > 1)")
-        if not 0 <= self.min_valid_fraction <= 1:
-            raise ValueError("TrackerConfig.min_valid_fraction must be in [0, 1]")
-        if not self.max_relative_cost > 0 or not self.max_cost_increase > 0:
-            raise ValueError("TrackerConfig.max_relative_cost and max_cost_increase must be > 0")
 
 
 # ====================================================================== keyframe

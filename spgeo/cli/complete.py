@@ -3,9 +3,12 @@
 
     spgeo complete --rgb IMG --sparse SPARSE --intrinsics fx,fy,cx,cy --out DEPTH.png
                    [--frontend classical|onnx] [--method median|joint]
+                   [--config FILE] [--set FIELD=VALUE ...]
 
 ``SPARSE`` is a 16-bit PNG in millimetres (0 = missing) or a ``.npy`` array in
 metres (0 / NaN = missing); the output is a 16-bit PNG in millimetres.
+``--config`` / ``--set`` set ``CompletionConfig`` fields (``--method``
+overrides ``--config``; ``--set`` overrides both).
 """
 from __future__ import annotations
 
@@ -14,20 +17,11 @@ import os
 
 import numpy as np
 
-from .datasets.common import read_depth_png
+from ..datasets.common import read_depth_png
+from .args import parse_intrinsics
+from .config import add_config_arguments, apply_overrides, resolve_config
 
-__all__ = ["add_complete_cli", "read_sparse_depth", "write_depth_png_mm", "parse_intrinsics"]
-
-
-def parse_intrinsics(text: str):
-    """``"fx,fy,cx,cy"`` -> 4 floats (ValueError otherwise)."""
-    parts = [p for p in str(text).replace(" ", "").split(",") if p]
-    if len(parts) != 4:
-        raise ValueError(f"--intrinsics must be fx,fy,cx,cy, got {text!r}")
-    try:
-        return tuple(float(p) for p in parts)
-    except ValueError:
-        raise ValueError(f"--intrinsics must be four numbers fx,fy,cx,cy, got {text!r}") from None
+__all__ = ["add_complete_cli", "read_sparse_depth", "write_depth_png_mm"]
 
 
 def read_sparse_depth(path: str) -> np.ndarray:
@@ -54,25 +48,36 @@ def write_depth_png_mm(path: str, depth: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
+def _completion_config(args: argparse.Namespace):
+    """The effective ``CompletionConfig``: defaults < --config < --method < --set."""
+    from ..completion import CompletionConfig
+
+    cfg = resolve_config(CompletionConfig(), args.config_file)
+    if args.method is not None:
+        cfg = apply_overrides(cfg, {"method": args.method})
+    return resolve_config(cfg, sets=args.set)
+
+
 def _cmd_complete(args: argparse.Namespace) -> int:
-    from .camera import PinholeCamera
-    from .completion import CompletionConfig, complete_depth
-    from .images import load_image
+    from ..camera import PinholeCamera
+    from ..completion import complete_depth
+    from ..images import load_image
 
     if not args.out.lower().endswith(".png"):
         raise ValueError(f"--out must be a .png file, got {args.out!r}")
+    cfg = _completion_config(args)
     image = load_image(args.rgb)
     fx, fy, cx, cy = parse_intrinsics(args.intrinsics)
     cam = PinholeCamera(fx, fy, cx, cy, image.shape[1], image.shape[0])
     sparse = read_sparse_depth(args.sparse)
-    res = complete_depth(image, sparse, cam, args.frontend, CompletionConfig(method=args.method))
+    res = complete_depth(image, sparse, cam, args.frontend, cfg)
     write_depth_png_mm(args.out, res.depth)
     print(res.summary())
     print(f"wrote {args.out} (16-bit PNG, millimetres)")
     return 0
 
 
-def add_complete_cli(subparsers) -> None:
+def add_complete_cli(subparsers) -> argparse.ArgumentParser:
     """Register ``spgeo complete`` on an argparse sub-parser collection."""
     p = subparsers.add_parser(
         "complete", help="zero-shot depth completion: image + sparse depth -> dense depth",
@@ -85,6 +90,8 @@ def add_complete_cli(subparsers) -> None:
     p.add_argument("--out", required=True, help="output depth, 16-bit PNG in millimetres")
     p.add_argument("--frontend", default="classical", choices=("classical", "onnx"),
                    help="primitive front-end (default classical; onnx needs 'spgeo models fetch')")
-    p.add_argument("--method", default="median", choices=("median", "joint"),
+    p.add_argument("--method", default=None, choices=("median", "joint"),
                    help="per-primitive scale: robust median (default) or joint GTSAM solve")
+    add_config_arguments(p, "CompletionConfig")
     p.set_defaults(func=_cmd_complete)
+    return p

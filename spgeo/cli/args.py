@@ -1,17 +1,17 @@
-"""Command-line wiring shared by ``spgeo`` and the ``spgeo.evaluation`` tools:
-the ``--dataset KIND PATH`` / ``--frames`` / ``-v`` arguments, logging set-up
-and the ``WIDTHxHEIGHT`` resolution parser (argparse only; no computation)."""
+"""Command-line arguments shared by ``spgeo`` and the ``spgeo.evaluation`` tools:
+``--dataset KIND PATH`` / ``--frames`` / ``-v``, logging set-up, and the
+``WIDTHxHEIGHT`` resolution and ``fx,fy,cx,cy`` intrinsics parsers (argparse
+only; no computation)."""
 from __future__ import annotations
 
 import argparse
 import logging
 from typing import Optional, Tuple
 
-__all__ = ["DATASET_KINDS", "add_dataset_arguments", "add_verbose_argument", "setup_logging",
-           "parse_resolution"]
+from ..datasets import DATASET_KINDS
 
-DATASET_KINDS = ("tum", "7scenes", "icl", "folder")
-"""Data-set kinds of :func:`spgeo.datasets.open_dataset` offered on the command line."""
+__all__ = ["DATASET_KINDS", "add_dataset_arguments", "add_verbose_argument", "setup_logging",
+           "parse_resolution", "parse_intrinsics"]
 
 _NATIVE = ("native", "none", "full")
 
@@ -58,3 +58,14 @@ def parse_resolution(text: str, allow_native: bool = False,
         raise ValueError(f"invalid resolution {text!r}: width and height must be >= "
                          f"{min_size} pixels")
     return w, h
+
+
+def parse_intrinsics(text: str) -> Tuple[float, float, float, float]:
+    """``"fx,fy,cx,cy"`` (pixels) -> four floats; ``ValueError`` otherwise."""
+    parts = [p for p in str(text).replace(" ", "").split(",") if p]
+    if len(parts) != 4:
+        raise ValueError(f"--intrinsics must be fx,fy,cx,cy, got {text!r}")
+    try:
+        return tuple(float(p) for p in parts)  # type: ignore[return-value]
+    except ValueError:
+        raise ValueError(f"--intrinsics must be four numbers fx,fy,cx,cy, got {text!r}") from None

@@ -1,5 +1,5 @@
 """Z-buffered rendering of primitives into another camera, and keyframe scale
-re-initialisation from rendered depth (DESIGN.md §5, VO: "New KF depth").
+re-initialisation from rendered depth (docs/design.md §5, VO: "New KF depth").
 
 A new keyframe's primitives have unknown log-scales; the previous keyframes'
 geometry, rendered into the new keyframe, gives each primitive the median of
@@ -13,9 +13,9 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .geometry import transform_points
-from .primitives import PrimitiveSet
+from ..camera import PinholeCamera
+from ..geometry import transform_points
+from ..primitives import PrimitiveSet
 
 __all__ = ["render_depth", "render_primitives", "init_scales_from_render", "ScaleInit"]
 
@@ -50,7 +50,7 @@ def render_primitives(sources: Sequence[Tuple[PrimitiveSet, np.ndarray]], camera
                       T_world_cam: np.ndarray, splat: int = 1) -> np.ndarray:
     """Render several primitive sets, each with its ``T_world_src`` pose
     (camera-to-world), into a camera at ``T_world_cam``; z-buffered depth (metres)."""
-    from .geometry import invert_pose
+    from ..geometry import invert_pose
 
     T_cam_world = invert_pose(T_world_cam)
     clouds = [transform_points(T_cam_world @ np.asarray(T_ws, float), prims.point_cloud().points)

@@ -1,5 +1,6 @@
-"""Batch runner of the monocular VO (:class:`spgeo.odometry.Odometry`) over a
-frame sequence or a data set, with Sim(3) ATE against the ground truth.
+"""Batch runner of the monocular VO (:class:`spgeo.vo.Odometry`) over a
+frame sequence or a data set, with Sim(3) ATE against the ground truth
+(an application: the ATE comes from :mod:`spgeo.evaluation.trajectory`).
 
 * :func:`run_odometry`: frames (any iterable of :class:`~spgeo.frame.Frame`)
   -> :class:`VORun`.  Every image is resized to ``VORunConfig.resolution``
@@ -10,6 +11,8 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth.
 * :func:`run_dataset`: the same on a data set opened with
   :func:`spgeo.datasets.open_dataset`, with ``load_depth=False`` for a
   monocular front-end (the depth files are not even opened).
+* :func:`run_vo`: :func:`run_odometry` returning ``(odometry, ground truth,
+  FPS)`` (the former ``spgeo.evaluation.vo_run.run_vo``).
 * :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
   ``evo_ape -as`` equivalent) over the frames not flagged ``"lost"``.
 * :meth:`VORun.save`: ``trajectory.txt`` (every processed frame, TUM format,
@@ -35,14 +38,14 @@ from typing import Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
-from .cli_args import parse_resolution  # noqa: F401  (re-exported)
-from .frame import Frame
-from .jsonio import json_default
-from .frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
-from .odometry import Odometry, OdometryConfig, OdometryResult
+from ..cli.args import parse_resolution  # noqa: F401  (re-exported)
+from ..frame import Frame
+from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from ..jsonio import json_default
+from ..vo import Odometry, OdometryConfig, OdometryResult
 
-__all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "make_vo_frontend",
-           "parse_resolution"]
+__all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
+           "parse_resolution", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +66,7 @@ class VORunConfig:
             (normals and initial scales from the sensor depth: RGB-D / oracle)
             or ``"onnx"`` (SAM + normal network; models from
             ``spgeo models fetch``).  Ignored when a built front-end is given.
-        odometry: :class:`~spgeo.odometry.OdometryConfig` of the VO.
+        odometry: :class:`~spgeo.vo.OdometryConfig` of the VO.
         progress: show a tqdm progress bar with live FPS (default True).
         sam_family: ``onnx`` only: SAM registry family (default None: the
             registry default, ``efficientsam-vitt``).
@@ -115,7 +118,7 @@ class VORun:
     """Outcome of :func:`run_odometry`.
 
     Attributes:
-        odometry: the :class:`~spgeo.odometry.Odometry` after the last frame
+        odometry: the :class:`~spgeo.vo.Odometry` after the last frame
             (trajectory, keyframes, :meth:`Odometry.save`).
         gt_poses: per processed frame, the ground-truth camera-to-world 4x4
             ``T_world_cam`` (data-set world, metres) or None where absent.
@@ -127,7 +130,7 @@ class VORun:
         fps: processed frames per wall-clock second (``n / wall_seconds``).
         config: the :class:`VORunConfig` used.
         keyframe_images: keyframe index -> the resized RGB image (float32
-            [0, 1]) the keyframe was made from (colours of the point clouds).
+            [0, 1]) the keyframe was made from.
     """
 
     odometry: Odometry
@@ -165,7 +168,7 @@ class VORun:
         fewer than 3 keyframes), or None when no frame has ground truth or
         fewer than 3 poses can be evaluated (logged).
         """
-        from .evaluation.trajectory import ate_per_frame_and_keyframes
+        from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 
         if not self.has_ground_truth:
             return None
@@ -233,17 +236,15 @@ class VORun:
 
         Files: :meth:`Odometry.save`'s ``trajectory.txt`` (every processed
         frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
-        ``keyframes.txt``, ``trajectory.status.txt`` and ``report.json``, to
-        which this adds ``"run"`` (resolution, front-end, wall time, FPS) and,
-        with ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`);
-        keyframe point clouds (world frame, PLY) in ``clouds/`` when
-        :meth:`Odometry.save` does not write them itself.  ``ate``: a result
-        of :meth:`ate` to reuse.  Returns the paths (``"clouds"``: a list).
+        ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
+        keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
+        ``"run"`` (resolution, front-end, wall time, FPS) and, with
+        ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
+        report.  ``ate``: a result of :meth:`ate` to reuse.  Returns the
+        paths (``"clouds"``: a list).
         """
         out = Path(directory)
         paths: Dict[str, object] = dict(self.odometry.save(out))
-        if "clouds" not in paths:
-            paths["clouds"] = self._write_clouds(out / "clouds")
         report_path = Path(paths["report"])  # type: ignore[arg-type]
         report = json.loads(report_path.read_text(encoding="utf-8"))
         w, h = self.config.resolution
@@ -258,33 +259,17 @@ class VORun:
                                encoding="utf-8")
         return paths
 
-    def _write_clouds(self, folder: Path) -> List[Path]:
-        """One PLY per keyframe (world frame = keyframe 0's camera, VO units)."""
-        import cv2
-
-        folder.mkdir(parents=True, exist_ok=True)
-        written: List[Path] = []
-        for k, kf in enumerate(self.odometry.keyframes):
-            cam = kf.primitives.camera
-            img = self.keyframe_images.get(k)
-            if img is not None and img.shape[:2] != cam.shape:
-                img = cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
-            if img is None:
-                img = kf.pyramid.images[0]
-            cloud = kf.primitives.point_cloud(img).transformed(kf.T_world_kf)
-            path = folder / f"keyframe_{k:04d}.ply"
-            cloud.save_ply(path)
-            written.append(path)
-        return written
-
 
 def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
                   index: int) -> Frame:
+    """``frame`` resized to ``size`` for the VO (not :func:`spgeo.frame.resize_frame`:
+    no undistortion, ``camera`` given, no ground truth or meta, depth only with
+    ``use_depth`` and a ``ValueError`` naming the frame when it is missing)."""
     import cv2
 
     image = np.asarray(frame.image)
     if image.dtype != np.float32:
-        from .images import to_float_image
+        from ..images import to_float_image
 
         image = to_float_image(image)
     if (image.shape[1], image.shape[0]) != tuple(size):
@@ -400,7 +385,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
     from the reader (missing folder, empty selection, ...).
     """
-    from .datasets import open_dataset
+    from ..datasets import open_dataset
 
     fe = frontend if frontend is not None else make_vo_frontend(config)
     opts = dict(reader_options)
@@ -412,3 +397,16 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
     log.info("VO on %s (%s): %d frames, camera %r", seq.name, kind, len(seq), seq.camera)
     return run_odometry(seq, config, fe, n_frames=len(seq))
+
+
+def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (160, 120),
+           frontend: str = "classical", config: OdometryConfig = OdometryConfig(),
+           progress: bool = True) -> Tuple[Odometry, List[Optional[np.ndarray]], float]:
+    """VO over a frame sequence resized to ``resolution`` (width, height pixels).
+
+    Returns ``(odometry, ground-truth camera-to-world poses (None per frame
+    without), frames per wall-clock second)``; see :func:`run_odometry`.
+    """
+    run = run_odometry(frames, VORunConfig(resolution=tuple(resolution), frontend=frontend,
+                                           odometry=config, progress=progress))
+    return run.odometry, run.gt_poses, run.fps

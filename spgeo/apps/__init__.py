@@ -1,0 +1,1 @@
+"""Applications built on the spgeo core: the demo and batch runners (may use spgeo.evaluation)."""

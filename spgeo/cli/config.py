@@ -1,0 +1,257 @@
+"""Config dataclasses from the command line: ``--config FILE`` (TOML, or YAML
+when PyYAML is installed) and ``--set FIELD=VALUE`` overrides (nested fields
+with dots: ``tracker.relative_cost_tol=1e-4``), applied to frozen or plain
+dataclass instances with :func:`dataclasses.replace`.
+
+Every error is a :class:`ConfigError` (a ``ValueError``) with a one-line
+message naming the offending field or file.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import typing
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
+
+__all__ = ["ConfigError", "parse_value", "parse_assignments", "flatten", "apply_overrides",
+           "load_config_file", "config_to_dict", "resolve_config", "add_config_arguments"]
+
+Overrides = Union[Mapping[str, Any], Iterable[str]]
+
+
+class ConfigError(ValueError):
+    """A bad ``--set`` / ``--config`` entry (unknown field, wrong type, unreadable file)."""
+
+
+def parse_value(text: str) -> Any:
+    """A Python literal (``1e-4``, ``None``, ``(1, 2)``, ``'x'``, ``True``) or,
+    when ``text`` is not one, the stripped string itself."""
+    s = text.strip()
+    try:
+        return ast.literal_eval(s)
+    except (ValueError, SyntaxError, MemoryError, RecursionError):
+        return s
+
+
+def parse_assignments(items: Iterable[str]) -> Dict[str, Any]:
+    """``["a=1", "b.c=x"]`` -> ``{"a": 1, "b.c": "x"}`` (dotted keys, values
+    by :func:`parse_value`, later items win); ``ConfigError`` for an item
+    without ``=`` or with an empty field name."""
+    out: Dict[str, Any] = {}
+    for item in items:
+        key, sep, val = str(item).partition("=")
+        path = [k.strip() for k in key.split(".")]
+        if not sep or not all(path):
+            raise ConfigError(f"--set expects FIELD=VALUE (e.g. window=7), got {item!r}")
+        out[".".join(path)] = parse_value(val)
+    return out
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "") -> Dict[str, Any]:
+    """Nested mapping -> dotted keys: ``{"a": {"b": 1}}`` -> ``{"a.b": 1}``."""
+    out: Dict[str, Any] = {}
+    for key, val in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(val, Mapping):
+            out.update(flatten(val, name + "."))
+        else:
+            out[name] = val
+    return out
+
+
+def _as_dotted(overrides: Overrides) -> Dict[str, Any]:
+    if isinstance(overrides, Mapping):
+        return flatten(overrides)
+    if isinstance(overrides, str):
+        return parse_assignments([overrides])
+    return parse_assignments(overrides)
+
+
+def _field_hints(obj: Any) -> Dict[str, Any]:
+    try:
+        return typing.get_type_hints(type(obj))
+    except Exception:       # unresolvable annotation: no type information
+        return {}
+
+
+def _allows_none(hint: Any) -> bool:
+    if hint is None or hint is Any:
+        return True
+    return type(None) in typing.get_args(hint)
+
+
+def _coerce(name: str, value: Any, current: Any, hint: Any) -> Any:
+    """``value`` checked against the field's current value (and its annotation for None)."""
+    def bad(expected: str) -> ConfigError:
+        return ConfigError(f"field {name!r} expects {expected}, got {value!r}")
+
+    if value is None:
+        if current is None or _allows_none(hint):
+            return None
+        raise bad(f"a {type(current).__name__} (not None)")
+    if current is None:
+        return tuple(value) if isinstance(value, list) else value
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise bad("True or False")
+        return value
+    if isinstance(current, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad("an integer")
+        return value
+    if isinstance(current, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad("a number")
+        return float(value)
+    if isinstance(current, str):
+        if not isinstance(value, str):
+            raise bad("a string")
+        return value
+    if isinstance(current, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise bad("a tuple, e.g. (1, 2)")
+        return tuple(value)
+    return value
+
+
+def _valid_fields(obj: Any, prefix: str = "") -> List[str]:
+    out = []
+    for f in dataclasses.fields(obj):
+        sub = getattr(obj, f.name)
+        if dataclasses.is_dataclass(sub) and not isinstance(sub, type):
+            out.append(f"{prefix}{f.name}.*")
+        else:
+            out.append(f"{prefix}{f.name}")
+    return out
+
+
+def _set(obj: Any, path: Sequence[str], value: Any, done: str) -> Any:
+    """``obj`` with the field at ``path`` replaced (recursively for nested dataclasses)."""
+    name = path[0]
+    full = f"{done}{name}"
+    names = {f.name for f in dataclasses.fields(obj) if f.init}
+    if name not in names:
+        raise ConfigError(f"unknown field {full!r} of {type(obj).__name__}; valid fields: "
+                          f"{', '.join(_valid_fields(obj, done))}")
+    current = getattr(obj, name)
+    nested = dataclasses.is_dataclass(current) and not isinstance(current, type)
+    if len(path) > 1:
+        if not nested:
+            raise ConfigError(f"field {full!r} of {type(obj).__name__} has no sub-fields "
+                              f"(cannot set {done}{'.'.join(path)})")
+        new = _set(current, path[1:], value, full + ".")
+    elif nested:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"field {full!r} is a {type(current).__name__}: set its "
+                              f"sub-fields ({full}.FIELD=VALUE)")
+        new = current
+        for key, val in flatten(value).items():
+            new = _set(new, key.split("."), val, full + ".")
+    else:
+        new = _coerce(full, value, current, _field_hints(obj).get(name))
+    try:
+        return dataclasses.replace(obj, **{name: new})
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{full}: {exc}") from None
+
+
+def apply_overrides(config: Any, overrides: Overrides, route: Optional[str] = None) -> Any:
+    """A copy of the dataclass instance ``config`` with ``overrides`` applied.
+
+    Args:
+        config: a dataclass instance (nested dataclass fields are reached with
+            dotted names).
+        overrides: ``["field=value", "sub.field=value", ...]`` (values parsed
+            by :func:`parse_value`) or a mapping, nested or with dotted keys
+            (e.g. from :func:`load_config_file`).  Later entries win.
+        route: name of a nested-dataclass field of ``config`` that receives
+            every key whose first part is not a field of ``config`` (``vo``:
+            ``"odometry"``, so ``window=7`` means ``odometry.window=7``).
+
+    Values must match the field's current type (an int is accepted for a
+    float field, a list for a tuple field; None only for optional fields).
+    Raises ``ConfigError`` naming an unknown field and listing the valid ones.
+    """
+    top = {f.name for f in dataclasses.fields(config)}
+    out = config
+    for key, value in _as_dotted(overrides).items():
+        path = key.split(".")
+        if route is not None and path[0] not in top:
+            sub = getattr(config, route)
+            if path[0] not in {f.name for f in dataclasses.fields(sub)}:
+                raise ConfigError(
+                    f"unknown field {key!r}; valid fields: "
+                    f"{', '.join(_valid_fields(config) + _valid_fields(sub))}")
+            path = [route] + path
+        out = _set(out, path, value, "")
+    return out
+
+
+def load_config_file(path: Union[str, Path]) -> Dict[str, Any]:
+    """A ``.toml`` file (``tomllib``) or a ``.yaml`` / ``.yml`` file (PyYAML,
+    if installed) -> its top-level table as a dict.  ``ConfigError`` for a
+    missing or unparsable file, another suffix, or YAML without PyYAML."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file not found: {p}")
+    suffix = p.suffix.lower()
+    if suffix == ".toml":
+        import tomllib
+
+        try:
+            data = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot parse {p}: {exc}") from None
+    elif suffix in (".yaml", ".yml"):
+        try:
+            import yaml
+        except ImportError:
+            raise ConfigError(f"cannot read {p}: YAML needs PyYAML (pip install pyyaml); "
+                              f"or write the config as TOML") from None
+        try:
+            data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot parse {p}: {' '.join(str(exc).split())}") from None
+        data = {} if data is None else data
+    else:
+        raise ConfigError(f"config file {p} must end in .toml, .yaml or .yml")
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {p} must hold a table of FIELD = VALUE entries")
+    return data
+
+
+def config_to_dict(config: Any) -> Dict[str, Any]:
+    """A dataclass instance as a JSON-ready nested dict (tuples become lists)."""
+    def plain(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(dataclasses.asdict(config))
+
+
+def resolve_config(config: Any, config_file: Optional[str] = None,
+                   sets: Sequence[str] = (), route: Optional[str] = None) -> Any:
+    """``config`` with ``config_file`` (:func:`load_config_file`) and then
+    ``sets`` (``FIELD=VALUE`` strings; they override the file) applied by
+    :func:`apply_overrides`."""
+    if config_file:
+        config = apply_overrides(config, load_config_file(config_file), route)
+    if sets:
+        config = apply_overrides(config, list(sets), route)
+    return config
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--config FILE`` and ``--set FIELD=VALUE ...`` (dest ``config_file`` /
+    ``set``); ``what`` names the config class in the help."""
+    parser.add_argument("--config", dest="config_file", default=None, metavar="FILE",
+                        help=f"{what} fields from a TOML (or YAML) file")
+    parser.add_argument("--set", dest="set", nargs="+", action="extend", default=[],
+                        metavar="FIELD=VALUE",
+                        help=f"{what} field overrides, Python literals or plain strings "
+                             f"(nested: a.b=1); override --config")

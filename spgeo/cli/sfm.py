@@ -1,0 +1,99 @@
+"""``spgeo sfm``: argument wiring for :func:`spgeo.sfm.few_view_sfm`.
+
+    spgeo sfm --ref IMG --views IMG [IMG ...] --intrinsics fx,fy,cx,cy --out DIR
+              [--frontend classical|onnx] [--shape-model scaled|planar]
+              [--init twoview|identity] [--config FILE] [--set FIELD=VALUE ...]
+
+Writes ``DIR/poses.txt`` (one line per image: ``name tx ty tz qx qy qz qw``,
+camera-to-reference, the reference at identity, translation in the
+reconstruction's unknown scale), ``DIR/depth.npy`` (float32 reference depth at
+the reference image's size), ``DIR/cloud.ply`` and ``DIR/report.json`` (the
+effective ``SfMConfig`` under ``"config"``).  Exit code 0 when the SfM status
+is ok, 3 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..jsonio import json_default
+from .args import parse_intrinsics
+from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
+
+__all__ = ["add_sfm_cli"]
+
+
+def _sfm_config(args: argparse.Namespace):
+    """The effective ``SfMConfig``: defaults < --config < explicit options < --set."""
+    from ..sfm import SfMConfig
+
+    cfg = resolve_config(SfMConfig(), args.config_file)
+    explicit = {k: v for k, v in (("shape_model", args.shape_model), ("init", args.init))
+                if v is not None}
+    if explicit:
+        cfg = apply_overrides(cfg, explicit)
+    return resolve_config(cfg, sets=args.set)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..camera import PinholeCamera
+    from ..frame import Frame, resize_frame
+    from ..geometry import pose_to_tum
+    from ..images import load_image
+    from ..sfm import few_view_sfm
+
+    cfg = _sfm_config(args)
+    ref = load_image(args.ref)
+    views = [load_image(p) for p in args.views]
+    fx, fy, cx, cy = parse_intrinsics(args.intrinsics)
+    cam = PinholeCamera(fx, fy, cx, cy, ref.shape[1], ref.shape[0])
+    for p, v in zip(args.views, views):
+        if v.shape[:2] != ref.shape[:2]:
+            raise ValueError(f"{p} is {v.shape[1]}x{v.shape[0]}, the reference is "
+                             f"{ref.shape[1]}x{ref.shape[0]}: all images must share one camera")
+    res = few_view_sfm(ref, views, cam, args.frontend, cfg)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "poses.txt", "w") as fh:
+        names = [Path(args.ref).name] + [Path(p).name for p in args.views]
+        for name, T in zip(names, [np.eye(4)] + res.T_ref_view):
+            fh.write(name + " " + " ".join(f"{x:.9f}" for x in pose_to_tum(T)) + "\n")
+    depth = res.depth
+    if depth.shape != ref.shape[:2]:    # back to the reference size, nearest neighbour
+        import cv2
+
+        depth = cv2.resize(depth.astype(np.float32), cam.size, interpolation=cv2.INTER_NEAREST)
+    np.save(out / "depth.npy", depth.astype(np.float32))
+    colours = resize_frame(Frame(ref, cam, 0.0), res.camera.size).image
+    res.point_cloud(colours).save_ply(out / "cloud.ply")
+    report = {"status": res.status, "view_status": res.view_status,
+              "log_scale_std_median": float(np.nanmedian(res.log_scale_std))
+              if np.any(np.isfinite(res.log_scale_std)) else None,
+              "pose_covariances": [None if c is None else c.tolist() for c in res.pose_covariances],
+              **{k: v for k, v in res.report.items()}, "config": config_to_dict(cfg)}
+    with open(out / "report.json", "w") as fh:
+        json.dump(report, fh, indent=2, default=json_default)
+    print(f"status: {res.status}  ({', '.join(res.view_status)})")
+    print(f"wrote {out / 'poses.txt'}, depth.npy, cloud.ply, report.json")
+    return 0 if res.ok else 3
+
+
+def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
+    """Register ``spgeo sfm`` on an argparse sub-parser collection."""
+    p = subparsers.add_parser("sfm", help="few-view SfM: reference + unposed views -> poses, depth")
+    p.add_argument("--ref", required=True, help="reference image")
+    p.add_argument("--views", required=True, nargs="+", help="supporting images (same camera)")
+    p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels (undistorted)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--frontend", default="classical", choices=["classical", "onnx"],
+                   help="front-end (default classical; onnx needs `spgeo models fetch`)")
+    p.add_argument("--shape-model", default=None, choices=["scaled", "planar"],
+                   help="SfMConfig.shape_model (default scaled)")
+    p.add_argument("--init", default=None, choices=["twoview", "identity"],
+                   help="SfMConfig.init (default twoview)")
+    add_config_arguments(p, "SfMConfig")
+    p.set_defaults(func=_run)
+    return p

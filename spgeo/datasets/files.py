@@ -1,0 +1,182 @@
+"""Files of the data sets: colour images, uint16 depth PNGs, camera JSON,
+whitespace matrices, 4x4 pose files, timestamps, numbered frame files.
+
+Every reader raises ``FileNotFoundError`` / ``ValueError`` with a message naming
+the file (and line, for text files).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+from pathlib import Path
+from typing import Dict, Optional, Sequence, Union
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..images import load_image
+
+__all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
+           "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
+           "parse_stamp", "check_increasing"]
+
+logger = logging.getLogger(__name__)
+
+PathLike = Union[str, os.PathLike]
+
+
+def read_matrix_file(path: PathLike, shape) -> np.ndarray:
+    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    try:
+        values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
+    except ValueError as exc:
+        raise ValueError(f"malformed matrix file {path}: {exc}") from None
+    if values.size != int(np.prod(shape)):
+        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
+                         f"({shape[0]}x{shape[1]}), got {values.size}")
+    return values.reshape(shape)
+
+
+def index_frame_files(folder: Path, pattern: "re.Pattern", what: str) -> Dict[int, Path]:
+    """Files of ``folder`` whose name matches ``pattern`` (group 1 = frame
+    number) -> ``{frame number: path}``.  Two files for one number raise
+    ``ValueError`` naming both."""
+    found: Dict[int, Path] = {}
+    for p in folder.iterdir():
+        m = pattern.match(p.name)
+        if m:
+            n = int(m.group(1))
+            if n in found:
+                raise ValueError(f"{folder}: frame {n} has two {what} "
+                                 f"({found[n].name}, {p.name})")
+            found[n] = p
+    return found
+
+
+def parse_stamp(tok: str, path: Path, lineno: int) -> float:
+    """A finite timestamp from ``tok``; ``ValueError`` naming ``path:lineno`` otherwise."""
+    try:
+        t = float(tok)
+    except ValueError:
+        raise ValueError(f"{path}:{lineno}: malformed timestamp {tok!r}") from None
+    if not np.isfinite(t):
+        raise ValueError(f"{path}:{lineno}: timestamp {tok!r} is not finite")
+    return t
+
+
+def check_increasing(stamps: Sequence[float], linenos: Sequence[int], path: Path) -> None:
+    """``ValueError`` naming ``path`` and the line of the first stamp not greater
+    than its predecessor."""
+    for k in range(1, len(stamps)):
+        if not stamps[k] > stamps[k - 1]:
+            raise ValueError(f"{path}:{linenos[k]}: timestamps are not strictly increasing "
+                             f"({stamps[k]:.6f} after {stamps[k - 1]:.6f})")
+
+
+def read_rgb(path: PathLike, camera: Optional[PinholeCamera] = None) -> np.ndarray:
+    """Read a colour image as float32 RGB (H, W, 3) in [0, 1].
+
+    Grey files are replicated to three channels.  Raises ``FileNotFoundError``
+    for a missing file, ``ValueError`` for an undecodable one or (with
+    ``camera``) a size that does not match the camera; messages name the file.
+    """
+    image = load_image(path)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    if camera is not None and image.shape[:2] != camera.shape:
+        raise ValueError(f"image {os.fspath(path)} has shape {image.shape}, expected "
+                         f"({camera.height}, {camera.width}, 3) for {camera!r}")
+    return np.ascontiguousarray(image, dtype=np.float32)
+
+
+def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera] = None,
+                   invalid_values: Sequence[int] = (0,), dtype=np.float32) -> np.ndarray:
+    """Read a uint16 depth PNG as metres (``raw / scale``, in ``dtype``), NaN where invalid.
+
+    ``invalid_values`` are raw values meaning "no measurement" (0 by default).
+    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
+    """
+    import cv2
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"depth file not found: {path}")
+    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ValueError(f"cannot decode depth file: {path}")
+    if raw.ndim != 2 or raw.dtype != np.uint16:
+        raise ValueError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
+                         f"got shape {raw.shape} dtype {raw.dtype}")
+    if camera is not None and raw.shape != camera.shape:
+        raise ValueError(f"depth file {path} has shape {raw.shape}, expected "
+                         f"({camera.height}, {camera.width}) for {camera!r}")
+    depth = raw.astype(dtype) / np.asarray(scale, dtype=dtype)
+    invalid = np.isin(raw, np.asarray(invalid_values, dtype=raw.dtype))
+    depth[invalid] = np.nan
+    return depth
+
+
+def read_camera_json(path: PathLike) -> PinholeCamera:
+    """Read a ``camera.json`` written with :meth:`PinholeCamera.to_dict`."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+        return PinholeCamera.from_dict(data)
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"invalid camera file {path}: {exc}") from exc
+
+
+def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.ndarray:
+    """Project an almost-rigid 4x4 matrix onto SE(3) (SVD of the rotation block).
+
+    Data-set poses are often stored with a few 1e-4 of rotation error (7-Scenes);
+    :class:`~spgeo.frame.Frame` requires 1e-5.  Raises ``ValueError`` when the
+    matrix is non-finite or further than ``tol`` from a rigid transform.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"{name}: expected a finite 4x4 matrix, got shape {T.shape}")
+    R = T[:3, :3]
+    if (np.abs(R @ R.T - np.eye(3)).max() > tol or abs(np.linalg.det(R) - 1.0) > tol
+            or np.abs(T[3] - [0, 0, 0, 1]).max() > tol):
+        raise ValueError(f"{name}: not a rigid transform (rotation not orthonormal or last row "
+                         "not [0 0 0 1])")
+    U, _, Vt = np.linalg.svd(R)
+    out = np.eye(4)
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    out[:3, 3] = T[:3, 3]
+    return out
+
+
+def read_pose_file(path: PathLike, dataset: str, read_matrix) -> Optional[np.ndarray]:
+    """A 4x4 camera-to-world pose file -> rigid 4x4, or None (with a log line)
+    when the file is missing or holds non-finite values (invalid poses).
+
+    ``read_matrix(path)`` parses the file (raising ``FileNotFoundError`` /
+    ``ValueError`` naming it); a matrix too far from rigid raises ``ValueError``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        logger.warning("%s: pose file missing: %s", dataset, path)
+        return None
+    T = read_matrix(path)
+    if not np.all(np.isfinite(T)):
+        logger.debug("%s: invalid (non-finite) pose in %s", dataset, path)
+        return None
+    try:
+        return nearest_rigid(T, str(path))
+    except ValueError as exc:
+        raise ValueError(f"invalid pose file {path}: {exc}") from None
+
+
+def check_selection_files(paths: Sequence[Path], what: str) -> None:
+    """Raise ``FileNotFoundError`` naming the first listed file that does not exist."""
+    for p in paths:
+        if not p.is_file():
+            raise FileNotFoundError(f"{what} file listed but missing: {p}")

@@ -1,0 +1,21 @@
+"""Keyframe-based monocular visual odometry on SuperPrimitives.
+
+:class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`),
+its options (:mod:`spgeo.vo.config`), frame-to-keyframe tracking
+(:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
+(:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
+(:mod:`spgeo.vo.mapping`) and the results (:mod:`spgeo.vo.result`).
+"""
+from .config import PRIMITIVE_MODELS, OdometryConfig, TrackerConfig
+from .mapping import (WindowMapper, apply_primitive_model, kf_brightness_key, kf_pose_key,
+                      kf_scale_key, support_pose_key)
+from .odometry import Odometry
+from .rendering import ScaleInit, init_scales_from_render, render_depth, render_primitives
+from .result import STATUSES, FrameResult, FrameStatus, OdometryResult
+from .tracking import Keyframe, TrackingCost, TrackResult, constant_velocity_guess, track_frame
+
+__all__ = ["Odometry", "OdometryConfig", "TrackerConfig", "PRIMITIVE_MODELS", "FrameResult",
+           "FrameStatus", "OdometryResult", "STATUSES", "WindowMapper", "apply_primitive_model",
+           "kf_pose_key", "kf_scale_key", "kf_brightness_key", "support_pose_key", "Keyframe",
+           "TrackResult", "TrackingCost", "track_frame", "constant_velocity_guess",
+           "render_depth", "render_primitives", "init_scales_from_render", "ScaleInit"]

@@ -1,0 +1,505 @@
+"""Keyframe-based monocular visual odometry on SuperPrimitives (docs/design.md §5):
+the per-frame state machine (initialise, track, lose, re-initialise).
+
+One thread, one call per frame (:meth:`Odometry.track`):
+
+* **Initialisation.**  The first frame is keyframe 0 (pose identity: the
+  gauge).  Following frames are tracked against it (status ``INIT``).
+  From ``init_min_gap`` frames on, the first frame with enough parallax
+  (translation / median depth >= ``OdometryConfig.init_min_parallax``), or
+  that is about to lose keyframe 0 (valid fraction or rotation past the
+  keyframe thresholds), or the frame ``init_max_gap`` frames after keyframe
+  0, becomes keyframe 1 and few-view SfM
+  (:func:`spgeo.sfm.few_view_sfm`, keyframe 0 as reference; keyframe 1 and
+  ``init_extra_views`` frames between them as supporting views) gives
+  keyframe 0's log-scales and ``T_0_1``.  The frames in between are then re-tracked
+  against the solved keyframe 0.  With a depth-using front-end (RGB-D /
+  oracle, ``frontend.uses_depth``) keyframe 0's scales start from that depth
+  (so the trajectory is metric); with a monocular front-end they start at 0
+  and SfM starts from the feature-based two-view pose.
+* **Tracking.**  :func:`spgeo.vo.tracking.track_frame` (a batched Gauss-Newton
+  / LM over the pyramid minimising exactly the factors' cost, tested) against
+  the latest keyframe from a constant-velocity guess, then from the last good
+  pose.
+* **Failure.**  A frame that cannot be tracked (low valid fraction, cost
+  blow-up, divergence) is tried against the window's other keyframes
+  (newest first, *relocalisation*); if that fails too it is flagged
+  ``LOST`` and keeps the last good pose.  The first frame tracked after a
+  loss is ``RELOCALISED``.  After ``max_lost_frames`` consecutive lost
+  frames the map is *re-initialised*: the frame becomes keyframe 0 of a new
+  map segment (status ``REINIT``) at the last good pose, the smoother is
+  restarted and two-view initialisation runs again.  A monocular re-init
+  cannot know the old scale: its depths are set to the last keyframe's median
+  depth, so segments may differ in scale (``report.json`` counts segments;
+  the status file marks every frame).
+* **Keyframes.**  A tracked frame becomes a keyframe when its valid fraction
+  drops below ``kf_min_valid_fraction``, its translation from the latest
+  keyframe over that keyframe's median depth exceeds ``kf_max_translation``,
+  its rotation exceeds ``kf_max_rotation_deg`` or its relative photometric
+  cost exceeds ``kf_max_relative_cost``.  Its primitives get log-scales from
+  the z-buffered rendering of the window's keyframes
+  (:func:`spgeo.vo.rendering.render_primitives`,
+  :func:`spgeo.vo.rendering.init_scales_from_render`).
+* **Mapping.**  :class:`spgeo.vo.mapping.WindowMapper` (a fixed-lag smoother
+  over the last ``window`` keyframes and their supporting frames).
+* **Trajectory.**  :meth:`Odometry.result` gives keyframes and supporting
+  frames at their latest smoothed poses and every other tracked frame at its
+  tracked pose relative to its keyframe composed with that keyframe's latest
+  pose (lost frames repeat the previous frame's pose).  ``FrameResult`` keeps
+  the online (causal) estimate.
+
+Ablations (``OdometryConfig.primitive_model``, docs/design.md §5): ``"integrated"``
+(default, the paper's model), ``"constant_depth"`` (each primitive a
+fronto-parallel plane at its anchor depth), ``"constant_normal"`` (each
+primitive replaced by the least-squares plane of its integrated shape) and
+``"planar"`` (planes as ``constant_normal`` whose three parameters are
+optimised in mapping).  Depth-derived (oracle) normals are the ``"depth"``
+front-end.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+import gtsam
+
+from ..camera import PinholeCamera
+from ..frame import Frame
+from ..frontend import PrimitiveFrontEnd
+from ..geometry import invert_pose, rotation_angle_deg
+from ..primitives import PrimitiveSet
+from ..sfm import few_view_sfm
+from .config import OdometryConfig
+from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
+from .rendering import init_scales_from_render, render_primitives
+from .result import STATUSES, FrameResult, FrameStatus, OdometryResult, save_run
+from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
+
+__all__ = ["Odometry"]
+
+log = logging.getLogger(__name__)
+
+
+class Odometry:
+    """Streaming monocular VO (module docstring).
+
+    Args:
+        camera: intrinsics of the input frames.
+        config: :class:`OdometryConfig`.
+        frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes
+            (give it a small ``working_size``, e.g. 160x120).
+    """
+
+    def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
+                 frontend: Optional[PrimitiveFrontEnd] = None) -> None:
+        if frontend is None:
+            raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
+        self.camera = camera
+        self.config = config
+        self.frontend = frontend
+        self._frames: List[FrameResult] = []
+        self._kfs: Dict[int, MapKeyframe] = {}
+        self._kf_order: List[int] = []
+        # frame -> (kf, T_kf_frame, the keyframe's median depth when it was tracked)
+        self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
+        self._candidates: List[SupportCandidate] = []
+        self._init_buffer: List[tuple] = []   # (frame index, image) before keyframe 1
+        self._segment = 0
+        self._seg_kfs: List[int] = []          # keyframes of the current segment
+        self._last_good: Optional[np.ndarray] = None
+        self._prev_good: Optional[np.ndarray] = None
+        self._brightness = np.zeros(2)
+        self._n_lost = 0
+        self._mapper = WindowMapper(config)
+        self._sfm_reports: List[dict] = []
+
+    # ------------------------------------------------------------ public API
+    def track(self, frame: Frame) -> FrameResult:
+        """Process the next frame (a :class:`~spgeo.frame.Frame`; its depth is
+        read only by a depth-using front-end)."""
+        t0 = time.perf_counter()
+        image = np.asarray(frame.image)
+        if image.ndim not in (2, 3) or tuple(image.shape[:2]) != self.camera.shape:
+            raise ValueError(f"Odometry.track: image of shape {image.shape} does not match the "
+                             f"camera {self.camera.shape}")
+        if not np.all(np.isfinite(image)):
+            raise ValueError("Odometry.track: image contains NaN or inf")
+        idx = len(self._frames)
+        timings: Dict[str, float] = {}
+        if idx == 0:
+            res = self._start(frame, idx, np.eye(4), timings)
+        elif len(self._seg_kfs) < 2:
+            res = self._initialise(frame, idx, timings)
+        else:
+            res = self._track(frame, idx, timings)
+        timings["total"] = time.perf_counter() - t0
+        res.timings = timings
+        res.segment = self._segment
+        self._frames.append(res)
+        return res
+
+    def result(self) -> OdometryResult:
+        """Per-frame trajectory (module docstring, *Trajectory*)."""
+        n = len(self._frames)
+        poses = np.empty((n, 4, 4))
+        is_kf = np.zeros(n, dtype=bool)
+        kf_of_frame = {kf.frame: kf for kf in self._kfs.values()}
+        for i, f in enumerate(self._frames):
+            if i in kf_of_frame:
+                poses[i] = kf_of_frame[i].keyframe.T_world_kf
+                is_kf[i] = True
+            elif i in self._mapper.support_pose:
+                poses[i] = self._mapper.support_pose[i]
+            elif i in self._rel and self._rel[i][0] in self._kfs:
+                poses[i] = self._frame_pose(*self._rel[i])
+            elif f.status is FrameStatus.LOST and i > 0:
+                poses[i] = poses[i - 1]
+            else:
+                poses[i] = f.T_world_cam
+        return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
+                              poses, [f.status for f in self._frames], is_kf,
+                              np.array([f.segment for f in self._frames], dtype=int))
+
+    def _frame_pose(self, k: int, T_kf_frame: np.ndarray, median_then: float) -> np.ndarray:
+        """``T_world_frame`` of a frame tracked against keyframe ``k``: the
+        keyframe's latest pose composed with the tracked relative pose, whose
+        translation is rescaled by the change of the keyframe's median depth
+        since tracking (mapping refines the keyframe's scales; the tracked
+        translation was measured in the old depth units)."""
+        kf = self._kfs[k].keyframe
+        T = np.array(T_kf_frame, dtype=float)
+        if median_then > 0:
+            T[:3, 3] *= kf.median_depth / median_then
+        return kf.T_world_kf @ T
+
+    def smoother_estimate(self) -> gtsam.Values:
+        """The smoother's current estimate (only the keys inside the window)."""
+        return self._mapper.estimate()
+
+    @property
+    def smoother(self) -> gtsam.BatchFixedLagSmoother:
+        """The window's ``gtsam.BatchFixedLagSmoother`` (:class:`WindowMapper`)."""
+        return self._mapper.smoother
+
+    @smoother.setter
+    def smoother(self, value) -> None:
+        self._mapper.smoother = value
+
+    def _depth_link(self, ref: MapKeyframe, tgt: MapKeyframe):
+        """:meth:`WindowMapper.depth_link` of two keyframes (current estimates)."""
+        return self._mapper.depth_link(ref, tgt)
+
+    @property
+    def keyframes(self) -> List[Keyframe]:
+        """All keyframes in creation order (the window's at their smoothed state)."""
+        return [self._kfs[k].keyframe for k in self._kf_order]
+
+    @property
+    def frames(self) -> List[FrameResult]:
+        """The :class:`FrameResult` of every frame so far."""
+        return list(self._frames)
+
+    def report(self) -> dict:
+        """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
+        initialisation reports, configuration."""
+        res = self.result()
+        counts = {s: int(sum(1 for x in res.statuses if x == s)) for s in STATUSES}
+        tot = [f.timings.get("total", 0.0) for f in self._frames]
+        n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
+        maps = [m["seconds"] for m in self._mapper.reports if "seconds" in m]
+        return {
+            "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
+            "n_segments": self._segment + 1,
+            "status_counts": counts,
+            "seconds_total": float(np.sum(tot)),
+            "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
+            "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
+                                  for k in ("track", "frontend", "mapping", "init")},
+            "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
+            "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
+            "config": dataclasses.asdict(self.config),
+            "frontend": getattr(self.frontend, "name", str(self.frontend)),
+            "sfm": self._sfm_reports,
+            "mapping": self._mapper.reports,
+            "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
+                        "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
+                       for f in self._frames],
+        }
+
+    def save(self, directory: Union[str, Path], clouds: bool = True) -> Dict[str, object]:
+        """Write ``trajectory.txt`` (every frame, TUM ``timestamp tx ty tz qx qy
+        qz qw``, camera-to-world, :meth:`result` poses), ``keyframes.txt``,
+        ``trajectory.status.txt`` (per-frame status, keyframe flag, segment),
+        ``report.json`` and, with ``clouds``, one PLY per keyframe in
+        ``clouds/`` (world frame, metres, coloured); returns their paths."""
+        kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self._kf_order]
+        return save_run(directory, self.result(), self.report(), kfs if clouds else None)
+
+    # ------------------------------------------------------------ stages
+    def _primify(self, frame: Frame) -> PrimitiveSet:
+        depth = frame.depth if self.frontend.uses_depth else None
+        prims = self.frontend.primify(frame.image, self.camera, depth)
+        if len(prims) == 0:
+            raise ValueError("the front-end produced no primitive")
+        return prims
+
+    def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
+               timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
+        """Keyframe 0 of a map segment at ``T_world``."""
+        t = time.perf_counter()
+        prims = self._primify(frame)
+        if not self.frontend.uses_depth:
+            s0 = 0.0 if median_depth is None else float(np.log(median_depth))
+            prims = prims.with_log_scales(np.full(len(prims), s0))
+        prims = apply_primitive_model(prims, self.config.primitive_model)
+        timings["frontend"] = time.perf_counter() - t
+        k = len(self._kf_order)
+        kf = Keyframe.build(frame.image, prims, T_world, self.config.levels)
+        self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
+        self._kf_order.append(k)
+        self._seg_kfs = [k]
+        self._candidates.clear()
+        self._init_buffer.clear()
+        self._last_good, self._prev_good = np.array(T_world, dtype=float), None
+        self._brightness = np.zeros(2)
+        self._n_lost = 0
+        return FrameResult(idx, float(frame.timestamp), np.array(T_world, dtype=float),
+                           FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT, keyframe_index=k)
+
+    def _track_against(self, kf: Keyframe, image: np.ndarray):
+        """Constant-velocity guess, then the last good pose; returns the TrackResult."""
+        guess = constant_velocity_guess(self._last_good, self._prev_good)
+        tr = track_frame(kf, image, guess, self._brightness, self.config.tracker)
+        if not tr.ok and self._prev_good is not None:
+            tr2 = track_frame(kf, image, self._last_good, self._brightness, self.config.tracker)
+            if tr2.ok or tr2.photometric_cost < tr.photometric_cost:
+                tr = tr2
+        return tr
+
+    def _accept(self, tr: TrackResult) -> None:
+        self._prev_good, self._last_good = self._last_good, tr.T_world_frame.copy()
+        self._brightness = np.asarray(tr.brightness, dtype=float).copy()
+
+    def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        kf0 = self._kfs[self._seg_kfs[0]]
+        t = time.perf_counter()
+        tr = self._track_against(kf0.keyframe, frame.image)
+        timings["track"] = time.perf_counter() - t
+        T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
+        if tr.ok:
+            self._accept(tr)
+            self._n_lost = 0
+        else:
+            self._n_lost += 1
+        parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
+                    if tr.ok else 0.0)
+        gap = idx - kf0.frame
+        cfg = self.config
+        # keyframe 1 must still overlap keyframe 0: the overlap criteria of
+        # keyframes (valid fraction, rotation) end the wait too
+        rot = rotation_angle_deg(T_kf0_f[:3, :3])
+        overlap_ending = tr.ok and (tr.valid_fraction < cfg.kf_min_valid_fraction
+                                    or rot > cfg.kf_max_rotation_deg)
+        wait = (gap < cfg.init_max_gap and not overlap_ending
+                and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
+        if wait:
+            self._init_buffer.append((idx, np.asarray(frame.image)))
+            if tr.ok:
+                self._rel[idx] = (kf0.index, T_kf0_f, kf0.keyframe.median_depth)
+            pose = tr.T_world_frame if tr.ok else self._last_good
+            return FrameResult(idx, float(frame.timestamp), pose.copy(),
+                               FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
+        # ---- SfM: keyframe 0 of the segment (reference), this frame and extra views
+        t = time.perf_counter()
+        sfm_cfg = dataclasses.replace(self.config.sfm, reset_scales=not self.frontend.uses_depth)
+        views, init = self._init_views(frame.image, idx, kf0.frame, T_kf0_f if tr.ok else None)
+        prims0 = kf0.keyframe.primitives
+        sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
+        timings["init"] = time.perf_counter() - t
+        self._sfm_reports.append({
+            "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
+            "n_views": len(views),
+            **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
+        if sfm.status == "diverged" or not np.all(np.isfinite(sfm.T_ref_view[0])):
+            log.warning("two-view initialisation failed (%s) at frame %d; retrying later",
+                        sfm.status, idx)
+            self._init_buffer.append((idx, np.asarray(frame.image)))
+            self._n_lost += 1
+            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST,
+                               track=tr)
+        new_prims = sfm.primitives
+        if self.config.primitive_model != "integrated":
+            new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
+        T_w0 = kf0.keyframe.T_world_kf
+        if not self.frontend.uses_depth and self._segment > 0:
+            # a re-initialised monocular segment keeps the previous map's depth scale
+            med = np.median(np.exp(prims0.scaled_log_depth()))
+            med_new = np.median(np.exp(new_prims.scaled_log_depth()))
+            c = float(np.log(med / med_new))
+            new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
+            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float).copy()
+            T_01[:3, 3] *= np.exp(c)
+        else:
+            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
+        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels)
+        T1 = T_w0 @ T_01
+        # re-track the buffered frames against the solved keyframe 0
+        prev = None
+        last = T_w0.copy()
+        for j, img in self._init_buffer:
+            tj = track_frame(kf0.keyframe, img, constant_velocity_guess(last, prev),
+                             self._brightness, self.config.tracker)
+            if tj.ok:
+                prev, last = last, tj.T_world_frame
+                self._frames[j].T_world_cam = tj.T_world_frame.copy()
+                self._frames[j].status = FrameStatus.INIT
+                self._rel[j] = (kf0.index, invert_pose(T_w0) @ tj.T_world_frame,
+                                kf0.keyframe.median_depth)
+                self._candidates.append(SupportCandidate(j, img, self._rel[j][1],
+                                                   np.asarray(tj.brightness, float)))
+            else:
+                self._frames[j].status = FrameStatus.LOST
+                self._frames[j].T_world_cam = last.copy()
+                self._rel.pop(j, None)
+        self._init_buffer.clear()
+        self._last_good, self._prev_good = T1.copy(), last.copy()
+        self._n_lost = 0
+        return self._new_keyframe(frame, idx, T1, timings, track=tr)
+
+    def _init_views(self, image: np.ndarray, idx: int, frame0: int,
+                    T_kf0_f: Optional[np.ndarray]):
+        """Supporting views of the initialisation: keyframe 1's image first,
+        then ``init_extra_views`` buffered frames evenly spaced between keyframes
+        0 and 1, with initial poses from keyframe 1's tracked pose (the extra
+        views at its motion interpolated in time), or None (the SfM's own
+        two-view initialisation) when keyframe 1 was not tracked."""
+        buf = self._init_buffer
+        n = min(self.config.init_extra_views, len(buf))
+        picks = sorted({int(round(q * len(buf) / (n + 1))) - 1 for q in range(1, n + 1)}) if n else []
+        picks = [p for p in picks if 0 <= p < len(buf)]
+        views = [image] + [buf[p][1] for p in picks]
+        if T_kf0_f is None:
+            return views, None
+        xi = gtsam.Pose3.Logmap(gtsam.Pose3(T_kf0_f))
+        init = [T_kf0_f] + [gtsam.Pose3.Expmap((buf[p][0] - frame0) / max(idx - frame0, 1) * xi)
+                            .matrix() for p in picks]
+        return views, init
+
+    def _relocalise(self, image: np.ndarray) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:
+        """Track against the window's older keyframes, newest first."""
+        for k in reversed(self._seg_kfs[-self.config.window:-1]):
+            kf = self._kfs[k]
+            tr = track_frame(kf.keyframe, image, self._last_good, self._brightness,
+                             self.config.tracker)
+            if tr.ok:
+                return tr, kf
+        return None, None
+
+    def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        latest = self._kfs[self._seg_kfs[-1]]
+        ref = latest
+        t = time.perf_counter()
+        tr = self._track_against(latest.keyframe, frame.image)
+        relocalised = False
+        if not tr.ok:
+            tr_old, kf_old = self._relocalise(frame.image)
+            if tr_old is not None:
+                tr, ref, relocalised = tr_old, kf_old, True
+        timings["track"] = time.perf_counter() - t
+        if not tr.ok:
+            self._n_lost += 1
+            log.info("frame %d lost (%s)", idx, tr.reason)
+            if self._n_lost >= self.config.max_lost_frames:
+                log.warning("frame %d: %d frames lost; re-initialising the map", idx,
+                            self._n_lost)
+                return self._reinitialise(frame, idx, timings)
+            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST,
+                               track=tr)
+        was_lost = self._n_lost > 0
+        self._n_lost = 0
+        self._accept(tr)
+        T_ref_f = invert_pose(ref.keyframe.T_world_kf) @ tr.T_world_frame
+        self._rel[idx] = (ref.index, T_ref_f, ref.keyframe.median_depth)
+        status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
+        if ref is latest:
+            T_kf_f = T_ref_f
+            rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
+            rot = rotation_angle_deg(T_kf_f[:3, :3])
+            if (tr.valid_fraction < self.config.kf_min_valid_fraction
+                    or rel_t > self.config.kf_max_translation
+                    or tr.relative_cost > self.config.kf_max_relative_cost
+                    or rot > self.config.kf_max_rotation_deg):
+                res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
+                if res is not None:
+                    return res
+            self._add_candidate(SupportCandidate(idx, np.asarray(frame.image), T_kf_f,
+                                           np.asarray(tr.brightness, float)))
+        else:
+            # tracked against an older keyframe: make it a keyframe to re-anchor the map
+            res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
+            if res is not None:
+                return res
+        return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(), status,
+                           track=tr)
+
+    def _add_candidate(self, cand: SupportCandidate) -> None:
+        self._candidates.append(cand)
+        cap = max(8 * self.config.n_support, 16)
+        if len(self._candidates) > cap:
+            self._candidates = self._candidates[::2]
+
+    def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        grey = np.asarray(frame.image, dtype=np.float64)
+        if float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0):
+            # a featureless frame cannot start a map: stay lost, retry on the next frame
+            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST)
+        med = self._kfs[self._seg_kfs[-1]].keyframe.median_depth
+        self._segment += 1
+        self._mapper.reset()
+        return self._start(frame, idx, self._last_good.copy(), timings, median_depth=med)
+
+    def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
+                      timings: Dict[str, float], track: Optional[TrackResult]):
+        cfg = self.config
+        t = time.perf_counter()
+        prims = self._primify(frame)
+        window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
+        depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
+                                  prims.camera, T_world, splat=cfg.render_splat)
+        try:
+            init = init_scales_from_render(prims, depth)
+        except ValueError as exc:
+            log.warning("frame %d: no keyframe (%s)", idx, exc)
+            timings["frontend"] = time.perf_counter() - t
+            return None
+        prims = apply_primitive_model(init.primitives, cfg.primitive_model)
+        timings["frontend"] = time.perf_counter() - t
+        k = len(self._kf_order)
+        kf = MapKeyframe(k, idx, np.asarray(frame.image),
+                 Keyframe.build(frame.image, prims, T_world, cfg.levels), self._segment,
+                 prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
+                                        cfg.scale_prior_weight, cfg.render_prior_weight))
+        self._kfs[k] = kf
+        self._kf_order.append(k)
+        self._seg_kfs.append(k)
+        self._rel.pop(idx, None)
+        t = time.perf_counter()
+        segment_kfs = [self._kfs[j] for j in self._seg_kfs]
+        if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
+            self._seg_kfs = self._seg_kfs[-2:]
+        timings["mapping"] = time.perf_counter() - t
+        self._candidates.clear()
+        T_new = self._kfs[k].keyframe.T_world_kf
+        # the smoothed pose of the new keyframe replaces the tracked one
+        # (the same world-frame correction moves the previous pose of the velocity model)
+        if self._prev_good is not None:
+            self._prev_good = T_new @ invert_pose(self._last_good) @ self._prev_good
+        self._last_good = T_new.copy()
+        self._brightness = np.zeros(2)
+        return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
+                           keyframe_index=k, track=track)

@@ -1,0 +1,91 @@
+"""Per-frame and per-run results of the VO.
+
+:class:`FrameResult` is the online (causal) outcome of one
+:meth:`spgeo.vo.Odometry.track` call; the per-run result is a
+:class:`spgeo.trajectory.Trajectory` (:data:`OdometryResult` is its alias).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from ..io.tum import status_path_for
+from ..jsonio import json_default
+from ..trajectory import STATUSES, FrameStatus, Trajectory
+from .tracking import Keyframe, TrackResult
+
+__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "save_run"]
+
+#: The per-run result of :meth:`spgeo.vo.Odometry.result` (alias of
+#: :class:`~spgeo.trajectory.Trajectory`: ``statuses``, ``segments``,
+#: ``is_keyframe``, ``keyframe_poses``, ``tracked``, ``save``).
+OdometryResult = Trajectory
+
+
+@dataclass
+class FrameResult:
+    """Outcome of :meth:`spgeo.vo.Odometry.track` for one frame.
+
+    Attributes:
+        index: frame number (0-based, in call order).
+        timestamp: the frame's timestamp.
+        T_world_cam: 4x4 camera-to-world online pose (world = the first
+            keyframe's camera); the last good pose for a ``LOST`` frame.
+        status: a :class:`~spgeo.trajectory.FrameStatus` (equal to its
+            string): ``INIT`` (before keyframe 1 of a map segment; refined
+            once that keyframe exists), ``OK``, ``KEYFRAME``, ``LOST``,
+            ``RELOCALISED`` (first tracked frame after a loss, or tracked
+            against an older keyframe), ``REINIT`` (started a new map segment).
+        keyframe_index: the keyframe's index if this frame became one.
+        segment: map segment (0, then +1 at each re-initialisation).
+        track: the :class:`~spgeo.vo.tracking.TrackResult` of the final
+            tracking attempt (None for a frame that started a segment).
+        timings: seconds per stage (``track``, ``frontend``, ``mapping``,
+            ``init``, ``total``).
+    """
+
+    index: int
+    timestamp: float
+    T_world_cam: np.ndarray
+    status: FrameStatus
+    keyframe_index: Optional[int] = None
+    segment: int = 0
+    track: Optional[TrackResult] = None
+    timings: Dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.status = FrameStatus(self.status)
+
+
+def save_run(directory: Union[str, Path], result: Trajectory, report: dict,
+             keyframes: Optional[Sequence[Tuple[int, np.ndarray, Keyframe]]] = None
+             ) -> Dict[str, object]:
+    """Write a VO run into ``directory`` (created): ``trajectory.txt`` (every
+    frame of ``result``, TUM, camera-to-world) with ``trajectory.status.txt``
+    (status, keyframe flag, segment), ``keyframes.txt``, ``report.json`` and,
+    when ``keyframes`` ``(index, input image, Keyframe)`` are given, one PLY
+    per keyframe in ``clouds/`` (world frame, VO units, coloured).  Returns
+    the paths (``"clouds"``: a list)."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    traj = result.save(out / "trajectory.txt", header=["spgeo.odometry per-frame"])
+    kfs = result.save(out / "keyframes.txt", keyframes_only=True,
+                      header=["spgeo.odometry keyframes"], status_file=False)
+    rep = out / "report.json"
+    rep.write_text(json.dumps(report, indent=1, default=json_default), encoding="utf-8")
+    paths: Dict[str, object] = {"trajectory": traj, "keyframes": kfs,
+                                "status": status_path_for(traj), "report": rep}
+    if keyframes is not None:
+        cdir = out / "clouds"
+        cdir.mkdir(exist_ok=True)
+        paths["clouds"] = []
+        for k, image, kf in keyframes:
+            pc = kf.primitives.point_cloud(image).transformed(kf.T_world_kf)
+            p = cdir / f"keyframe_{k:04d}.ply"
+            pc.save_ply(p)
+            paths["clouds"].append(p)
+    return paths

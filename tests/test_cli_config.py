@@ -1,0 +1,161 @@
+"""``--set`` / ``--config`` (spgeo.cli.config) and ``spgeo eval`` dispatch."""
+import importlib.util
+import json
+from dataclasses import dataclass, field
+from typing import Optional, Tuple
+
+import pytest
+
+from spgeo.cli import build_parser, main
+from spgeo.cli.config import (ConfigError, apply_overrides, config_to_dict, load_config_file,
+                              parse_assignments, parse_value, resolve_config)
+from spgeo.odometry import OdometryConfig
+
+
+@dataclass(frozen=True)
+class Inner:
+    tol: float = 1e-3
+    iters: int = 10
+
+
+@dataclass(frozen=True)
+class Outer:
+    name: str = "a"
+    size: Tuple[int, int] = (1, 2)
+    flag: bool = False
+    sigma: Optional[float] = None
+    inner: Inner = field(default_factory=Inner)
+
+
+def test_parse_value_literals_else_strings():
+    assert parse_value("1e-4") == 1e-4 and parse_value(" 7 ") == 7
+    assert parse_value("None") is None and parse_value("True") is True
+    assert parse_value("(1, 2)") == (1, 2) and parse_value("'x'") == "x"
+    assert parse_value("classical") == "classical" and parse_value("a b") == "a b"
+    assert parse_assignments(["a=1", "b.c = x", "a=2"]) == {"a": 2, "b.c": "x"}
+    for bad in ("a", "=1", "a..b=1"):
+        with pytest.raises(ConfigError):
+            parse_assignments([bad])
+
+
+def test_apply_overrides_nested_and_types():
+    cfg = apply_overrides(Outer(), ["inner.tol=1e-4", "name=b", "size=[3, 4]", "sigma=0.5",
+                                    "inner.iters=3"])
+    assert cfg == Outer(name="b", size=(3, 4), sigma=0.5, inner=Inner(1e-4, 3))
+    assert Outer() == Outer()        # the input is not modified (frozen copies)
+    assert apply_overrides(Outer(), ["inner.tol=1"]).inner.tol == 1.0    # int -> float field
+    assert apply_overrides(Outer(), {"inner": {"iters": 5}}).inner.iters == 5
+    assert apply_overrides(Outer(), {"inner.iters": 6}).inner.iters == 6
+    for bad in (["inner.iters=1.5"], ["flag=1"], ["name=3"], ["size=7"], ["name=None"],
+                ["inner=3"], ["name.x=1"]):
+        with pytest.raises(ConfigError):
+            apply_overrides(Outer(), bad)
+
+
+def test_unknown_field_names_it_and_lists_valid_fields():
+    with pytest.raises(ConfigError) as exc:
+        apply_overrides(Outer(), ["inner.bogus=1"])
+    msg = str(exc.value)
+    assert "'inner.bogus'" in msg and "inner.tol" in msg and "inner.iters" in msg
+    with pytest.raises(ConfigError, match="valid fields: name, size, flag, sigma, inner"):
+        apply_overrides(Outer(), ["nope=1"])
+
+
+def test_route_to_nested_config():
+    from spgeo.apps.vo_run import VORunConfig
+
+    cfg = apply_overrides(VORunConfig(), ["tracker.relative_cost_tol=1e-4", "window=7",
+                                          "frontend=depth"], route="odometry")
+    assert cfg.frontend == "depth" and cfg.odometry.window == 7
+    assert cfg.odometry.tracker.relative_cost_tol == 1e-4
+    assert cfg.odometry == apply_overrides(OdometryConfig(), ["window=7",
+                                                             "tracker.relative_cost_tol=1e-4"])
+    with pytest.raises(ConfigError, match="'windw'"):
+        apply_overrides(VORunConfig(), ["windw=7"], route="odometry")
+    with pytest.raises(ConfigError, match="resolution"):        # the config's own check
+        apply_overrides(VORunConfig(), ["resolution=(0, 120)"], route="odometry")
+
+
+def test_toml_config_file_and_set_overrides_it(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('name = "t"\nsize = [5, 6]\n[inner]\ntol = 0.25\niters = 4\n')
+    assert load_config_file(path) == {"name": "t", "size": [5, 6],
+                                      "inner": {"tol": 0.25, "iters": 4}}
+    cfg = resolve_config(Outer(), str(path), ["inner.iters=9"])
+    assert cfg == Outer(name="t", size=(5, 6), inner=Inner(0.25, 9))
+    assert config_to_dict(cfg) == {"name": "t", "size": [5, 6], "flag": False, "sigma": None,
+                                   "inner": {"tol": 0.25, "iters": 9}}
+    (tmp_path / "bad.toml").write_text("name = \n")
+    for bad in (tmp_path / "bad.toml", tmp_path / "missing.toml", tmp_path / "c.ini"):
+        with pytest.raises(ConfigError):
+            load_config_file(bad)
+
+
+def test_yaml_config_file(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("inner:\n  iters: 2\n")
+    if importlib.util.find_spec("yaml") is None:
+        with pytest.raises(ConfigError, match="PyYAML"):
+            load_config_file(path)
+    else:
+        assert resolve_config(Outer(), str(path)).inner.iters == 2
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["demo", "--set", "bogus=1"], "unknown field 'bogus' of DemoConfig"),
+    (["demo", "--set", "vo_frames"], "FIELD=VALUE"),
+    (["demo", "--config", "missing.toml"], "config file not found"),
+    (["vo", "--dataset", "tum", "x", "--out", "o", "--set", "window=abc"],
+     "'odometry.window' expects an integer"),
+    (["sfm", "--ref", "a", "--views", "b", "--intrinsics", "1,1,1,1", "--out", "o",
+      "--set", "levls=2"], "unknown field 'levls' of SfMConfig"),
+    (["complete", "--rgb", "a", "--sparse", "b", "--intrinsics", "1,1,1,1", "--out", "o.png",
+      "--set", "method=3"], "'method' expects a string"),
+])
+def test_cli_config_errors_exit_2(tmp_path, monkeypatch, capsys, argv, text):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"spgeo {argv[0]}: error:") and text in err[0]
+
+
+def test_demo_effective_config(tmp_path, monkeypatch):
+    """Options < --set; --config < explicit options (checked on the parsed config only)."""
+    from spgeo.cli.demo import _demo_config
+
+    path = tmp_path / "demo.toml"
+    path.write_text('synthetic_seed = 3\nvo_frontends = ["classical"]\nout_dir = "x"\n')
+    args = build_parser().parse_args(["demo", "--config", str(path), "--out", "y", "--no-vo",
+                                      "--set", "vo_frames=10"])
+    cfg = _demo_config(args)
+    assert (cfg.synthetic_seed, cfg.vo_frontends, cfg.out_dir, cfg.vo, cfg.vo_frames) == \
+        (3, ("classical",), "y", False, 10)
+    args = build_parser().parse_args(["demo", "--seed", "2", "--set", "synthetic_seed=5"])
+    assert _demo_config(args).synthetic_seed == 5
+    assert json.dumps(config_to_dict(cfg))
+
+
+def test_eval_help_lists_protocols(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for name in ("colmap", "colmap_vo", "feature_vo", "vo_compare", "tum_fr1", "vo_synthetic",
+                 "sfm_real", "completion_7scenes", "void", "scannet", "bench_vo"):
+        assert f"\n    {name}" in out
+    assert "metrics" not in out.split("PROTOCOL", 2)[-1].split("options")[0].split()
+
+
+def test_eval_dispatches_argv(monkeypatch):
+    import spgeo.evaluation.tum_fr1 as mod
+
+    seen = []
+    monkeypatch.setattr(mod, "main", lambda argv: seen.append(argv) or 3)
+    assert main(["eval", "tum_fr1", "--frames", "1:2", "-v", "pos"]) == 3
+    assert seen == [["--frames", "1:2", "-v", "pos"]]
+    assert main(["eval", "tum_fr1", "--help"]) == 3 and seen[-1] == ["--help"]
+
+
+def test_eval_protocol_help_exits_cleanly(capsys):
+    assert main(["eval", "vo_synthetic", "--help"]) == 0
+    assert "usage: spgeo eval vo_synthetic" in capsys.readouterr().out
