@@ -41,8 +41,8 @@ from spgeo.geometry import invert_pose, relative_pose
 from spgeo.jsonio import json_default
 
 from .colmap_common import (ColmapOptions, ImageInput, cam_from_world, extract_sift,
-                            load_images, mapper_options, pose_from_rigid, quiet,
-                            sift_matching_options, verification_options, workspace)
+                            incremental_mapping, load_images, mapper_options, pose_from_rigid,
+                            quiet, sift_matching_options, verification_options, workspace)
 from .colmap_compare import Estimator, compare_on_dataset, format_comparison
 
 __all__ = ["COLMAP_STATUSES", "ColmapConfig", "ColmapResult", "run_colmap_fewview",
@@ -323,14 +323,10 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     reasons: List[str] = []
 
     # ---- incremental mapping
-    t = time.perf_counter()
-    recs: Dict[int, object] = {}
-    try:
-        recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir,
-                                            options=mapper_options(config))
-    except Exception as exc:  # COLMAP raises on hopeless inputs
-        reasons.append(f"incremental mapping failed: {exc}")
-    timings["map"] = time.perf_counter() - t
+    recs, error = incremental_mapping(db_path, image_dir, sparse_dir, mapper_options(config),
+                                      timings)
+    if error:
+        reasons.append(error)
     best, best_count = None, 0
     for rec in (recs or {}).values():
         reg = {im.name for im in rec.images.values() if im.has_pose}

@@ -17,7 +17,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, List, Optional, Sequence, Tuple, Union
+from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -26,7 +26,8 @@ from spgeo.twoview import quiet_colmap
 
 __all__ = ["ColmapOptions", "ImageInput", "workspace", "quiet", "load_images",
            "pose_from_rigid", "cam_from_world", "mapper_options", "extract_sift",
-           "sift_matching_options", "verification_options", "quiet_colmap"]
+           "sift_matching_options", "verification_options", "incremental_mapping",
+           "quiet_colmap"]
 
 ImageInput = Union[np.ndarray, str, os.PathLike]
 
@@ -221,3 +222,21 @@ def verification_options(config: ColmapOptions):
     vo.ransac.random_seed = int(config.random_seed)
     vo.detect_watermark = False
     return vo
+
+
+def incremental_mapping(db_path, image_dir, sparse_dir, options,
+                        timings: Dict[str, float]) -> Tuple[Dict[int, object], str]:
+    """``pycolmap.incremental_mapping``: (reconstructions by id, "" or why it
+    failed: COLMAP raises on hopeless inputs, reported here instead); the
+    seconds go into ``timings["map"]``."""
+    import pycolmap
+
+    t = time.perf_counter()
+    recs: Dict[int, object] = {}
+    error = ""
+    try:
+        recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir, options=options)
+    except Exception as exc:  # COLMAP raises on hopeless inputs
+        error = f"incremental mapping failed: {exc}"
+    timings["map"] = time.perf_counter() - t
+    return recs, error

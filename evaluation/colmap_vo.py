@@ -3,34 +3,23 @@
 :func:`run_colmap_vo` gives the frames a VO run sees to COLMAP's standard
 sparse pipeline and returns one camera-to-world pose per frame:
 
-1. **Frames**: each frame is undistorted (if its camera has distortion), resized
-   like the VO input (:func:`spgeo.frame.resize_frame`, default 160x120) and
-   written as ``000000.png, 000001.png, ...`` into a temporary folder.
-2. **Features**: CPU SIFT into **one shared PINHOLE camera with known, fixed
-   intrinsics** (the frames' camera, resized; COLMAP's pixel centres are at
-   half-integers, so ``cx + 0.5``, ``cy + 0.5``).
-3. **Matching**: sequential (each frame against the next ``overlap`` frames,
-   plus quadratic overlap by default), geometric verification; vocabulary-tree
-   loop detection is off by default.
-4. **Mapping**: incremental mapper, intrinsics never refined, several models
-   allowed; the **largest model** (most registered frames) gives the poses,
-   the sizes of the others are reported.
+1. **Frames**: undistorted if needed, resized like the VO input
+   (:func:`spgeo.frame.resize_frame`, default 160x120), written as PNGs.
+2. **Features**: CPU SIFT, one shared PINHOLE camera with the frames' known,
+   fixed intrinsics (COLMAP's pixel centres are at half-integers: ``cx + 0.5``).
+3. **Matching**: sequential (next ``overlap`` frames, plus quadratic overlap),
+   geometric verification; no vocabulary-tree loop detection by default.
+4. **Mapping**: incremental, intrinsics fixed, several models allowed; the
+   largest model gives the poses, the sizes of the others are reported.
 
-COLMAP stores world-to-camera ``cam_from_world``; here
-``T_world_cam = inv(cam_from_world)``, re-expressed so that the first
-registered frame of the largest model is the identity (arbitrary scale:
-evaluate with Sim(3)-aligned ATE, :meth:`ColmapVOResult.ate`).  Registered
-frames have status ``ok``, the others ``lost``
-(:class:`~spgeo.trajectory.FrameStatus`).
+Poses are ``T_world_cam = inv(cam_from_world)`` with the first registered
+frame of the largest model as the identity, at an arbitrary scale (use
+Sim(3)-aligned ATE, :meth:`ColmapVOResult.ate`); registered frames are
+``ok``, the others ``lost`` (:class:`~spgeo.trajectory.FrameStatus`).
 
-Determinism: one thread (default), fixed RANSAC / mapper seeds, CPU SIFT and
-brute-force matching (helpers shared with the few-view reference:
-:mod:`.colmap_common`).
-
-Command line (prints registration and the Sim(3) ATE, writes the trajectory)::
-
-    python -m spgeo.evaluation.colmap_vo --dataset 7scenes PATH --frames 0:300 \
-        --resolution 160x120 --out DIR
+Deterministic: one thread, fixed seeds, CPU SIFT, brute-force matching
+(:mod:`.colmap_common`).  Command line: ``spgeo eval colmap_vo --dataset
+7scenes PATH --frames 0:300 --resolution 160x120 --out DIR``.
 """
 from __future__ import annotations
 
@@ -55,13 +44,14 @@ from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
-from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, load_images,
-                            mapper_options, quiet, sift_matching_options, verification_options,
-                            workspace)
+from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, incremental_mapping,
+                            load_images, mapper_options, quiet, sift_matching_options,
+                            verification_options, workspace)
 from .trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
                          default_max_time_diff)
 
-__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo", "main"]
+__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo",
+           "check_resolution", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -72,6 +62,18 @@ ImageOrFrame = Union[Frame, np.ndarray]
 
 
 # ==================================================================== config
+def check_resolution(resolution: Optional[Tuple[int, int]],
+                     name: str) -> Optional[Tuple[int, int]]:
+    """``(width, height)`` as ints, or None; raises ``ValueError`` (naming
+    ``name``) unless both are positive."""
+    if resolution is None:
+        return None
+    w, h = (int(v) for v in resolution)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"{name} must be positive, got {resolution}")
+    return (w, h)
+
+
 @dataclass(frozen=True)
 class ColmapVOConfig(ColmapOptions):
     """Options of :func:`run_colmap_vo` (COLMAP's own defaults in brackets; the
@@ -134,12 +136,8 @@ class ColmapVOConfig(ColmapOptions):
     show_progress: bool = False
 
     def __post_init__(self) -> None:
-        if self.resolution is not None:
-            w, h = (int(v) for v in self.resolution)
-            if w <= 0 or h <= 0:
-                raise ValueError(f"ColmapVOConfig.resolution must be positive, "
-                                 f"got {self.resolution}")
-            object.__setattr__(self, "resolution", (w, h))
+        object.__setattr__(self, "resolution",
+                           check_resolution(self.resolution, "ColmapVOConfig.resolution"))
         if int(self.overlap) < 1:
             raise ValueError(f"ColmapVOConfig.overlap must be >= 1, got {self.overlap}")
         if self.loop_detection and not self.vocab_tree_path:
@@ -403,21 +401,14 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
             raise ValueError("run_colmap_vo: no frames")
         n = len(names)
         timings["prepare"] = time.perf_counter() - t0
-        message = ""
         with quiet(cfg):
             _extract_and_match(db_path, image_dir, names, cam, cfg, timings)
             with pycolmap.Database.open(db_path) as db:
                 db_images = {im.name: im for im in db.read_all_images()}
                 num_keypoints = [int(db.num_keypoints_for_image(db_images[nm].image_id))
                                  if nm in db_images else 0 for nm in names]
-            t = time.perf_counter()
-            recs: Dict[int, object] = {}
-            try:
-                recs = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir,
-                                                    options=_vo_mapper_options(cfg))
-            except Exception as exc:  # COLMAP raises on hopeless inputs
-                message = f"incremental mapping failed: {exc}"
-            timings["map"] = time.perf_counter() - t
+            recs, message = incremental_mapping(db_path, image_dir, sparse_dir,
+                                                _vo_mapper_options(cfg), timings)
         poses, sizes, best = _largest_model_poses(recs, names)
         registered = np.all(np.isfinite(poses.reshape(n, -1)), axis=1)
         traj = Trajectory(np.asarray(stamps, np.float64), poses,

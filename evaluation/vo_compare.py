@@ -54,7 +54,7 @@ from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_r
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
-from .colmap_vo import ColmapVOConfig, run_colmap_vo
+from .colmap_vo import ColmapVOConfig, check_resolution, run_colmap_vo
 from .feature_vo import FeatureVOConfig, run_feature_vo
 from .trajectory import (AteResult, ate_per_frame_and_keyframes, default_max_time_diff,
                          path_length, status_path_for, write_status, write_tum)
@@ -104,12 +104,7 @@ class VOCompareConfig:
     progress: bool = False
 
     def __post_init__(self) -> None:
-        if self.resolution is not None:
-            w, h = (int(v) for v in self.resolution)
-            if w <= 0 or h <= 0:
-                raise ValueError(f"VOCompareConfig.resolution must be positive, "
-                                 f"got {self.resolution}")
-            self.resolution = (w, h)
+        self.resolution = check_resolution(self.resolution, "VOCompareConfig.resolution")
         if self.max_time_diff is not None and not float(self.max_time_diff) > 0:
             raise ValueError("VOCompareConfig.max_time_diff must be > 0")
 

@@ -19,10 +19,9 @@ this script measures; nothing here is tuned to a real data set.
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -32,6 +31,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
+from spgeo.cli.config import apply_overrides, nest, parse_assignments
 from spgeo.vo import Odometry, OdometryConfig
 
 __all__ = ["SyntheticVOConfig", "synthetic_sequence", "run_synthetic_vo", "main"]
@@ -103,35 +103,15 @@ def run_synthetic_vo(frames: Sequence[Frame], frontend: str = "depth",
 def parse_overrides(items: Sequence[str]) -> dict:
     """``["field=value", "sub.field=value", ...]`` -> ``{field: value, sub:
     {field: value}}`` with ``value`` a Python literal (``None``, ``0.02``,
-    ``(1, 2)``); raises ``ValueError``."""
-    out: dict = {}
-    for item in items:
-        key, sep, val = item.partition("=")
-        path = [k.strip() for k in key.split(".")]
-        if not sep or not all(path):
-            raise ValueError(f"expected FIELD=VALUE, got {item!r}")
-        node = out
-        for k in path[:-1]:
-            node = node.setdefault(k, {})
-            if not isinstance(node, dict):
-                raise ValueError(f"{k!r} is set both as a value and as a group")
-        node[path[-1]] = ast.literal_eval(val.strip())
-    return out
+    ``(1, 2)``); raises ``ValueError`` or ``SyntaxError``."""
+    return nest(parse_assignments(items, strict=True))
 
 
 def odometry_config(overrides: dict) -> OdometryConfig:
     """``OdometryConfig()`` with :func:`parse_overrides`' result applied
-    (nested dicts replace fields of nested config dataclasses)."""
-    def apply(cfg, over):
-        fields = {}
-        for k, v in over.items():
-            if isinstance(v, dict):
-                if not hasattr(cfg, k):
-                    raise TypeError(f"{type(cfg).__name__} has no field {k!r}")
-                v = apply(getattr(cfg, k), v)
-            fields[k] = v
-        return replace(cfg, **fields)
-    return apply(OdometryConfig(), overrides)
+    (:func:`spgeo.cli.config.apply_overrides`; an unknown field raises a
+    ``TypeError``, a value of the wrong type a ``ValueError``)."""
+    return apply_overrides(OdometryConfig(), overrides)
 
 
 def _pct(entry) -> str:

@@ -1,4 +1,4 @@
-"""Zero-shot depth completion with SuperPrimitives (DESIGN.md §5).
+"""Zero-shot depth completion with SuperPrimitives (docs/design.md §5).
 
 Input: one RGB image, a *sparse* metric depth map (e.g. the ~150 VIO points of
 VOID) and the intrinsics.  The image alone is cut into SuperPrimitives
@@ -49,11 +49,13 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Dict, Optional, Tuple, Union
 
-import cv2
 import numpy as np
-from scipy import ndimage
 
 from .camera import PinholeCamera
+from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
+                              check_sparse_depth, fill_holes, linear_fill, nearest_fill,
+                              resample_sparse, upsample)
+from .completion_scales import grouped_median, solve_log_scales_joint, sparse_point_assignments
 from .images import to_float_image
 from .primitives import PrimitiveSet
 
@@ -68,11 +70,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-#: Confidence / coverage codes of :attr:`CompletionResult.confidence`.
-CONFIDENCE_PRIMITIVE = 2   #: depth of a primitive with sparse support
-CONFIDENCE_LINEAR = 1      #: filled by linear interpolation
-CONFIDENCE_NEAREST = 0     #: filled with the nearest value (outside the hull)
 
 METHODS = ("median", "joint")
 
@@ -89,9 +86,8 @@ class CompletionConfig:
         working_width: when the front-end is built here (``frontend`` None or
             a name), primitives are computed on a copy resized to this width
             (aspect kept) if the image is wider; None keeps the input size.
-            Default 320 (the authors integrated at 320x240; 640x480 costs
-            about 6x the time).  A front-end object passed in keeps its own
-            ``FrontEndConfig.working_size``.
+            Default 320 (the authors integrated at 320x240).  A front-end
+            object passed in keeps its own ``FrontEndConfig.working_size``.
         min_points: primitives with fewer sparse points are dropped.  Default 1.
         sigma: ``"joint"``: sparse-depth noise in log units.  Default 0.01 (1 %).
         huber_k: ``"joint"``: Huber threshold in units of ``sigma`` (None: least
@@ -183,176 +179,6 @@ class CompletionResult:
                 f"coverage {self.coverage:.2f}, {1e3 * self.timings.get('total', 0):.0f} ms")
 
 
-# ----------------------------------------------------------------- input helpers
-def check_sparse_depth(sparse_depth: np.ndarray, shape: Optional[Tuple[int, int]] = None,
-                       name: str = "sparse depth") -> np.ndarray:
-    """Validate an (H, W) sparse depth map; return float64 with NaN -> 0.
-
-    Raises ``ValueError`` for a wrong shape (not 2-D, or not ``shape``), a
-    non-numeric dtype, infinite or negative values, or no valid (> 0) point.
-    """
-    d = np.asarray(sparse_depth)
-    if d.ndim != 2 or d.size == 0:
-        raise ValueError(f"{name} must be a non-empty (H, W) array, got shape {d.shape}")
-    if shape is not None and d.shape != tuple(shape):
-        raise ValueError(f"{name} has shape {d.shape}, expected {tuple(shape)} (the image size)")
-    if d.dtype == bool or not np.issubdtype(d.dtype, np.number) \
-            or np.issubdtype(d.dtype, np.complexfloating):
-        raise ValueError(f"{name} must be a real numeric array, got dtype {d.dtype}")
-    d = d.astype(np.float64)
-    if np.any(np.isinf(d)):
-        raise ValueError(f"{name} contains inf")
-    d = np.nan_to_num(d, nan=0.0)
-    if np.any(d < 0):
-        raise ValueError(f"{name} contains negative depths")
-    if not np.any(d > 0):
-        raise ValueError(f"{name} has no valid point (all zero / NaN): nothing to complete from")
-    return d
-
-
-def nearest_fill(values: np.ndarray, known: Optional[np.ndarray] = None) -> np.ndarray:
-    """Copy of ``values`` with every pixel where ``known`` is False replaced by
-    the value of the nearest known pixel (Euclidean; one distance transform).
-    ``known`` defaults to finite and > 0."""
-    values = np.asarray(values, dtype=np.float64)
-    if known is None:
-        known = np.isfinite(values) & (values > 0)
-    if not np.any(known):
-        raise ValueError("nearest_fill: no known pixel")
-    if np.all(known):
-        return values.copy()
-    _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
-    return values[iy, ix]
-
-
-def linear_fill(uv: np.ndarray, values: np.ndarray, shape: Tuple[int, int],
-                query: Optional[np.ndarray] = None) -> np.ndarray:
-    """Linear interpolation (Delaunay, ``scipy.interpolate.LinearNDInterpolator``)
-    of scattered ``values`` at pixels ``uv`` (K, 2) (u = column, v = row).
-
-    Returns an (H, W) map holding the interpolant at the pixels of ``query``
-    ((H, W) bool; default all) and NaN elsewhere, including query pixels
-    outside the convex hull.  Fewer than 3 or collinear points give all NaN.
-    """
-    from scipy.interpolate import LinearNDInterpolator
-
-    h, w = shape
-    out = np.full(h * w, np.nan)
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    values = np.asarray(values, dtype=np.float64).reshape(-1)
-    q = np.flatnonzero(np.ones(h * w, bool) if query is None else np.asarray(query, bool).ravel())
-    if uv.shape[0] < 3 or q.size == 0:
-        return out.reshape(h, w)
-    try:
-        interp = LinearNDInterpolator(uv, values)
-    except Exception as exc:  # qhull errors: all points collinear / coincident
-        log.debug("linear_fill: triangulation failed (%s)", exc)
-        return out.reshape(h, w)
-    out[q] = interp(np.stack([q % w, q // w], 1).astype(np.float64))
-    return out.reshape(h, w)
-
-
-# ----------------------------------------------------------------- scale fitting
-def sparse_point_assignments(primitives: PrimitiveSet, uv: np.ndarray, camera: PinholeCamera):
-    """Which primitives contain each sparse point.
-
-    ``uv`` (K, 2) are pixel coordinates in ``camera`` (the input image); they
-    are mapped to the primitives' (possibly resized) camera with the
-    ``cv2.resize`` convention and rounded.  Returns ``(point, prim, l)``: one
-    entry per (point, containing primitive) pair — overlapping primitives each
-    get the point — with ``l`` the primitive's unscaled log-depth there.
-    """
-    pc = primitives.camera
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    sx, sy = pc.width / camera.width, pc.height / camera.height
-    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, pc.width - 1).astype(np.int64)
-    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, pc.height - 1).astype(np.int64)
-    flat = v * pc.width + u
-    order = np.argsort(primitives.pixels, kind="stable")
-    spix = primitives.pixels[order]
-    lo = np.searchsorted(spix, flat, "left")
-    hi = np.searchsorted(spix, flat, "right")
-    cnt = hi - lo
-    point = np.repeat(np.arange(flat.size), cnt)
-    start = np.repeat(lo, cnt)
-    within = np.arange(point.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    entry = order[start + within]
-    return point, primitives.primitive_ids[entry], primitives.log_depth[entry]
-
-
-
-def grouped_median(ids: np.ndarray, values: np.ndarray, n: int) -> Tuple[np.ndarray, np.ndarray]:
-    """Median of ``values`` per group id in ``[0, n)``; ``(medians (n,) NaN for
-    empty groups, counts (n,))``.  Vectorised (one lexsort)."""
-    ids = np.asarray(ids, dtype=np.int64)
-    values = np.asarray(values, dtype=np.float64)
-    counts = np.bincount(ids, minlength=n)[:n] if ids.size else np.zeros(n, np.int64)
-    med = np.full(n, np.nan)
-    if ids.size:
-        order = np.lexsort((values, ids))
-        vs = values[order]
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        has = counts > 0
-        lo = starts + (counts - 1) // 2
-        hi = starts + counts // 2
-        med[has] = 0.5 * (vs[lo[has]] + vs[hi[has]])
-    return med, counts
-
-
-def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d: np.ndarray,
-                           n_primitives: int, initial: np.ndarray, sigma: float = 0.01,
-                           huber_k: Optional[float] = 1.345, max_iterations: int = 50
-                           ) -> Tuple[np.ndarray, Dict[str, float]]:
-    """Log-scales of all primitives by Levenberg–Marquardt on a GTSAM graph with
-    one :class:`~spgeo.factors.sparse_depth.SparseDepthFactor` per primitive
-    that has points (keys ``gtsam.symbol('s', i)``).
-
-    Args:
-        point_prim, point_l, point_d: per (point, primitive) pair: primitive
-            index, unscaled log-depth there, measured depth (metres).
-        initial: (n_primitives,) starting values (NaN: primitive without points,
-            left NaN in the output).
-    Returns:
-        ``(log_scales (n,), report)`` with ``iterations``, ``initial_error``,
-        ``final_error``.
-    """
-    import gtsam
-
-    from .factors.sparse_depth import SparseDepthFactor
-
-    point_prim = np.asarray(point_prim, dtype=np.int64)
-    out = np.full(n_primitives, np.nan)
-    if point_prim.size == 0:
-        return out, {"iterations": 0, "initial_error": 0.0, "final_error": 0.0}
-    order = np.argsort(point_prim, kind="stable")
-    pp, ll, dd = point_prim[order], np.asarray(point_l)[order], np.asarray(point_d)[order]
-    bounds = np.flatnonzero(np.diff(pp)) + 1
-    starts = np.concatenate([[0], bounds])
-    ends = np.concatenate([bounds, [pp.size]])
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    keys = []
-    for a, b in zip(starts, ends):  # one factor per primitive (vectorised inside)
-        i = int(pp[a])
-        key = gtsam.symbol("s", i)
-        s0 = (float(initial[i]) if np.isfinite(initial[i])
-              else float(np.median(np.log(dd[a:b]) - ll[a:b])))
-        graph.add(SparseDepthFactor(key, ll[a:b], dd[a:b], sigma, huber_k).factor)
-        values.insert(key, np.array([s0]))
-        keys.append((i, key))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setRelativeErrorTol(1e-10)
-    params.setAbsoluteErrorTol(1e-12)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    e0 = float(graph.error(values))
-    res = opt.optimize()
-    for i, key in keys:
-        out[i] = float(res.atVector(key)[0])
-    return out, {"iterations": int(opt.iterations()), "initial_error": e0,
-                 "final_error": float(graph.error(res))}
-
-
 # ----------------------------------------------------------------- front-end handling
 def working_size_for(camera: PinholeCamera, working_width: Optional[int]
                      ) -> Optional[Tuple[int, int]]:
@@ -404,63 +230,6 @@ def _primitives(image, camera, frontend, frontend_depth, config):
     dep = frontend_depth if uses else None
     prims = frontend.primify(image, camera, dep)
     return prims, name, uses
-
-
-def _upsample(depth_w: np.ndarray, conf_w: np.ndarray, camera: PinholeCamera
-              ) -> Tuple[np.ndarray, np.ndarray]:
-    """Bring a complete working-resolution depth map (bilinear) and its
-    confidence codes (nearest) to ``camera``'s size."""
-    if depth_w.shape == camera.shape:
-        return depth_w, conf_w
-    depth = cv2.resize(depth_w.astype(np.float64), camera.size, interpolation=cv2.INTER_LINEAR)
-    conf = cv2.resize(conf_w, camera.size, interpolation=cv2.INTER_NEAREST)
-    return depth, conf
-
-
-def _resample_sparse(uv: np.ndarray, d: np.ndarray, camera: PinholeCamera,
-                     target: PinholeCamera) -> np.ndarray:
-    """Sparse points of ``camera`` as a sparse map of ``target`` (rounded pixel;
-    points sharing a pixel keep the mean)."""
-    if target.size == camera.size:
-        out = np.zeros(camera.shape)
-        out[uv[:, 1].astype(np.int64), uv[:, 0].astype(np.int64)] = d
-        return out
-    sx, sy = target.width / camera.width, target.height / camera.height
-    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, target.width - 1).astype(np.int64)
-    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, target.height - 1).astype(np.int64)
-    flat = v * target.width + u
-    npix = target.width * target.height
-    tot = np.bincount(flat, weights=d, minlength=npix)
-    cnt = np.bincount(flat, minlength=npix)
-    return np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0).reshape(target.shape)
-
-
-def _fill_holes(depth: np.ndarray, covered: np.ndarray, sparse: np.ndarray
-                ) -> Tuple[np.ndarray, np.ndarray]:
-    """Fill ``~covered`` pixels: linear interpolation of hole-border depths and
-    sparse points inside holes, then nearest.  Returns ``(depth, confidence)``."""
-    h, w = depth.shape
-    conf = np.full((h, w), CONFIDENCE_NEAREST, np.uint8)
-    conf[covered] = CONFIDENCE_PRIMITIVE
-    holes = ~covered
-    if not holes.any():
-        return depth, conf
-    border = covered & cv2.dilate(holes.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    in_hole = holes & (sparse > 0)
-    known = border | in_hole
-    vals = np.where(covered, depth, sparse)
-    kv, ku = np.nonzero(known)
-    lin = linear_fill(np.stack([ku, kv], 1), vals[kv, ku], (h, w), holes)
-    out = depth.copy()
-    lin_ok = holes & np.isfinite(lin)
-    out[lin_ok] = lin[lin_ok]
-    out[in_hole] = sparse[in_hole]
-    conf[lin_ok | in_hole] = CONFIDENCE_LINEAR
-    rest = holes & ~(lin_ok | in_hole)
-    if rest.any():
-        filled = nearest_fill(np.where(rest, np.nan, out), ~rest)
-        out[rest] = filled[rest]
-    return out, conf
 
 
 # ----------------------------------------------------------------- main entry point
@@ -528,13 +297,13 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
                     "back to linear interpolation of the %d sparse points", coverage,
                     config.min_coverage, sd.size)
-        depth, conf = _fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
-                                  sparse)
+        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
+                                 sparse)
     else:
         # holes are filled at the primitives' resolution, then the map is resized
-        depth_w, conf_w = _fill_holes(dmap, covered, _resample_sparse(uv, sd, camera,
-                                                                      prims.camera))
-        depth, conf = _upsample(depth_w, conf_w, camera)
+        depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera,
+                                                                    prims.camera))
+        depth, conf = upsample(depth_w, conf_w, camera)
     t_fi = time.perf_counter()
     res = CompletionResult(
         depth=depth, confidence=conf, primitives=sub, log_scales=s[kept].copy(),

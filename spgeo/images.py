@@ -11,7 +11,7 @@ import numpy as np
 from .camera import PinholeCamera
 
 __all__ = [
-    "to_float_image", "to_gray", "load_image", "blur121", "gaussian_pyramid", "Pyramid",
+    "to_float_image", "to_gray", "read_raw_image", "load_image", "blur121", "gaussian_pyramid", "Pyramid",
     "scharr_gradients", "sample_bilinear",
 ]
 
@@ -56,19 +56,28 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image @ _GREY_WEIGHTS
 
 
-def load_image(path, grey: bool = False) -> np.ndarray:
-    """Read an image file as float32 RGB (H, W, 3) or grey (H, W) in [0, 1].
+def read_raw_image(path, what: str = "image") -> np.ndarray:
+    """The file's pixels as stored (``cv2.IMREAD_UNCHANGED``: BGR order, any dtype).
 
-    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
+    Raises ``FileNotFoundError`` / ``ValueError`` naming the ``what`` file.
     """
     import os
 
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"image file not found: {path}")
+        raise FileNotFoundError(f"{what} file not found: {path}")
     raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     if raw is None:
-        raise ValueError(f"cannot decode image file: {path}")
+        raise ValueError(f"cannot decode {what} file: {path}")
+    return raw
+
+
+def load_image(path, grey: bool = False) -> np.ndarray:
+    """Read an image file as float32 RGB (H, W, 3) or grey (H, W) in [0, 1].
+
+    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
+    """
+    raw = read_raw_image(path)
     if raw.ndim == 3:
         raw = cv2.cvtColor(raw[..., :3], cv2.COLOR_BGR2RGB)
     img = to_float_image(raw)

@@ -39,7 +39,6 @@ from .sfm_init import twoview_initialisation
 
 __all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
 
-_build_graph = build_graph  # old private name, still imported by tests/test_tracking.py
 
 log = logging.getLogger(__name__)
 

@@ -43,7 +43,6 @@ The result is *flagged*, never silently wrong (:attr:`TwoViewResult.status`):
 """
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
@@ -53,7 +52,11 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .camera import PinholeCamera
-from .geometry import so3_exp
+from .twoview_backends import (colmap_camera, opencv_features, opencv_geometry,
+                               pycolmap_features_and_matches, pycolmap_geometry, quiet_colmap,
+                               ratio_matches)
+from .twoview_geometry import (bearings, kabsch, parallax_angles_deg, pose_from_tgt_ref,
+                               pose_std_deg, rotation_only_fit, undistort_points)
 
 __all__ = [
     "TWO_VIEW_STATUSES", "TwoViewConfig", "TwoViewResult", "estimate_relative_pose",
@@ -81,8 +84,7 @@ class TwoViewConfig:
         max_features: maximum number of features per image, default 8000.
         sift_contrast_threshold: ``contrastThreshold`` of ``cv2.SIFT_create``,
             default 0.02 (OpenCV's 0.04 divided by 3 layers equals COLMAP's
-            peak threshold 0.0067 at 0.02: about 50 % more features on
-            weakly textured images than OpenCV's default).
+            peak threshold 0.0067 at 0.02).
         ratio: Lowe ratio-test threshold (best / second-best descriptor
             distance), default 0.8 (COLMAP's default too).
         cross_check: keep only mutual nearest neighbours, default True.
@@ -232,7 +234,7 @@ class TwoViewResult:
         }
 
 
-# ================================================================== helpers
+# ================================================================== input
 def to_gray_uint8(image: np.ndarray, name: str = "image") -> np.ndarray:
     """(H, W) C-contiguous uint8 grey image from uint8 / uint16 / float [0, 1]
     grey or RGB input (BT.601).  Raises ``ValueError`` for NaN/inf, float values
@@ -244,266 +246,6 @@ def to_gray_uint8(image: np.ndarray, name: str = "image") -> np.ndarray:
     except ValueError as exc:
         raise ValueError(f"{name}: {exc}") from None
     return np.ascontiguousarray(np.clip(np.round(grey * 255.0), 0, 255).astype(np.uint8))
-
-
-def colmap_camera(camera: PinholeCamera):
-    """``pycolmap.Camera`` (PINHOLE) of an undistorted spgeo camera.
-
-    COLMAP's pixel centres are at half-integers, so the principal point is
-    shifted by +0.5 (spgeo: pixel centres at integers)."""
-    import pycolmap
-
-    return pycolmap.Camera(model="PINHOLE", width=int(camera.width), height=int(camera.height),
-                           params=[camera.fx, camera.fy, camera.cx + 0.5, camera.cy + 0.5])
-
-
-def _bearings(camera: PinholeCamera, pts: np.ndarray) -> np.ndarray:
-    f = np.stack([(pts[:, 0] - camera.cx) / camera.fx, (pts[:, 1] - camera.cy) / camera.fy,
-                  np.ones(len(pts))], axis=1)
-    return f / np.linalg.norm(f, axis=1, keepdims=True)
-
-
-def parallax_angles_deg(camera: PinholeCamera, pts_ref: np.ndarray, pts_tgt: np.ndarray,
-                        R_tgt_ref: np.ndarray) -> np.ndarray:
-    """Rotation-compensated parallax angle (degrees) of each correspondence:
-    the angle between the target ray and the reference ray rotated into the
-    target frame (``R_tgt_ref @ f_ref``).  Zero for pure rotation."""
-    f1 = _bearings(camera, np.asarray(pts_ref, float)) @ np.asarray(R_tgt_ref, float).T
-    f2 = _bearings(camera, np.asarray(pts_tgt, float))
-    s = np.linalg.norm(np.cross(f1, f2), axis=1)
-    c = np.sum(f1 * f2, axis=1)
-    return np.degrees(np.arctan2(s, c))
-
-
-def _kabsch(f1: np.ndarray, f2: np.ndarray) -> np.ndarray:
-    """Rotation ``R`` minimising ``sum |f2 - R f1|^2`` over unit rays."""
-    U, _, Vt = np.linalg.svd(f1.T @ f2)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T
-
-
-def rotation_only_fit(camera: PinholeCamera, pts_ref: np.ndarray, pts_tgt: np.ndarray,
-                      max_error_px: float = 2.0, iterations: int = 5) -> Tuple[np.ndarray, np.ndarray]:
-    """Robust rotation-only model ``f_tgt ~ R_tgt_ref f_ref`` (Kabsch on rays,
-    re-fitted on the points whose rotated ray lands within ``max_error_px``).
-
-    Returns ``(R_tgt_ref (3, 3), inlier mask)``."""
-    f1 = _bearings(camera, np.asarray(pts_ref, float))
-    f2 = _bearings(camera, np.asarray(pts_tgt, float))
-    keep = np.ones(len(f1), bool)
-    R = np.eye(3)
-    tol = math.atan(float(max_error_px) / max(camera.fx, camera.fy))
-    for _ in range(max(1, int(iterations))):
-        if keep.sum() < 3:
-            break
-        R = _kabsch(f1[keep], f2[keep])
-        ang = np.arctan2(np.linalg.norm(np.cross(f1 @ R.T, f2), axis=1), np.sum(f1 @ R.T * f2, 1))
-        new_keep = ang < max(tol, np.median(ang) * 3.0)
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-    return R, keep
-
-
-def _pose_from_tgt_ref(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``T_ref_tgt`` from ``x_tgt = R x_ref + t`` (translation normalised if nonzero)."""
-    R = np.asarray(R, float)
-    t = np.asarray(t, float).reshape(3)
-    T = np.eye(4)
-    T[:3, :3] = R.T
-    c = -R.T @ t
-    n = np.linalg.norm(c)
-    T[:3, 3] = c / n if n > 0 else c
-    return T
-
-
-def _orthonormalise(R: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(R)
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1, 1, -1]) @ Vt
-    return R
-
-
-def _undistort_points(camera: PinholeCamera, pts: np.ndarray) -> np.ndarray:
-    if camera.distortion is None or len(pts) == 0:
-        return pts
-    import cv2
-
-    out = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), camera.K,
-                              np.asarray(camera.distortion, float), P=camera.K)
-    return out.reshape(-1, 2)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-
-
-def _sampson_px(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, x1: np.ndarray,
-                x2: np.ndarray) -> np.ndarray:
-    """Signed Sampson distances (pixels) of pixel correspondences for ``x2 = R x1 + t``."""
-    Kinv = camera.K_inv
-    F = Kinv.T @ _skew(t) @ R @ Kinv
-    h1 = np.column_stack([x1, np.ones(len(x1))])
-    h2 = np.column_stack([x2, np.ones(len(x2))])
-    Fx1 = h1 @ F.T
-    Ftx2 = h2 @ F
-    num = np.sum(h2 * Fx1, axis=1)
-    den = np.sqrt(Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2) + 1e-15
-    return num / den
-
-
-def _pose_std_deg(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, x1: np.ndarray,
-                  x2: np.ndarray) -> Tuple[float, float]:
-    """First-order standard deviations (degrees) of the rotation and of the
-    translation direction of ``x2 = R x1 + t`` from the Sampson residuals of the
-    inliers (largest principal axis of each block of ``sigma^2 (J^T J)^-1``,
-    with a numerical 5-column Jacobian).  ``(inf, inf)`` when unconstrained."""
-    n = len(x1)
-    if n < 8:
-        return float("inf"), float("inf")
-    t = t / np.linalg.norm(t)
-    a = np.eye(3)[int(np.argmin(np.abs(t)))]
-    b1 = np.cross(t, a)
-    b1 /= np.linalg.norm(b1)
-    b2 = np.cross(t, b1)
-
-    def res(p):
-        tt = t + p[3] * b1 + p[4] * b2
-        return _sampson_px(camera, so3_exp(p[:3]) @ R, tt / np.linalg.norm(tt), x1, x2)
-
-    r0 = res(np.zeros(5))
-    h = 1e-6
-    J = np.empty((n, 5))
-    for k in range(5):
-        e = np.zeros(5)
-        e[k] = h
-        J[:, k] = (res(e) - res(-e)) / (2 * h)
-    sigma2 = float(r0 @ r0) / max(n - 5, 1)
-    try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return float("inf"), float("inf")
-    if not np.all(np.isfinite(cov)):
-        return float("inf"), float("inf")
-    rot = math.degrees(math.sqrt(max(float(np.linalg.eigvalsh(cov[:3, :3])[-1]), 0.0)))
-    tra = math.degrees(math.sqrt(max(float(np.linalg.eigvalsh(cov[3:, 3:])[-1]), 0.0)))
-    return rot, tra
-
-
-def _refine_sampson(camera: PinholeCamera, R0: np.ndarray, t0: np.ndarray, x1: np.ndarray,
-                    x2: np.ndarray, scale_px: float) -> Tuple[np.ndarray, np.ndarray]:
-    """LM refinement of (R, unit t) minimising robust Sampson errors (5 DoF)."""
-    from scipy.optimize import least_squares
-
-    t0 = t0 / np.linalg.norm(t0)
-    # tangent basis of the unit sphere at t0
-    a = np.eye(3)[int(np.argmin(np.abs(t0)))]
-    b1 = np.cross(t0, a)
-    b1 /= np.linalg.norm(b1)
-    b2 = np.cross(t0, b1)
-
-    def unpack(p):
-        R = so3_exp(p[:3]) @ R0
-        t = t0 + p[3] * b1 + p[4] * b2
-        return R, t / np.linalg.norm(t)
-
-    def fun(p):
-        R, t = unpack(p)
-        return _sampson_px(camera, R, t, x1, x2)
-
-    sol = least_squares(fun, np.zeros(5), method="trf", loss="soft_l1", f_scale=scale_px,
-                        x_scale=1.0, max_nfev=50)
-    if not sol.success and sol.status <= 0:
-        return R0, t0
-    R, t = unpack(sol.x)
-    return _orthonormalise(R), t
-
-
-# ============================================================ feature stages
-def _opencv_features(grey: np.ndarray, config: TwoViewConfig):
-    import cv2
-
-    if config.features == "sift":
-        det = cv2.SIFT_create(nfeatures=int(config.max_features),
-                              contrastThreshold=float(config.sift_contrast_threshold))
-    else:
-        det = cv2.ORB_create(nfeatures=int(config.max_features))
-    kps, desc = det.detectAndCompute(grey, None)
-    pts = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
-    return pts, desc
-
-
-def _ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray], config: TwoViewConfig,
-                   norm: int) -> np.ndarray:
-    """(M, 2) index pairs passing the ratio test (and the mutual check)."""
-    import cv2
-
-    if d1 is None or d2 is None or len(d1) < 2 or len(d2) < 2:
-        return np.zeros((0, 2), np.int64)
-    bf = cv2.BFMatcher(norm, crossCheck=False)
-
-    def one_way(a, b):
-        out = {}
-        for pair in bf.knnMatch(a, b, k=2):
-            if len(pair) < 2:
-                continue
-            m, n = pair
-            if m.distance < config.ratio * n.distance:
-                out[m.queryIdx] = m.trainIdx
-        return out
-
-    fwd = one_way(d1, d2)
-    if config.cross_check:
-        bwd = one_way(d2, d1)
-        pairs = [(i, j) for i, j in fwd.items() if bwd.get(j) == i]
-    else:
-        pairs = list(fwd.items())
-    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
-
-
-@contextlib.contextmanager
-def quiet_colmap(level: int = 1):
-    """Temporarily raise glog's minimum level (COLMAP logs every step at INFO)."""
-    import pycolmap
-
-    old = None
-    try:
-        old = pycolmap.logging.minloglevel
-        pycolmap.logging.minloglevel = max(int(old), int(level))
-    except Exception:  # pragma: no cover - logging API differs
-        old = None
-    try:
-        yield
-    finally:
-        if old is not None:
-            pycolmap.logging.minloglevel = old
-
-
-def _pycolmap_features_and_matches(g1: np.ndarray, g2: np.ndarray, config: TwoViewConfig):
-    import pycolmap
-
-    eo = pycolmap.FeatureExtractionOptions()
-    eo.num_threads = int(config.num_threads)
-    eo.use_gpu = False
-    eo.sift.max_num_features = int(config.max_features)
-    extractor = pycolmap.FeatureExtractor.create(eo, pycolmap.Device.cpu)
-    kp1, de1 = extractor.extract_from_uint8_array(g1)
-    kp2, de2 = extractor.extract_from_uint8_array(g2)
-    p1 = np.asarray(pycolmap.keypoints_to_matrix(kp1), np.float64).reshape(-1, 4)[:, :2]
-    p2 = np.asarray(pycolmap.keypoints_to_matrix(kp2), np.float64).reshape(-1, 4)[:, :2]
-    t_feat = time.perf_counter()
-    if len(p1) < 2 or len(p2) < 2:
-        return p1, p2, np.zeros((0, 2), np.int64), t_feat
-    mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = int(config.num_threads)
-    mo.use_gpu = False
-    mo.sift.max_ratio = float(config.ratio)
-    mo.sift.cross_check = bool(config.cross_check)
-    mo.sift.cpu_brute_force_matcher = True  # exact and deterministic
-    matcher = pycolmap.FeatureMatcher.create(mo, pycolmap.Device.cpu)
-    matches = np.asarray(matcher.match(kp1, de1, kp2, de2), np.int64).reshape(-1, 2)
-    return p1, p2, matches, t_feat
 
 
 # ================================================================= estimate
@@ -543,14 +285,14 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
     if config.backend == "opencv":
         import cv2
 
-        p1, d1 = _opencv_features(g1, config)
-        p2, d2 = _opencv_features(g2, config)
+        p1, d1 = opencv_features(g1, config)
+        p2, d2 = opencv_features(g2, config)
         t_feat = time.perf_counter()
         norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
-        matches = _ratio_matches(d1, d2, config, norm)
+        matches = ratio_matches(d1, d2, config, norm)
     else:
         with quiet_colmap():
-            p1, p2, matches, t_feat = _pycolmap_features_and_matches(g1, g2, config)
+            p1, p2, matches, t_feat = pycolmap_features_and_matches(g1, g2, config)
         p1, p2 = p1 - 0.5, p2 - 0.5  # COLMAP pixel centres -> spgeo
     t_match = time.perf_counter()
     timings["features"] = t_feat - t0
@@ -565,8 +307,8 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
         timings["geometry"] = 0.0
         return res
 
-    x1 = _undistort_points(camera, p1[matches[:, 0]])
-    x2 = _undistort_points(camera, p2[matches[:, 1]])
+    x1 = undistort_points(camera, p1[matches[:, 0]])
+    x2 = undistort_points(camera, p2[matches[:, 1]])
     cam = camera.undistorted()
     res.median_flow_px = float(np.median(np.linalg.norm(x2 - x1, axis=1)))
 
@@ -581,7 +323,7 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
     def low_parallax(mask: Optional[np.ndarray], message: str) -> TwoViewResult:
         sel = np.ones(len(x1), bool) if mask is None else mask
         R, keep = rotation_only_fit(cam, x1[sel], x2[sel], max(2.0, config.ransac_threshold_px))
-        res.T_ref_tgt = _pose_from_tgt_ref(R, np.zeros(3))
+        res.T_ref_tgt = pose_from_tgt_ref(R, np.zeros(3))
         res.points_ref, res.points_tgt = x1[sel][keep], x2[sel][keep]
         res.num_inliers = int(keep.sum())
         res.rotation_only_parallax_deg = float(np.median(
@@ -596,9 +338,9 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
 
     # ---- geometry
     if config.backend == "opencv":
-        R, t, inl, msg = _opencv_geometry(cam, x1, x2, config)
+        R, t, inl, msg = opencv_geometry(cam, x1, x2, config)
     else:
-        R, t, inl, msg = _pycolmap_geometry(cam, x1, x2, config)
+        R, t, inl, msg = pycolmap_geometry(cam, x1, x2, config)
     if inl is not None:
         res.num_inliers = int(inl.sum())
     if msg == "panoramic":
@@ -617,7 +359,7 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
     # how much parallax is left by the best pure rotation (least squares on the
     # inliers' rays): ~ the noise level for a rotation, even where the essential
     # matrix has absorbed the noise into a spurious translation
-    R_rot = _kabsch(_bearings(cam, res.points_ref), _bearings(cam, res.points_tgt))
+    R_rot = kabsch(bearings(cam, res.points_ref), bearings(cam, res.points_tgt))
     res.rotation_only_parallax_deg = float(np.median(
         parallax_angles_deg(cam, res.points_ref, res.points_tgt, R_rot)))
     # a pure rotation explains the matches within twice the RANSAC threshold
@@ -631,9 +373,9 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
         return low_parallax(inl, f"a pure rotation leaves only {res.rotation_only_parallax_deg:.3f}"
                                  f" deg of median parallax (< {rotation_tol_deg:.3f} deg, twice "
                                  "the RANSAC threshold): translation direction unobservable")
-    res.T_ref_tgt = _pose_from_tgt_ref(R, t)
-    res.rotation_std_deg, res.translation_std_deg = _pose_std_deg(cam, R, t, res.points_ref,
-                                                                  res.points_tgt)
+    res.T_ref_tgt = pose_from_tgt_ref(R, t)
+    res.rotation_std_deg, res.translation_std_deg = pose_std_deg(cam, R, t, res.points_ref,
+                                                                 res.points_tgt)
     ratio = res.num_inliers / res.num_matches
     if ratio < config.min_inlier_ratio:
         res.T_ref_tgt = None
@@ -646,147 +388,3 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
                                     f"max_translation_std_deg = {config.max_translation_std_deg}")
     return finish("ok")
 
-
-def _opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: TwoViewConfig):
-    """(R_tgt_ref, t, inlier mask, message) from OpenCV.
-
-    Candidate poses come from the essential matrix (``cv2.findEssentialMat``
-    with RANSAC and, where available, USAC_ACCURATE, each disambiguated by
-    ``cv2.recoverPose``) and from the decompositions of a RANSAC homography
-    (planar scenes, where a five-point RANSAC may stop on the wrong one of the
-    two plane-induced solutions).  Each candidate is optionally refined on its
-    inliers (Sampson error) and scored with the MSAC cost over all matches
-    (squared Sampson error, truncated at the threshold; matches that triangulate
-    behind a camera count as outliers); the lowest cost wins.
-    """
-    import cv2
-
-    K = cam.K
-    thr = float(config.ransac_threshold_px)
-    candidates = []
-    notes = []
-    methods = [("RANSAC", cv2.RANSAC)]
-    if hasattr(cv2, "USAC_ACCURATE"):
-        methods.append(("USAC_ACCURATE", cv2.USAC_ACCURATE))
-    for name, method in methods:
-        try:
-            E, mask = cv2.findEssentialMat(x1, x2, K, method=method,
-                                           prob=float(config.ransac_confidence), threshold=thr,
-                                           maxIters=int(config.ransac_max_iterations))
-        except cv2.error as exc:
-            notes.append(f"findEssentialMat({name}) failed: {exc}")
-            continue
-        if E is None or E.shape[0] < 3 or mask is None or not np.all(np.isfinite(E)):
-            notes.append(f"findEssentialMat({name}) found no essential matrix")
-            continue
-        for k in range(E.shape[0] // 3):  # several solutions may be stacked
-            try:
-                n_good, R, t, _ = cv2.recoverPose(E[3 * k:3 * k + 3], x1, x2, K,
-                                                  mask=mask.astype(np.uint8).copy())
-            except cv2.error as exc:
-                notes.append(f"recoverPose failed: {exc}")
-                continue
-            if n_good >= 5:
-                candidates.append((R, t.ravel()))
-    try:
-        H, hmask = cv2.findHomography(x1, x2, cv2.RANSAC, thr, maxIters=int(config.ransac_max_iterations),
-                                      confidence=float(config.ransac_confidence))
-    except cv2.error:
-        H = None
-    if H is not None and np.all(np.isfinite(H)):
-        try:
-            _, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
-        except cv2.error:
-            Rs, ts = [], []
-        for R, t in zip(Rs, ts):
-            if np.linalg.norm(t) > 1e-9:
-                candidates.append((np.asarray(R, float), np.asarray(t, float).ravel()))
-    if not candidates:
-        return None, None, None, "; ".join(notes) or "no essential matrix found"
-
-    def score(R, t):
-        # MSAC score: truncated squared Sampson error, matches behind a camera
-        # count as outliers; returns (-cost, inliers, mask, R, t) (larger is better)
-        t = t / np.linalg.norm(t)
-        err = np.abs(_sampson_px(cam, R, t, x1, x2))
-        inl = (err < thr) & _positive_depth(cam, R, t, x1, x2)
-        cost = float(np.sum(np.where(inl, err ** 2, thr ** 2)))
-        return -cost, int(inl.sum()), inl, R, t
-
-    best = None
-    for R, t in candidates:
-        s0 = score(_orthonormalise(R), t)
-        if config.refine and s0[1] >= 8:
-            Rr, tr = _refine_sampson(cam, s0[3], s0[4], x1[s0[2]], x2[s0[2]], thr)
-            s1 = score(Rr, tr)
-            s0 = s1 if s1[:2] >= s0[:2] else s0
-        if best is None or s0[:2] > best[:2]:
-            best = s0
-    _, n_inl, inl, R, t = best
-    if n_inl < 5:
-        return None, None, inl, "no pose passes the cheirality check"
-    return R, t, inl, ""
-
-
-def _positive_depth(cam: PinholeCamera, R: np.ndarray, t: np.ndarray, x1: np.ndarray,
-                    x2: np.ndarray) -> np.ndarray:
-    """Cheirality: both midpoint-triangulated depths positive."""
-    f1 = _bearings(cam, x1)
-    f2 = _bearings(cam, x2)
-    # solve d1 R f1 + t = d2 f2 in least squares for (d1, d2)
-    a = f1 @ R.T
-    b = -f2
-    aa, bb, ab = np.sum(a * a, 1), np.sum(b * b, 1), np.sum(a * b, 1)
-    at, bt = a @ t, b @ t
-    det = aa * bb - ab ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d1 = (-at * bb + bt * ab) / det
-        d2 = (-bt * aa + at * ab) / det
-    return np.isfinite(d1) & (d1 > 0) & (d2 > 0)
-
-
-def _pycolmap_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray,
-                       config: TwoViewConfig):
-    """(R_tgt_ref, t, inlier mask, message) from COLMAP's calibrated two-view geometry."""
-    import pycolmap
-
-    ccam = colmap_camera(cam)
-    opts = pycolmap.TwoViewGeometryOptions()
-    opts.compute_relative_pose = True
-    opts.min_num_inliers = int(config.min_inliers)
-    opts.ransac.max_error = float(config.ransac_threshold_px)
-    opts.ransac.confidence = float(config.ransac_confidence)
-    opts.ransac.max_num_trials = int(config.ransac_max_iterations)
-    opts.ransac.random_seed = int(config.random_seed)
-    opts.ransac.num_threads = 1
-    opts.detect_watermark = False
-    idx = np.arange(len(x1), dtype=np.uint32)
-    with quiet_colmap():
-        geom = pycolmap.estimate_calibrated_two_view_geometry(
-            ccam, x1 + 0.5, ccam, x2 + 0.5, np.stack([idx, idx], 1), opts)
-    Cfg = pycolmap.TwoViewGeometryConfiguration
-    config_id = geom.config
-    inl_idx = np.asarray(geom.inlier_matches, np.int64).reshape(-1, 2)[:, 0]
-    inl = np.zeros(len(x1), bool)
-    inl[inl_idx] = True
-    if config_id in (Cfg.PANORAMIC, Cfg.PLANAR_OR_PANORAMIC) and _is_panoramic(geom):
-        return None, None, inl, "panoramic"
-    if config_id not in (Cfg.CALIBRATED, Cfg.PLANAR, Cfg.PLANAR_OR_PANORAMIC):
-        name = getattr(config_id, "name", str(config_id))
-        return None, None, inl, f"COLMAP two-view configuration {name}"
-    pose = geom.cam2_from_cam1
-    if pose is None:
-        return None, None, inl, "COLMAP returned no relative pose"
-    M = np.asarray(pose.matrix(), np.float64)  # 3x4, x_cam2 = R x_cam1 + t
-    R, t = _orthonormalise(M[:, :3]), M[:, 3]
-    if not np.all(np.isfinite(M)) or np.linalg.norm(t) < 1e-12:
-        return None, None, inl, "panoramic"
-    return R, t, inl, ""
-
-
-def _is_panoramic(geom) -> bool:
-    pose = geom.cam2_from_cam1
-    if pose is None:
-        return True
-    t = np.asarray(pose.matrix(), np.float64)[:, 3]
-    return bool(np.linalg.norm(t) < 1e-12)

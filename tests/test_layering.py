@@ -107,7 +107,6 @@ def _opens_with_reason(path: Path) -> bool:
     return any(line.strip().startswith(LONG_REASON) for line in doc.splitlines()[:5])
 
 
-@pytest.mark.xfail(strict=False, reason="restructure in progress")
 def test_modules_at_most_500_lines_or_say_why():
     too_long = []
     for folder in PACKAGE_OF_DIR:

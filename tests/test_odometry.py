@@ -1,4 +1,4 @@
-"""Monocular VO (spgeo.odometry) on a synthetic hand-held sequence, 160x120,
+"""Monocular VO (spgeo.vo) on a synthetic hand-held sequence, 160x120,
 depth-derived ("depth", oracle) front-end."""
 import json
 import logging
@@ -56,8 +56,7 @@ def run_frequent_kf(frames):
 
 def test_end_to_end_accuracy(frames, run):
     """The initialised keyframe pair (at least), mapped by the smoother; Sim(3) ATE of
-    the tracked frames < 3% of the trajectory length (measured 0.50% with 3
-    keyframes on this 50-frame, 0.63 m sequence)."""
+    the tracked frames < 3% of the trajectory length."""
     vo, results = run
     res = vo.result()
     assert len(res.timestamps) == N_FRAMES
@@ -115,8 +114,7 @@ def test_save_writes_parseable_files(run, tmp_path):
 
 def test_fixed_lag_marginalises_old_keyframes(frames):
     """Default 5-keyframe window; frequent keyframes (relative-cost threshold
-    0.08, 3 LM iterations per update, for test time: measured 9 keyframes,
-    ATE 2.0%): once more than 5 keyframes exist, the oldest keyframes' keys
+    0.08, 3 LM iterations per update, for test time): once more than 5 keyframes exist, the oldest keyframes' keys
     have left the smoother (marginalised) and exactly the last 5 remain."""
     cfg = OdometryConfig(kf_max_relative_cost=0.08, map_iterations=3)
     vo = Odometry(CAM, cfg, frontend())

@@ -43,6 +43,7 @@ from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..jsonio import json_default
 from ..vo import Odometry, OdometryConfig, OdometryResult
+from ..vo.result import write_keyframe_clouds
 
 __all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
            "parse_resolution", "ATE_LABELS"]
@@ -130,7 +131,8 @@ class VORun:
         fps: processed frames per wall-clock second (``n / wall_seconds``).
         config: the :class:`VORunConfig` used.
         keyframe_images: keyframe index -> the resized RGB image (float32
-            [0, 1]) the keyframe was made from.
+            [0, 1]) the keyframe was made from (colours of the point clouds
+            when :meth:`Odometry.save` writes none).
     """
 
     odometry: Odometry
@@ -245,6 +247,8 @@ class VORun:
         """
         out = Path(directory)
         paths: Dict[str, object] = dict(self.odometry.save(out))
+        if "clouds" not in paths:
+            paths["clouds"] = self._write_clouds(out / "clouds")
         report_path = Path(paths["report"])  # type: ignore[arg-type]
         report = json.loads(report_path.read_text(encoding="utf-8"))
         w, h = self.config.resolution
@@ -258,6 +262,20 @@ class VORun:
         report_path.write_text(json.dumps(report, indent=1, default=json_default),
                                encoding="utf-8")
         return paths
+
+    def _write_clouds(self, folder: Path) -> List[Path]:
+        """One PLY per keyframe (world frame = keyframe 0's camera, VO units),
+        coloured by :attr:`keyframe_images` (or the keyframe's grey image)."""
+        import cv2
+
+        kfs = []
+        for k, kf in enumerate(self.odometry.keyframes):
+            cam = kf.primitives.camera
+            img = self.keyframe_images.get(k)
+            if img is not None and img.shape[:2] != cam.shape:
+                img = cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
+            kfs.append((k, kf.pyramid.images[0] if img is None else img, kf))
+        return write_keyframe_clouds(folder, kfs)
 
 
 def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,

@@ -15,7 +15,8 @@ import typing
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
-__all__ = ["ConfigError", "parse_value", "parse_assignments", "flatten", "apply_overrides",
+__all__ = ["ConfigError", "UnknownFieldError", "parse_value", "parse_assignments", "nest",
+           "flatten", "apply_overrides",
            "load_config_file", "config_to_dict", "resolve_config", "add_config_arguments"]
 
 Overrides = Union[Mapping[str, Any], Iterable[str]]
@@ -25,27 +26,52 @@ class ConfigError(ValueError):
     """A bad ``--set`` / ``--config`` entry (unknown field, wrong type, unreadable file)."""
 
 
-def parse_value(text: str) -> Any:
+class UnknownFieldError(ConfigError, TypeError):
+    """A field the dataclass does not have (also a ``TypeError``, as
+    :func:`dataclasses.replace` raises for an unexpected field)."""
+
+
+def parse_value(text: str, strict: bool = False) -> Any:
     """A Python literal (``1e-4``, ``None``, ``(1, 2)``, ``'x'``, ``True``) or,
-    when ``text`` is not one, the stripped string itself."""
+    when ``text`` is not one, the stripped string itself (with ``strict``:
+    ``ValueError`` / ``SyntaxError`` instead)."""
     s = text.strip()
     try:
         return ast.literal_eval(s)
     except (ValueError, SyntaxError, MemoryError, RecursionError):
+        if strict:
+            raise
         return s
 
 
-def parse_assignments(items: Iterable[str]) -> Dict[str, Any]:
+def parse_assignments(items: Iterable[str], strict: bool = False) -> Dict[str, Any]:
     """``["a=1", "b.c=x"]`` -> ``{"a": 1, "b.c": "x"}`` (dotted keys, values
-    by :func:`parse_value`, later items win); ``ConfigError`` for an item
-    without ``=`` or with an empty field name."""
+    by :func:`parse_value` with ``strict``, later items win); ``ConfigError``
+    for an item without ``=`` or with an empty field name."""
     out: Dict[str, Any] = {}
     for item in items:
         key, sep, val = str(item).partition("=")
         path = [k.strip() for k in key.split(".")]
         if not sep or not all(path):
             raise ConfigError(f"--set expects FIELD=VALUE (e.g. window=7), got {item!r}")
-        out[".".join(path)] = parse_value(val)
+        out[".".join(path)] = parse_value(val, strict)
+    return out
+
+
+def nest(dotted: Mapping[str, Any]) -> Dict[str, Any]:
+    """Dotted keys -> nested mapping: ``{"a.b": 1}`` -> ``{"a": {"b": 1}}``;
+    ``ConfigError`` when a name is set both as a value and as a group."""
+    out: Dict[str, Any] = {}
+    for key, val in dotted.items():
+        path = key.split(".")
+        node = out
+        for k in path[:-1]:
+            node = node.setdefault(k, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{k!r} is set both as a value and as a group")
+        if isinstance(node.get(path[-1]), dict):
+            raise ConfigError(f"{path[-1]!r} is set both as a value and as a group")
+        node[path[-1]] = val
     return out
 
 
@@ -133,7 +159,7 @@ def _set(obj: Any, path: Sequence[str], value: Any, done: str) -> Any:
     full = f"{done}{name}"
     names = {f.name for f in dataclasses.fields(obj) if f.init}
     if name not in names:
-        raise ConfigError(f"unknown field {full!r} of {type(obj).__name__}; valid fields: "
+        raise UnknownFieldError(f"unknown field {full!r} of {type(obj).__name__}; valid fields: "
                           f"{', '.join(_valid_fields(obj, done))}")
     current = getattr(obj, name)
     nested = dataclasses.is_dataclass(current) and not isinstance(current, type)
@@ -181,7 +207,7 @@ def apply_overrides(config: Any, overrides: Overrides, route: Optional[str] = No
         if route is not None and path[0] not in top:
             sub = getattr(config, route)
             if path[0] not in {f.name for f in dataclasses.fields(sub)}:
-                raise ConfigError(
+                raise UnknownFieldError(
                     f"unknown field {key!r}; valid fields: "
                     f"{', '.join(_valid_fields(config) + _valid_fields(sub))}")
             path = [route] + path

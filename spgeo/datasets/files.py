@@ -16,7 +16,7 @@ from typing import Dict, Optional, Sequence, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..images import load_image
+from ..images import load_image, read_raw_image
 
 __all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
            "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
@@ -101,14 +101,8 @@ def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera]
     ``invalid_values`` are raw values meaning "no measurement" (0 by default).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
     """
-    import cv2
-
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"depth file not found: {path}")
-    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot decode depth file: {path}")
+    raw = read_raw_image(path, "depth")
     if raw.ndim != 2 or raw.dtype != np.uint16:
         raise ValueError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
                          f"got shape {raw.shape} dtype {raw.dtype}")

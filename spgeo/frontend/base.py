@@ -8,14 +8,16 @@ connected parts, integrates normals into log-depth and returns a
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import List, Optional, Protocol, runtime_checkable
+from typing import Any, List, Optional, Protocol, runtime_checkable
 
 import numpy as np
 
 from ..camera import PinholeCamera
 
-__all__ = ["Segmentation", "Segmenter", "NormalEstimator", "masks_to_segmentation"]
+__all__ = ["Segmentation", "Segmenter", "NormalEstimator", "masks_to_segmentation",
+           "config_with_overrides"]
 
 
 @dataclass
@@ -126,3 +128,11 @@ class NormalEstimator(Protocol):
     def estimate(self, image: np.ndarray, camera: PinholeCamera,
                  depth: Optional[np.ndarray] = None) -> np.ndarray:
         ...
+
+
+def config_with_overrides(config_type: type, config: Optional[Any], overrides: dict) -> Any:
+    """``config_type(**overrides)`` when ``config`` is None, else ``config`` with
+    ``overrides`` applied (:func:`dataclasses.replace`)."""
+    if config is None:
+        return config_type(**overrides)
+    return dataclasses.replace(config, **overrides) if overrides else config

@@ -49,7 +49,7 @@ from scipy import ndimage
 
 from ..camera import PinholeCamera
 from ..images import to_float_image
-from .base import Segmentation
+from .base import Segmentation, config_with_overrides
 
 __all__ = ["ClassicalSegmenterConfig", "ClassicalSegmenter", "METHODS",
            "split_connected_labels", "interior_anchors", "labels_to_segmentation"]
@@ -302,13 +302,7 @@ class ClassicalSegmenter:
     """
 
     def __init__(self, config: Optional[ClassicalSegmenterConfig] = None, **overrides) -> None:
-        if config is None:
-            config = ClassicalSegmenterConfig(**overrides)
-        elif overrides:
-            import dataclasses
-
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config_with_overrides(ClassicalSegmenterConfig, config, overrides)
 
     # -------------------------------------------------------------- internals
     def _prepare(self, image: np.ndarray) -> np.ndarray:

@@ -14,7 +14,6 @@ surface point ``X``); output float32 (H, W, 3), NaN where unknown.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Optional
@@ -23,6 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
+from .base import config_with_overrides
 
 __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallelNormals",
            "normals_from_depth"]
@@ -368,11 +368,7 @@ class DepthNormalEstimator:
     uses_depth: bool = True
 
     def __init__(self, config: Optional[DepthNormalEstimatorConfig] = None, **overrides) -> None:
-        if config is None:
-            config = DepthNormalEstimatorConfig(**overrides)
-        elif overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = config_with_overrides(DepthNormalEstimatorConfig, config, overrides)
 
     def estimate(self, image: Optional[np.ndarray], camera: PinholeCamera,
                  depth: Optional[np.ndarray] = None) -> np.ndarray:

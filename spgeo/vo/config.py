@@ -11,7 +11,10 @@ from ..sfm import SfMConfig
 
 __all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS"]
 
-#: ``OdometryConfig.primitive_model`` values (docstring of :mod:`spgeo.vo.odometry`).
+#: ``OdometryConfig.primitive_model`` values: ``"integrated"`` (the paper's model),
+#: ``"constant_depth"`` (each primitive a fronto-parallel plane at its anchor depth),
+#: ``"constant_normal"`` (the least-squares plane of its integrated shape) and
+#: ``"planar"`` (those planes with their three parameters optimised in mapping).
 PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar")
 
 
@@ -153,8 +156,7 @@ class OdometryConfig:
             per-primitive factors make a window update quadratic in its size;
             very large chunks make gtsam's dense blocks large instead.
         photometric: per-pixel cost of the mapping factors.
-        primitive_model: :data:`PRIMITIVE_MODELS` (ablations; module
-            docstring of :mod:`spgeo.vo.odometry`).
+        primitive_model: one of :data:`PRIMITIVE_MODELS` (ablations).
         scale_prior_weight: weight of each log-scale's prior to its initial
             value (paper: 1e-5).
         planar_slope_sigma: sigma of the planar model's slope prior (towards

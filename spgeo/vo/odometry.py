@@ -48,13 +48,8 @@ One thread, one call per frame (:meth:`Odometry.track`):
   pose (lost frames repeat the previous frame's pose).  ``FrameResult`` keeps
   the online (causal) estimate.
 
-Ablations (``OdometryConfig.primitive_model``, docs/design.md §5): ``"integrated"``
-(default, the paper's model), ``"constant_depth"`` (each primitive a
-fronto-parallel plane at its anchor depth), ``"constant_normal"`` (each
-primitive replaced by the least-squares plane of its integrated shape) and
-``"planar"`` (planes as ``constant_normal`` whose three parameters are
-optimised in mapping).  Depth-derived (oracle) normals are the ``"depth"``
-front-end.
+Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5);
+depth-derived (oracle) normals are the ``"depth"`` front-end.
 """
 from __future__ import annotations
 
@@ -77,7 +72,7 @@ from ..sfm import few_view_sfm
 from .config import OdometryConfig
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
-from .result import STATUSES, FrameResult, FrameStatus, OdometryResult, save_run
+from .result import FrameResult, FrameStatus, OdometryResult, save_run
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Odometry"]
@@ -208,14 +203,13 @@ class Odometry:
         """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
         initialisation reports, configuration."""
         res = self.result()
-        counts = {s: int(sum(1 for x in res.statuses if x == s)) for s in STATUSES}
         tot = [f.timings.get("total", 0.0) for f in self._frames]
         n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
         maps = [m["seconds"] for m in self._mapper.reports if "seconds" in m]
         return {
             "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
             "n_segments": self._segment + 1,
-            "status_counts": counts,
+            "status_counts": res.status_counts(),
             "seconds_total": float(np.sum(tot)),
             "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
             "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -18,7 +18,8 @@ from ..jsonio import json_default
 from ..trajectory import STATUSES, FrameStatus, Trajectory
 from .tracking import Keyframe, TrackResult
 
-__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "save_run"]
+__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "save_run",
+           "write_keyframe_clouds"]
 
 #: The per-run result of :meth:`spgeo.vo.Odometry.result` (alias of
 #: :class:`~spgeo.trajectory.Trajectory`: ``statuses``, ``segments``,
@@ -80,12 +81,21 @@ def save_run(directory: Union[str, Path], result: Trajectory, report: dict,
     paths: Dict[str, object] = {"trajectory": traj, "keyframes": kfs,
                                 "status": status_path_for(traj), "report": rep}
     if keyframes is not None:
-        cdir = out / "clouds"
-        cdir.mkdir(exist_ok=True)
-        paths["clouds"] = []
-        for k, image, kf in keyframes:
-            pc = kf.primitives.point_cloud(image).transformed(kf.T_world_kf)
-            p = cdir / f"keyframe_{k:04d}.ply"
-            pc.save_ply(p)
-            paths["clouds"].append(p)
+        paths["clouds"] = write_keyframe_clouds(out / "clouds", keyframes)
     return paths
+
+
+def write_keyframe_clouds(folder: Union[str, Path],
+                          keyframes: Sequence[Tuple[int, np.ndarray, Keyframe]]) -> List[Path]:
+    """One PLY ``keyframe_<index:04d>.ply`` per keyframe ``(index, colour
+    image for :meth:`PrimitiveSet.point_cloud`, Keyframe)`` in ``folder``
+    (created): the primitives' points in the world frame (VO units)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written: List[Path] = []
+    for k, image, kf in keyframes:
+        cloud = kf.primitives.point_cloud(image).transformed(kf.T_world_kf)
+        path = folder / f"keyframe_{k:04d}.ply"
+        cloud.save_ply(path)
+        written.append(path)
+    return written

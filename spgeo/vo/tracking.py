@@ -1,7 +1,7 @@
 """Pose-only photometric tracking of a frame against a keyframe's primitives.
 
-(Over 500 lines: one job, the keyframe's batched pixels, the tracking cost
-with its Jacobian and the LM loop share the private per-level data.)
+Longer than 500 lines because its one job's parts (the keyframe's batched
+pixels, the tracking cost with its Jacobian, the LM loop) share private per-level data.
 
 The VO front-end (docs/design.md §5) aligns every new frame to the latest keyframe
 with the keyframe's primitive scales held fixed.  The cost minimised here is
@@ -14,7 +14,7 @@ of the pair (keyframe, frame) contributes ``0.5 |e_i|^2`` with
 
 (Huber IRLS weight ``rho``, per-primitive mean over the pixels valid in the
 target, constant penalty rows for points behind the frame's camera), built at
-each pyramid level exactly as :func:`spgeo.sfm._build_graph` builds it: level
+each pyramid level exactly as :func:`spgeo.sfm_graph.build_graph` builds it: level
 ``l`` uses the primitive pixels on the ``2^l`` lattice, keyframe intensities
 from level ``l`` of the keyframe's pyramid, and the frame's level-``l`` image
 and camera; primitives with fewer than ``min_level_pixels`` pixels at a level
@@ -183,7 +183,7 @@ class TrackingCost:
 
     ``cost = sum_i 0.5 |e_i|^2 (+ 0.5 |(a, b) / sigma|^2)``: the sum of the
     errors of the :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor`
-    of every keyframe primitive (built as :func:`spgeo.sfm._build_graph` builds
+    of every keyframe primitive (built as :func:`spgeo.sfm_graph.build_graph` builds
     them at this level) plus the optional brightness prior.
 
     Args:

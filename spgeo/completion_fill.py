@@ -1,0 +1,154 @@
+"""Hole filling and sparse-depth helpers of :mod:`spgeo.completion`.
+
+Depth maps are (H, W) metres; sparse maps use 0 (or NaN on input) for
+missing.  Pixel coordinates ``uv`` are (K, 2), u = column, v = row, pixel
+centres at integers.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Optional, Tuple
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .camera import PinholeCamera
+
+__all__ = [
+    "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST", "check_sparse_depth",
+    "nearest_fill", "linear_fill", "upsample", "resample_sparse", "fill_holes",
+]
+
+log = logging.getLogger(__name__)
+
+#: Confidence / coverage codes of :attr:`spgeo.completion.CompletionResult.confidence`.
+CONFIDENCE_PRIMITIVE = 2   #: depth of a primitive with sparse support
+CONFIDENCE_LINEAR = 1      #: filled by linear interpolation
+CONFIDENCE_NEAREST = 0     #: filled with the nearest value (outside the hull)
+
+
+def check_sparse_depth(sparse_depth: np.ndarray, shape: Optional[Tuple[int, int]] = None,
+                       name: str = "sparse depth") -> np.ndarray:
+    """Validate an (H, W) sparse depth map; return float64 with NaN -> 0.
+
+    Raises ``ValueError`` for a wrong shape (not 2-D, or not ``shape``), a
+    non-numeric dtype, infinite or negative values, or no valid (> 0) point.
+    """
+    d = np.asarray(sparse_depth)
+    if d.ndim != 2 or d.size == 0:
+        raise ValueError(f"{name} must be a non-empty (H, W) array, got shape {d.shape}")
+    if shape is not None and d.shape != tuple(shape):
+        raise ValueError(f"{name} has shape {d.shape}, expected {tuple(shape)} (the image size)")
+    if d.dtype == bool or not np.issubdtype(d.dtype, np.number) \
+            or np.issubdtype(d.dtype, np.complexfloating):
+        raise ValueError(f"{name} must be a real numeric array, got dtype {d.dtype}")
+    d = d.astype(np.float64)
+    if np.any(np.isinf(d)):
+        raise ValueError(f"{name} contains inf")
+    d = np.nan_to_num(d, nan=0.0)
+    if np.any(d < 0):
+        raise ValueError(f"{name} contains negative depths")
+    if not np.any(d > 0):
+        raise ValueError(f"{name} has no valid point (all zero / NaN): nothing to complete from")
+    return d
+
+
+def nearest_fill(values: np.ndarray, known: Optional[np.ndarray] = None) -> np.ndarray:
+    """Copy of ``values`` with every pixel where ``known`` is False replaced by
+    the value of the nearest known pixel (Euclidean; one distance transform).
+    ``known`` defaults to finite and > 0."""
+    values = np.asarray(values, dtype=np.float64)
+    if known is None:
+        known = np.isfinite(values) & (values > 0)
+    if not np.any(known):
+        raise ValueError("nearest_fill: no known pixel")
+    if np.all(known):
+        return values.copy()
+    _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
+    return values[iy, ix]
+
+
+def linear_fill(uv: np.ndarray, values: np.ndarray, shape: Tuple[int, int],
+                query: Optional[np.ndarray] = None) -> np.ndarray:
+    """Linear interpolation (Delaunay, ``scipy.interpolate.LinearNDInterpolator``)
+    of scattered ``values`` at pixels ``uv`` (K, 2) (u = column, v = row).
+
+    Returns an (H, W) map holding the interpolant at the pixels of ``query``
+    ((H, W) bool; default all) and NaN elsewhere, including query pixels
+    outside the convex hull.  Fewer than 3 or collinear points give all NaN.
+    """
+    from scipy.interpolate import LinearNDInterpolator
+
+    h, w = shape
+    out = np.full(h * w, np.nan)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    q = np.flatnonzero(np.ones(h * w, bool) if query is None else np.asarray(query, bool).ravel())
+    if uv.shape[0] < 3 or q.size == 0:
+        return out.reshape(h, w)
+    try:
+        interp = LinearNDInterpolator(uv, values)
+    except Exception as exc:  # qhull errors: all points collinear / coincident
+        log.debug("linear_fill: triangulation failed (%s)", exc)
+        return out.reshape(h, w)
+    out[q] = interp(np.stack([q % w, q // w], 1).astype(np.float64))
+    return out.reshape(h, w)
+
+
+def upsample(depth_w: np.ndarray, conf_w: np.ndarray, camera: PinholeCamera
+             ) -> Tuple[np.ndarray, np.ndarray]:
+    """Bring a complete working-resolution depth map (bilinear) and its
+    confidence codes (nearest) to ``camera``'s size."""
+    if depth_w.shape == camera.shape:
+        return depth_w, conf_w
+    depth = cv2.resize(depth_w.astype(np.float64), camera.size, interpolation=cv2.INTER_LINEAR)
+    conf = cv2.resize(conf_w, camera.size, interpolation=cv2.INTER_NEAREST)
+    return depth, conf
+
+
+def resample_sparse(uv: np.ndarray, d: np.ndarray, camera: PinholeCamera,
+                    target: PinholeCamera) -> np.ndarray:
+    """Sparse points of ``camera`` as a sparse map of ``target`` (rounded pixel;
+    points sharing a pixel keep the mean)."""
+    if target.size == camera.size:
+        out = np.zeros(camera.shape)
+        out[uv[:, 1].astype(np.int64), uv[:, 0].astype(np.int64)] = d
+        return out
+    sx, sy = target.width / camera.width, target.height / camera.height
+    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, target.width - 1).astype(np.int64)
+    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, target.height - 1).astype(np.int64)
+    flat = v * target.width + u
+    npix = target.width * target.height
+    tot = np.bincount(flat, weights=d, minlength=npix)
+    cnt = np.bincount(flat, minlength=npix)
+    return np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0).reshape(target.shape)
+
+
+def fill_holes(depth: np.ndarray, covered: np.ndarray, sparse: np.ndarray
+               ) -> Tuple[np.ndarray, np.ndarray]:
+    """Fill ``~covered`` pixels: linear interpolation of hole-border depths and
+    sparse points inside holes, then nearest.  Returns ``(depth, confidence)``."""
+    h, w = depth.shape
+    conf = np.full((h, w), CONFIDENCE_NEAREST, np.uint8)
+    conf[covered] = CONFIDENCE_PRIMITIVE
+    holes = ~covered
+    if not holes.any():
+        return depth, conf
+    border = covered & cv2.dilate(holes.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    in_hole = holes & (sparse > 0)
+    known = border | in_hole
+    vals = np.where(covered, depth, sparse)
+    kv, ku = np.nonzero(known)
+    lin = linear_fill(np.stack([ku, kv], 1), vals[kv, ku], (h, w), holes)
+    out = depth.copy()
+    lin_ok = holes & np.isfinite(lin)
+    out[lin_ok] = lin[lin_ok]
+    out[in_hole] = sparse[in_hole]
+    conf[lin_ok | in_hole] = CONFIDENCE_LINEAR
+    rest = holes & ~(lin_ok | in_hole)
+    if rest.any():
+        filled = nearest_fill(np.where(rest, np.nan, out), ~rest)
+        out[rest] = filled[rest]
+    return out, conf
+
