@@ -19,6 +19,11 @@ Four measurements on one rendered synthetic sequence
    primitive (``map_chunk=1``) vs the default chunks, mapping seconds per
    keyframe (same cost, see :class:`spgeo.factors.photometric.PhotometricFactorGroup`).
 
+``--settings`` replaces the pipeline rows of 2-4 by its own: one string of
+``FIELD=VALUE`` :class:`~spgeo.vo.OdometryConfig` overrides per row, as
+``--set-grid`` of :mod:`spgeo.evaluation.vo_frontier` (which adds accuracy on
+real data and peak memory).
+
 Timings are wall-clock on whatever else the machine is doing; compare the
 numbers of one run with each other (ratios), not across machines.
 """
@@ -27,16 +32,19 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from dataclasses import replace
 from typing import Dict, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.vo_frontier import setting_config
 from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
-from spgeo.vo import OdometryConfig
 from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
 
 __all__ = ["bench_tracking", "main"]
+
+#: the default pipeline rows (``--settings``): defaults, full-resolution mapping
+#: on half the pixels, one factor per primitive
+_DEFAULT_SETTINGS = ("defaults", "map_level=0 map_pixel_fraction=0.5", "map_chunk=1")
 
 
 def bench_tracking(frames, config: TrackerConfig = TrackerConfig(),
@@ -74,7 +82,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--frontend", default="classical", choices=["classical", "depth"])
     ap.add_argument("--no-chunk-compare", action="store_true")
+    ap.add_argument("--settings", nargs="+", default=None, metavar="SETTING",
+                    help="pipeline rows: OdometryConfig overrides per row, e.g. 'defaults' "
+                         "'map_level=0 tracker.levels=4' (default: rows 2-4 above)")
     args = ap.parse_args(argv)
+    settings = args.settings or (list(_DEFAULT_SETTINGS)[:2 if args.no_chunk_compare else 3])
+    try:
+        runs = [(st, setting_config(st)) for st in settings]
+    except (ValueError, TypeError, SyntaxError) as exc:
+        ap.error(f"--settings: {exc}")
     frames = synthetic_sequence(SyntheticVOConfig(args.frames, args.seed))
     print(f"machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; "
           f"{args.frames} synthetic frames (seed {args.seed}) at 160x120")
@@ -82,11 +98,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(f"tracking alone: {tr['fps']:.1f} FPS (median {1e3 * tr['median_s']:.1f} ms over "
           f"{tr['frames']} frames vs keyframe 0; median translation error "
           f"{1e3 * tr['median_translation_err_m']:.1f} mm)")
-    runs = [("default", OdometryConfig()),
-            ("map_level=0 half pixels", replace(OdometryConfig(), map_level=0,
-                                                map_pixel_fraction=0.5))]
-    if not args.no_chunk_compare:
-        runs.append(("map_chunk=1", replace(OdometryConfig(), map_chunk=1)))
     print("| pipeline | FPS | track FPS | mapping s/KF | KFs | s track | s front-end | "
           "s mapping | s init | per-frame ATE % |")
     print("|---|---|---|---|---|---|---|---|---|---|")

@@ -47,9 +47,12 @@ import gtsam
 
 from spgeo.camera import PinholeCamera
 
+from . import kernels
+
 __all__ = [
     "PhotometricConfig", "ShapeModel", "ScaledShape", "PlanarShape",
-    "PrimitivePhotometricFactor", "photometric_rows", "robust_weights",
+    "PrimitivePhotometricFactor", "photometric_rows", "photometric_rows_numpy",
+    "photometric_rows_numba", "residual_pass", "robust_weights",
 ]
 
 
@@ -74,6 +77,11 @@ class PhotometricConfig:
         behind_penalty: photometric error (intensity units) charged to a pixel
             whose point lies behind the reference or target camera (default
             0.5, about the largest plausible photometric error).
+        backend: implementation of the rows (:func:`photometric_rows`):
+            ``"auto"`` (default: the compiled kernels of
+            :mod:`spgeo.factors.kernels` when numba is importable, else
+            numpy), ``"numba"`` or ``"numpy"`` (the reference).  The same
+            cost either way.
     """
 
     robust: str = "huber"
@@ -82,6 +90,7 @@ class PhotometricConfig:
     normalise: str = "valid"
     pixel_sigma: float = 0.02
     behind_penalty: float = 0.5
+    backend: str = "auto"
 
     def __post_init__(self) -> None:
         if self.robust not in ("huber", "none"):
@@ -93,6 +102,9 @@ class PhotometricConfig:
                              f"got {self.normalise!r}")
         if not self.pixel_sigma > 0:
             raise ValueError("PhotometricConfig.pixel_sigma must be > 0")
+        if self.backend not in kernels.BACKENDS:
+            raise ValueError(f"PhotometricConfig.backend must be one of {kernels.BACKENDS}, "
+                             f"got {self.backend!r}")
 
 
 def robust_weights(r: np.ndarray, config: PhotometricConfig) -> np.ndarray:
@@ -196,12 +208,12 @@ def _sample_with_gradient(img: np.ndarray, u: np.ndarray, v: np.ndarray):
     return val, valid, gu, gv
 
 
-def photometric_rows(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
-                     T_world_ref: np.ndarray, T_world_tgt: np.ndarray, target_image: np.ndarray,
-                     camera: PinholeCamera, ref_intensity: np.ndarray,
-                     brightness: Optional[np.ndarray], config: PhotometricConfig,
-                     ids: Optional[np.ndarray], n_groups: int, group_pixels: np.ndarray,
-                     jacobians: bool = True) -> dict:
+def photometric_rows_numpy(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
+                           T_world_ref: np.ndarray, T_world_tgt: np.ndarray,
+                           target_image: np.ndarray, camera: PinholeCamera,
+                           ref_intensity: np.ndarray, brightness: Optional[np.ndarray],
+                           config: PhotometricConfig, ids: Optional[np.ndarray], n_groups: int,
+                           group_pixels: np.ndarray, jacobians: bool = True) -> dict:
     """The factor's rows for the reference points ``X`` (K, 3) of one or many
     primitives (the module docstring's model).
 
@@ -209,7 +221,8 @@ def photometric_rows(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
     primitive) among ``n_groups``; ``group_pixels`` (n_groups,) is each
     primitive's ``|Omega|`` for ``normalise="all"``.  Rows of different
     primitives never mix: the result for one primitive is the same whether it
-    is evaluated alone or in a batch (tested).
+    is evaluated alone or in a batch (tested).  The numpy reference of
+    :func:`photometric_rows_numba`.
     """
     R_wt, R_wr = T_world_tgt[:3, :3], T_world_ref[:3, :3]
     R = R_wt.T @ R_wr                                   # R_tgt_ref
@@ -271,6 +284,94 @@ def photometric_rows(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
         J_b[:, 1] = w
         out["J_brightness"] = J_b
     return out
+
+
+def _relative_pose(T_world_ref: np.ndarray, T_world_tgt: np.ndarray):
+    """``(R, t)`` of ``T_tgt_ref`` from the two camera-to-world poses."""
+    R_wt = T_world_tgt[:3, :3]
+    R = np.ascontiguousarray(R_wt.T @ T_world_ref[:3, :3])
+    t = R_wt.T @ (T_world_ref[:3, 3] - T_world_tgt[:3, 3])
+    return R, t
+
+
+_EMPTY_IDS = np.zeros(0, dtype=np.int64)
+_EMPTY_BOOL = np.zeros(0, dtype=bool)
+
+
+def residual_pass(X: np.ndarray, shape_valid: Optional[np.ndarray], R: np.ndarray,
+                  t: np.ndarray, target_image: np.ndarray, camera: PinholeCamera,
+                  ref_intensity: np.ndarray, a: float, b: float, config: PhotometricConfig,
+                  ids: Optional[np.ndarray], group_pixels: np.ndarray) -> dict:
+    """Residual rows by the compiled kernel :func:`spgeo.factors.kernels.residual_pass`
+    (shared by the factors and the tracker): ``e``, ``r``, ``valid``,
+    ``behind``, ``weights`` (K,), ``sum_sq = |e|^2``, ``n_valid``, and the
+    kernel's ``I_t`` (K,), ``Y``, ``g`` (K, 3), ``ea = exp(-a)`` for the Jacobians.  ``shape_valid`` / ``ids`` None: all valid /
+    one primitive; ``group_pixels`` is per primitive (its size is the
+    primitive count)."""
+    k = X.shape[0]
+    out = {"e": np.empty(k), "r": np.empty(k), "valid": np.empty(k, dtype=bool),
+           "behind": np.empty(k, dtype=bool), "weights": np.empty(k), "I_t": np.empty(k),
+           "Y": np.empty((k, 3)), "g": np.empty((k, 3))}
+    cam = camera
+    ea = float(np.exp(-a))
+    sq, n_valid = kernels.residual_pass(
+        X, _EMPTY_BOOL if shape_valid is None else shape_valid, R, t, target_image,
+        float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), ref_intensity, ea, float(b),
+        _EMPTY_IDS if ids is None else ids, np.asarray(group_pixels, dtype=np.float64),
+        kernels.NORMALISE_CODES[config.normalise], float(config.pixel_sigma),
+        config.robust == "huber", float(config.huber_delta), float(config.min_depth),
+        float(config.behind_penalty), out["e"], out["r"], out["valid"], out["behind"],
+        out["weights"], out["I_t"], out["Y"], out["g"])
+    out.update(ea=ea, sum_sq=sq, n_valid=n_valid)
+    return out
+
+
+def photometric_rows_numba(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
+                           T_world_ref: np.ndarray, T_world_tgt: np.ndarray,
+                           target_image: np.ndarray, camera: PinholeCamera,
+                           ref_intensity: np.ndarray, brightness: Optional[np.ndarray],
+                           config: PhotometricConfig, ids: Optional[np.ndarray], n_groups: int,
+                           group_pixels: np.ndarray, jacobians: bool = True) -> dict:
+    """:func:`photometric_rows_numpy` by the compiled kernels (same arguments
+    and results; with ``jacobians`` also ``pose_rows_and_e`` (K, 13|15),
+    ``[J_ref | J_tgt | J_brightness | e]``, of which ``J_ref``, ``J_tgt``
+    and ``J_brightness`` are views)."""
+    R, t = _relative_pose(T_world_ref, T_world_tgt)
+    a, b = (float(brightness[0]), float(brightness[1])) if brightness is not None else (0.0, 0.0)
+    gp = np.broadcast_to(np.asarray(group_pixels, dtype=np.float64).reshape(-1), (n_groups,))
+    res = residual_pass(X, shape_valid, R, t, target_image, camera, ref_intensity, a, b, config,
+                        ids, np.ascontiguousarray(gp))
+    out = {key: res[key] for key in ("e", "r", "valid", "behind", "weights")}
+    if not jacobians:
+        return out
+    k = X.shape[0]
+    # pose and brightness columns side by side with e: [J_ref | J_tgt | J_b | e]
+    # (the Gram input of PhotometricFactorGroup's square-root chunks)
+    A = np.empty((k, 13 + (2 if brightness is not None else 0)))
+    out["J_ref"], out["J_tgt"] = A[:, :6], A[:, 6:12]
+    out["J_shape"] = np.empty((k, dX.shape[2]))
+    J_b = A[:, 12:14] if brightness is not None else np.empty((0, 2))
+    kernels.jacobian_rows(X, dX, R, res["Y"], res["g"], res["weights"], res["I_t"], res["ea"],
+                          out["J_ref"], out["J_tgt"], out["J_shape"], J_b)
+    A[:, -1] = res["e"]
+    out["pose_rows_and_e"] = A
+    if brightness is not None:
+        out["J_brightness"] = J_b
+    return out
+
+
+def photometric_rows(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
+                     T_world_ref: np.ndarray, T_world_tgt: np.ndarray, target_image: np.ndarray,
+                     camera: PinholeCamera, ref_intensity: np.ndarray,
+                     brightness: Optional[np.ndarray], config: PhotometricConfig,
+                     ids: Optional[np.ndarray], n_groups: int, group_pixels: np.ndarray,
+                     jacobians: bool = True) -> dict:
+    """The factor's rows (:func:`photometric_rows_numpy`'s contract) by the
+    implementation ``config.backend`` selects."""
+    fn = (photometric_rows_numba if kernels.resolve_backend(config.backend) == "numba"
+          else photometric_rows_numpy)
+    return fn(X, dX, shape_valid, T_world_ref, T_world_tgt, target_image, camera, ref_intensity,
+              brightness, config, ids, n_groups, group_pixels, jacobians)
 
 
 class PrimitivePhotometricFactor:

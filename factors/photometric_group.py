@@ -14,6 +14,7 @@ import gtsam
 
 from spgeo.camera import PinholeCamera
 
+from . import kernels
 from .photometric import PhotometricConfig, ShapeModel, photometric_rows
 
 __all__ = ["PhotometricFactorGroup"]
@@ -174,16 +175,28 @@ class PhotometricFactorGroup:
         parts = [res["J_ref"], res["J_tgt"]]
         if self.brightness_key is not None:
             parts.append(res["J_brightness"])
-        Ae = np.column_stack(parts + [res["e"]])            # (K, m + 1)
-        m1 = Ae.shape[1]
-        starts = self.offsets[:-1]
-        if d == 1:
-            s = J_s[:, 0]
-            G_ss = np.add.reduceat(s * s, starts)[:, None, None]                    # (N, 1, 1)
-            G_sa = np.add.reduceat(s[:, None] * Ae, starts)[:, None, :]             # (N, 1, m+1)
+        m1 = self._n_pose_cols + 1
+        if "pose_rows_and_e" in res:
+            # compiled rows: the Gram blocks in one compiled pass over them
+            G_ss = np.empty((len(self), d, d))
+            G_sa = np.empty((len(self), d, m1))
+            AtA = np.empty((len(self.chunks), m1, m1))
+            kernels.chunk_grams(res["pose_rows_and_e"], J_s, self.offsets, self._chunk_rows,
+                                G_ss, G_sa, AtA)
         else:
-            G_ss = np.add.reduceat(J_s[:, :, None] * J_s[:, None, :], starts)      # (N, d, d)
-            G_sa = np.add.reduceat(J_s[:, :, None] * Ae[:, None, :], starts)       # (N, d, m+1)
+            Ae = np.column_stack(parts + [res["e"]])            # (K, m + 1)
+            starts = self.offsets[:-1]
+            if d == 1:
+                s = J_s[:, 0]
+                G_ss = np.add.reduceat(s * s, starts)[:, None, None]                # (N, 1, 1)
+                G_sa = np.add.reduceat(s[:, None] * Ae, starts)[:, None, :]         # (N, 1, m+1)
+            else:
+                G_ss = np.add.reduceat(J_s[:, :, None] * J_s[:, None, :], starts)  # (N, d, d)
+                G_sa = np.add.reduceat(J_s[:, :, None] * Ae[:, None, :], starts)   # (N, d, m+1)
+            AtA = [None if p.size == 1 else
+                   Ae[self._chunk_rows[j]:self._chunk_rows[j + 1]].T
+                   @ Ae[self._chunk_rows[j]:self._chunk_rows[j + 1]]
+                   for j, p in enumerate(self.chunks)]
         lam, V = np.linalg.eigh(G_ss)
         tol = 1e-12 * max(float(lam.max()), 1e-300)
         ok = lam > tol
@@ -198,9 +211,8 @@ class PhotometricFactorGroup:
                 out.append(None)
                 continue
             c = prims.size
-            A_j = Ae[self._chunk_rows[j]:self._chunk_rows[j + 1]]
             rows_s = U_sa[prims].reshape(c * d, m1)
-            M = A_j.T @ A_j - rows_s.T @ rows_s       # pose / brightness Schur complement
+            M = AtA[j] - rows_s.T @ rows_s            # pose / brightness Schur complement
             mu, W = np.linalg.eigh(0.5 * (M + M.T))
             W_rows = np.sqrt(np.maximum(mu, 0.0))[:, None] * W.T                    # (m+1, m+1)
             C = np.zeros((c * d + m1, c * d + m1))       # rows x (m pose, c*d shape, z)

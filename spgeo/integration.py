@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import List, Optional, Sequence
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
@@ -56,14 +57,21 @@ class IntegrationConfig:
     """Options of the batched normal integration.
 
     Attributes:
-        solver: ``"direct"`` (default: exact red-black elimination, then sparse
-            LU (SuperLU) of the half-size Schur complement) or ``"cg"``
-            (Jacobi-preconditioned conjugate gradients, as the authors ran on a
-            GPU; kept for comparison).  ``evaluation/bench_integration.py``
-            compares them (results in docs/results.md).
-        natural_order_max_band: use SuperLU's natural ordering when every
-            region's raster bandwidth is at most this (small masks), else a
-            minimum-degree ordering (default 96).
+        solver: ``"cholesky"`` (default: exact banded Cholesky (LAPACK) per
+            group of linked parts of similar raster bandwidth; parts wider than
+            ``cholesky_max_band`` go to the ``"direct"`` path), ``"direct"``
+            (exact red-black elimination, then sparse LU (SuperLU) of the
+            half-size Schur complement) or ``"cg"`` (Jacobi-preconditioned
+            conjugate gradients, as the authors ran on a GPU; kept for
+            comparison).  ``evaluation/bench_integration.py`` compares them
+            (results in docs/results.md).
+        cholesky_max_band: widest raster bandwidth (entries between a pixel
+            and its farthest linked neighbour) that ``"cholesky"`` factorises
+            as a band; wider parts use ``"direct"`` (default 64: beyond it the
+            band's fill outgrows a fill-reducing sparse factorisation).
+        natural_order_max_band: ``"direct"`` uses SuperLU's natural ordering
+            when every region's raster bandwidth is at most this (small masks),
+            else a minimum-degree ordering (default 96).
         cg_tol: relative residual tolerance of CG (default 1e-6; the authors
             used 1e-3).
         cg_maxiter: iteration cap for CG (default 1000, as the authors).
@@ -73,16 +81,17 @@ class IntegrationConfig:
             normals are clamped to ``-min_abs_m`` to keep gradients bounded).
     """
 
-    solver: str = "direct"
+    solver: str = "cholesky"
     cg_tol: float = 1e-6
     cg_maxiter: int = 1000
+    cholesky_max_band: int = 64
     natural_order_max_band: int = 96
     constant: str = "anchor"
     min_abs_m: float = 0.05
 
     def __post_init__(self) -> None:
-        if self.solver not in ("direct", "cg"):
-            raise ValueError("IntegrationConfig.solver must be 'direct' or 'cg', "
+        if self.solver not in ("cholesky", "direct", "cg"):
+            raise ValueError("IntegrationConfig.solver must be 'cholesky', 'direct' or 'cg', "
                              f"got {self.solver!r}")
         if self.constant not in ("anchor", "mean"):
             raise ValueError(f"IntegrationConfig.constant must be 'anchor' or 'mean', "
@@ -112,32 +121,59 @@ class IntegrationResult:
         return self.log_depth[self.offsets[i]:self.offsets[i + 1]]
 
 
-def _edges(key: np.ndarray, pix_u: np.ndarray, pix_v: np.ndarray, width: int, height: int,
-           du: int, dv: int):
+_DIRECTIONS = ((1, 0), (0, 1), (1, 1), (-1, 1))   # right, down, down-right, down-left
+_BAND_BIN = 1.25        # band groups: raster bandwidths within this ratio share one band
+
+
+def _edges(key: np.ndarray, pix: np.ndarray, pix_u: np.ndarray, pix_v: np.ndarray,
+           lookup: Optional[np.ndarray], width: int, height: int, du: int, dv: int):
     """Entries (p, q) with q the (du, dv)-neighbour of p in the same region
-    (``dv`` in {0, 1}; image borders never wrap into the next row or region)."""
-    target = key + dv * width + du
-    pos = np.searchsorted(key, target)
-    pos_c = np.minimum(pos, key.size - 1)
-    ok = (pos < key.size) & (key[pos_c] == target)
+    (``(du, dv)`` one of :data:`_DIRECTIONS`; image borders never wrap into the
+    next row or region).  ``lookup`` maps a flat pixel to its entry when no two
+    regions overlap; ``None`` searches ``key`` instead."""
+    if dv == 0:  # right: the next entry, if it is the next pixel of the same region
+        p = np.flatnonzero((key[1:] - key[:-1] == 1) & (pix_u[:-1] < width - 1))
+        return p, p + 1
+    ok = pix_v < height - 1
     if du == 1:
         ok &= pix_u < width - 1
     elif du == -1:
         ok &= pix_u > 0
-    if dv == 1:
-        ok &= pix_v < height - 1
     p = np.flatnonzero(ok)
-    return p, pos_c[p]
+    step = dv * width + du
+    target = key[p] + step
+    if lookup is not None:
+        q = lookup[pix[p] + step]
+    else:
+        q = np.minimum(np.searchsorted(key, target), key.size - 1)
+    hit = key[q] == target        # also rejects a neighbour of another region
+    return p[hit], q[hit]
+
+
+def _laplacian(P: np.ndarray, Q: np.ndarray, wgt: np.ndarray, diag: np.ndarray) -> sp.csr_matrix:
+    """``diag(diag) - sum_e wgt_e (e_P e_Q^T + e_Q e_P^T)`` as a CSR matrix."""
+    n = diag.size
+    idx = np.arange(n)
+    rows = np.concatenate([P, Q, idx])
+    cols = np.concatenate([Q, P, idx])
+    vals = np.concatenate([-wgt, -wgt, diag])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+
+
+def _permc(band: int, config: IntegrationConfig) -> str:
+    """SuperLU column ordering for parts whose widest raster bandwidth is ``band``."""
+    return "NATURAL" if band <= config.natural_order_max_band else "MMD_AT_PLUS_A"
 
 
 def _solve_red_black(L: sp.csr_matrix, b: np.ndarray, colour: np.ndarray,
-                     permc_spec: str) -> np.ndarray:
+                     permc_spec: str):
     """Solve the SPD system ``L x = b`` by exact red-black reduction + sparse LU.
 
     "Red" unknowns (one checkerboard colour) that couple to no other red
     unknown have a diagonal block, so they are eliminated exactly; the Schur
     complement on the remaining unknowns (about half) is factorised by SuperLU
     and the red values are recovered by back-substitution.
+    Returns ``(x, factor_nnz)``.
     """
     coo = L.tocoo()
     off = coo.row != coo.col
@@ -153,9 +189,65 @@ def _solve_red_black(L: sp.csr_matrix, b: np.ndarray, colour: np.ndarray,
     S = (L[B][:, B] - L_rb.T @ sp.diags(1.0 / d_r) @ L_rb).tocsc()
     rhs = b[B] - L_rb.T @ (b[R] / d_r)
     x = np.empty_like(b)
-    x[B] = spla.splu(S, permc_spec=permc_spec).solve(rhs)
+    lu = spla.splu(S, permc_spec=permc_spec)
+    x[B] = lu.solve(rhs)
     x[R] = (b[R] - L_rb @ x[B]) / d_r
-    return x
+    return x, int(lu.L.nnz + lu.U.nnz)
+
+
+def _solve_banded(P: np.ndarray, Q: np.ndarray, wgt: np.ndarray, diag: np.ndarray,
+                  b: np.ndarray, comp: np.ndarray, n_comp: int, colour: np.ndarray,
+                  config: IntegrationConfig):
+    """Solve the SPD system ``L x = b`` with ``L`` as in :func:`_laplacian` (``Q > P``).
+
+    The system is block diagonal over the linked parts ``comp``.  Parts are
+    grouped by raster bandwidth (ratio :data:`_BAND_BIN`); each group keeps its
+    entries in order, so it is one band of its widest part's width, factorised
+    by LAPACK's banded Cholesky.  Parts wider than ``config.cholesky_max_band``
+    go to :func:`_solve_red_black`.  Returns ``(x, stats)``.
+    """
+    band = np.zeros(n_comp, dtype=np.int64)
+    np.maximum.at(band, comp[P], Q - P)
+    # small group ids (uint8: NumPy's stable sort is a radix sort for them)
+    grp = np.ceil(np.log(np.maximum(band, 1)) / np.log(_BAND_BIN)).astype(np.uint8)
+    wide_grp = int(np.ceil(np.log(config.cholesky_max_band + 1) / np.log(_BAND_BIN))) + 1
+    grp[band > config.cholesky_max_band] = wide_grp
+    g_ent = grp[comp]
+    perm = np.argsort(g_ent, kind="stable")
+    pos = np.empty_like(perm)
+    pos[perm] = np.arange(perm.size)
+    g_edge = g_ent[P]
+    eperm = np.argsort(g_edge, kind="stable")
+    Pn, Qn, We = pos[P[eperm]], pos[Q[eperm]], wgt[eperm]
+    g_sorted = g_ent[perm]
+    s_start = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
+    groups = g_sorted[s_start]
+    e_start = np.searchsorted(g_edge[eperm], groups)
+    s_bounds = np.append(s_start, perm.size)
+    e_bounds = np.append(e_start, eperm.size)
+    x = np.empty_like(b)
+    stats = {"band_groups": int(groups.size), "factor_bytes": 0, "t_factor": 0.0}
+    for k, g in enumerate(groups):
+        s0, s1, e0, e1 = s_bounds[k], s_bounds[k + 1], e_bounds[k], e_bounds[k + 1]
+        idx = perm[s0:s1]
+        p, q, wk = Pn[e0:e1] - s0, Qn[e0:e1] - s0, We[e0:e1]
+        t0 = time.perf_counter()
+        if g == wide_grp:
+            widest = int(band[comp[idx]].max())
+            x[idx], nnz = _solve_red_black(_laplacian(p, q, wk, diag[idx]), b[idx], colour[idx],
+                                           _permc(widest, config))
+            stats["factor_bytes"] += 12 * nnz
+            stats["t_factor"] += time.perf_counter() - t0
+            continue
+        kd = int((q - p).max(initial=0))
+        ab = np.zeros((kd + 1, idx.size))
+        ab[0] = diag[idx]
+        ab[q - p, p] = -wk
+        cb = sla.cholesky_banded(ab, lower=True, overwrite_ab=True, check_finite=False)
+        stats["t_factor"] += time.perf_counter() - t0
+        stats["factor_bytes"] += cb.nbytes
+        x[idx] = sla.cho_solve_banded((cb, True), b[idx], overwrite_b=True, check_finite=False)
+    return x, stats
 
 
 def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray],
@@ -198,68 +290,70 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     if np.any(np.diff(key) <= 0):
         raise ValueError("integrate_normals: each region's pixels must be sorted and unique")
     m_tot = pix.size
+    entries = np.arange(m_tot)
+    lookup = np.full(npix, -1, dtype=np.int64)
+    lookup[pix] = entries
+    if np.any(lookup[pix] != entries):
+        lookup = None   # regions overlap: neighbours by binary search
 
     # Per-entry coefficients: m = n . r, a_u = nx / fx, a_v = ny / fy.
-    nrm = normals.reshape(-1, 3)[pix]
-    known = np.all(np.isfinite(nrm), axis=1)
+    nrm = np.take(normals.reshape(-1, 3), pix, axis=0)
+    known = np.isfinite(nrm).all(axis=1)
+    all_known = bool(known.all())
+    if not all_known:
+        nrm = np.where(known[:, None], nrm, 0.0)
     pu = pix % w
     pv = pix // w
-    rx = (pu - camera.cx) / camera.fx
-    ry = (pv - camera.cy) / camera.fy
-    nrm = np.where(known[:, None], nrm, 0.0)
-    m = nrm[:, 0] * rx + nrm[:, 1] * ry + nrm[:, 2]
-    m = np.minimum(m, -config.min_abs_m)
+    m = nrm[:, 0] * ((pu - camera.cx) / camera.fx) + nrm[:, 1] * ((pv - camera.cy) / camera.fy)
+    m += nrm[:, 2]
+    np.minimum(m, -config.min_abs_m, out=m)
     au = nrm[:, 0] / camera.fx
     av = nrm[:, 1] / camera.fy
 
     # Edges: right, down always; diagonals only where the 4-neighbour path is missing.
-    p_r, q_r = _edges(key, pu, pv, w, h, 1, 0)
-    p_d, q_d = _edges(key, pu, pv, w, h, 0, 1)
+    pairs = [_edges(key, pix, pu, pv, lookup, w, h, du, dv) for du, dv in _DIRECTIONS]
+    (p_r, q_r), (p_d, _) = pairs[0], pairs[1]
     has_r = np.zeros(m_tot, bool)
     has_r[p_r] = True
     has_d = np.zeros(m_tot, bool)
     has_d[p_d] = True
     has_l = np.zeros(m_tot, bool)  # left neighbour exists  <=> some p_r points here
     has_l[q_r] = True
-    # p -> p+(1,1) is already linked through p's right or p's lower neighbour
-    p_dr, q_dr = _edges(key, pu, pv, w, h, 1, 1)
-    keep = ~(has_r[p_dr] | has_d[p_dr])
-    p_dr, q_dr = p_dr[keep], q_dr[keep]
-    # p -> p+(-1,1) is already linked through p's left or p's lower neighbour
-    p_dl, q_dl = _edges(key, pu, pv, w, h, -1, 1)
-    keep = ~(has_l[p_dl] | has_d[p_dl])
-    p_dl, q_dl = p_dl[keep], q_dl[keep]
-
-    P = np.concatenate([p_r, p_d, p_dr, p_dl])
-    Q = np.concatenate([q_r, q_d, q_dr, q_dl])
-    DU = np.concatenate([np.ones(p_r.size), np.zeros(p_d.size), np.ones(p_dr.size),
-                         -np.ones(p_dl.size)])
-    DV = np.concatenate([np.zeros(p_r.size), np.ones(p_d.size), np.ones(p_dr.size),
-                         np.ones(p_dl.size)])
-    both_unknown = ~known[P] & ~known[Q]
-    # an unknown normal borrows its partner's coefficients on that edge
-    wp = known[P].astype(np.float64)
-    wq = known[Q].astype(np.float64)
-    wsum = np.maximum(wp + wq, 1.0)
-    c = (wp * m[P] + wq * m[Q]) / wsum
-    t = (DU * (wp * au[P] + wq * au[Q]) + DV * (wp * av[P] + wq * av[Q])) / wsum
-    sel = ~both_unknown
-    P, Q, c, t = P[sel], Q[sel], c[sel], t[sel]
+    # p -> p+(1,1) is linked through p's right or lower neighbour, p -> p+(-1,1)
+    # through p's left or lower neighbour
+    for k, side in ((2, has_r), (3, has_l)):
+        p, q = pairs[k]
+        keep = ~(side[p] | has_d[p])
+        pairs[k] = (p[keep], q[keep])
+    P = np.concatenate([p for p, _ in pairs])
+    Q = np.concatenate([q for _, q in pairs])
+    # per edge: du * (a_u[P] + a_u[Q]) + dv * (a_v[P] + a_v[Q])
+    slope = (au, av, au + av, av - au)
+    tsum = np.concatenate([s[p] + s[q] for s, (p, q) in zip(slope, pairs)])
+    if all_known:
+        c = 0.5 * (m[P] + m[Q])
+        t = 0.5 * tsum
+    else:
+        # an unknown normal borrows its partner's coefficients on that edge
+        cnt = known[P].astype(np.float64) + known[Q]
+        sel = cnt > 0
+        mk = np.where(known, m, 0.0)
+        P, Q, cnt, tsum = P[sel], Q[sel], cnt[sel], tsum[sel]
+        c = (mk[P] + mk[Q]) / cnt
+        t = tsum / cnt
     n_edges = int(P.size)
     t_build = time.perf_counter()
 
     # Normal equations of sum_e (c_e (x_q - x_p) + t_e)^2: weighted Laplacian L x = b.
     wgt = c * c
-    rows = np.concatenate([P, Q, P, Q])
-    cols = np.concatenate([P, Q, Q, P])
-    vals = np.concatenate([wgt, wgt, -wgt, -wgt])
-    L = sp.csr_matrix((vals, (rows, cols)), shape=(m_tot, m_tot))
     ct = c * t
-    b = np.bincount(P, weights=ct, minlength=m_tot) - np.bincount(Q, weights=ct, minlength=m_tot)
+    # (float: NumPy's bincount of no entries is integer)
+    b = np.bincount(P, ct, m_tot) - np.bincount(Q, ct, m_tot).astype(np.float64)
+    diag = np.bincount(P, wgt, m_tot) + np.bincount(Q, wgt, m_tot).astype(np.float64)
 
-    # Connected components of the edge graph (each needs one pinned value); L's
-    # off-diagonal pattern is the edge graph (weights c^2 >= min_abs_m^2 > 0).
-    n_comp, comp = csgraph.connected_components(L, directed=False)
+    # Connected components of the edge graph (each needs one pinned value).
+    graph = sp.csr_matrix((np.ones(n_edges, np.int8), (P, Q)), shape=(m_tot, m_tot))
+    n_comp, comp = csgraph.connected_components(graph, directed=False)
     if anchors is None:
         anchor_pix = pix[offsets[:-1]]
     else:
@@ -274,30 +368,32 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
         raise ValueError(f"integrate_normals: anchor outside its region for regions {bad.tolist()}")
     # pin: the anchor in its component, the first entry of every other component
     first_of_comp = np.full(n_comp, -1, dtype=np.int64)
-    order = np.arange(m_tot)[::-1]
+    order = entries[::-1]
     first_of_comp[comp[order]] = order
     pin = first_of_comp.copy()
     pin[comp[apos_c]] = apos_c
-    diag_add = np.zeros(m_tot)
-    diag_add[pin] = 1.0
-    L = L + sp.diags(diag_add)
+    diag[pin] += 1.0
+    colour = (pu + pv) % 2
     t_assemble = time.perf_counter()
 
     info: dict = {"solver": config.solver, "n_unknowns": m_tot, "n_edges": n_edges,
                   "n_components": int(n_comp)}
-    if config.solver == "direct":
+    if config.solver == "cholesky":
+        x, stats = _solve_banded(P, Q, wgt, diag, b, comp, n_comp, colour, config)
+        info.update(stats)
+        info["iterations"] = 1
+    elif config.solver == "direct":
         # Entries are block (region) ordered and raster ordered inside each
         # region, so the natural order is already banded per block; for wide
         # regions a fill-reducing ordering (threshold: natural_order_max_band).
-        widths = np.zeros(n, dtype=np.int64)
-        np.maximum.at(widths, rid[P], Q - P)
-        permc = "NATURAL" if widths.max(initial=0) <= config.natural_order_max_band else "MMD_AT_PLUS_A"
-        x = _solve_red_black(L.tocsr(), b, (pu + pv) % 2, permc)
-        info["iterations"] = 1
-        info["ordering"] = permc
+        permc = _permc(int((Q - P).max(initial=0)), config)
+        tf = time.perf_counter()
+        x, nnz = _solve_red_black(_laplacian(P, Q, wgt, diag), b, colour, permc)
+        info.update(iterations=1, ordering=permc, factor_bytes=12 * nnz,
+                    t_factor=time.perf_counter() - tf)
     else:
-        dinv = 1.0 / L.diagonal()
-        M = sp.diags(dinv)
+        L = _laplacian(P, Q, wgt, diag)
+        M = sp.diags(1.0 / diag)
         iters = [0]
 
         def _count(_):

@@ -237,7 +237,8 @@ def test_factor_group_equals_individual_factors(model, normalise):
 
 @pytest.mark.parametrize("model", ["scaled", "planar"])
 @pytest.mark.parametrize("brightness", [True, False])
-def test_factor_group_chunks_give_the_same_cost_and_linear_system(model, brightness):
+@pytest.mark.parametrize("backend", ["auto", "numpy"])
+def test_factor_group_chunks_give_the_same_cost_and_linear_system(model, brightness, backend):
     """chunk > 1 stacks primitives into one gtsam factor in square-root form:
     same total error, same Hessian / gradient of the linearised system as one
     factor each (pixels outside the image and a primitive behind the camera in
@@ -267,7 +268,8 @@ def test_factor_group_chunks_give_the_same_cost_and_linear_system(model, brightn
     out = {}
     for chunk in (1, 2, 5, 7):
         grp = PhotometricFactorGroup(X_, X1, skeys, shape, off, np.linspace(0.3, 0.7, k),
-                                     smooth_image(2), CAM, bkey, PhotometricConfig(), chunk=chunk)
+                                     smooth_image(2), CAM, bkey, PhotometricConfig(backend=backend),
+                                     chunk=chunk)
         graph = gtsam.NonlinearFactorGraph()
         for f in grp.factors:
             graph.add(f)

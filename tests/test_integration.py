@@ -150,3 +150,66 @@ def test_many_masks_batched_equals_one_by_one():
         np.testing.assert_allclose(res.region(i), single.region(0), atol=1e-9)
         d = res.region(i) - logz[regions[i]]
         assert np.ptp(d) < 1e-3   # one scale per mask recovers the true depth
+
+
+def _random_masks(rng, shape, n):
+    """Random blobs, thin strokes, one-pixel masks and masks touching the borders."""
+    h, w = shape
+    masks = np.zeros((n, h, w), bool)
+    for k in range(n):
+        kind = k % 4
+        if kind == 0:    # blob: thresholded smooth noise, may touch any border
+            f = rng.normal(size=(h // 4 + 2, w // 4 + 2))
+            f = np.kron(f, np.ones((4, 4)))[:h, :w]
+            masks[k] = f > 0.8
+        elif kind == 1:  # rectangle clipped by the image borders
+            v0, u0 = rng.integers(-5, h), rng.integers(-5, w)
+            dv, du = rng.integers(1, h + 1), rng.integers(1, w + 1)
+            masks[k, max(v0, 0):v0 + dv, max(u0, 0):u0 + du] = True
+        elif kind == 2:  # one pixel, corners included
+            v, u = rng.choice([0, h - 1, rng.integers(h)]), rng.choice([0, w - 1, rng.integers(w)])
+            masks[k, v, u] = True
+        else:            # random scatter (many tiny parts and diagonal bridges)
+            masks[k] = rng.random((h, w)) < 0.3
+        if not masks[k].any():
+            masks[k, rng.integers(h), rng.integers(w)] = True
+    return masks
+
+
+@pytest.mark.parametrize("shape,n_masks,seed", [((7, 9), 12, 0), ((30, 41), 10, 1),
+                                                 ((120, 160), 8, 2), ((1, 17), 5, 3),
+                                                 ((23, 1), 5, 4)])
+@pytest.mark.parametrize("constant", ["anchor", "mean"])
+def test_cholesky_matches_direct_random(shape, n_masks, seed, constant):
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    cam = PinholeCamera(0.8 * max(h, w) + 5, 0.7 * max(h, w) + 5, (w - 1) / 2 + 0.3,
+                        (h - 1) / 2 - 0.2, w, h)
+    n = rng.normal(size=(h, w, 3)) * [0.4, 0.4, 0.3] + [0.0, 0.0, -1.0]
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n[rng.random((h, w)) < 0.05] = np.nan     # some unknown normals
+    masks = _random_masks(rng, shape, n_masks)
+    ref = integrate_normals(n, masks, cam, IntegrationConfig(solver="direct", constant=constant))
+    for max_band in (64, 3):   # 3: wide parts also take the fallback inside "cholesky"
+        got = integrate_normals(n, masks, cam, IntegrationConfig(
+            solver="cholesky", constant=constant, cholesky_max_band=max_band))
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+        np.testing.assert_allclose(got[masks], ref[masks], atol=1e-6)
+
+
+def test_cholesky_matches_direct_bench_case_and_wide_masks():
+    from spgeo.evaluation.bench_integration import make_case
+
+    cam, n, z, regions = make_case(60, 160, 120, seed=5)
+    regions = regions + [np.arange(cam.width * cam.height)]   # one whole-image (wide) mask
+    res = {s: integrate_normals_regions(n, regions, cam, None, IntegrationConfig(solver=s))
+           for s in ("direct", "cholesky")}
+    np.testing.assert_allclose(res["cholesky"].log_depth, res["direct"].log_depth, atol=1e-6)
+    np.testing.assert_array_equal(res["cholesky"].n_components, res["direct"].n_components)
+    info = res["cholesky"].solver_info
+    assert info["band_groups"] >= 2 and info["factor_bytes"] > 0
+    assert IntegrationConfig().solver == "cholesky"
+    lone = integrate_normals_regions(n, [np.array([5]), np.array([0, 1])], cam)  # no/one edge
+    assert lone.log_depth[0] == 0.0 and lone.log_depth[1] == 0.0
+    with pytest.raises(ValueError, match="solver"):
+        IntegrationConfig(solver="lu")

@@ -287,3 +287,31 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
     assert res.tracked.all() and res.is_keyframe.sum() >= 3
     gt = np.array([f.T_world_cam for f in frames])
     assert ate_sim3((res.timestamps, res.poses), (res.timestamps, gt)).rmse_percent_of_length < 3.0
+
+
+def test_pixel_selection_accuracy(frames):
+    """With a pixel budget (tracking and mapping on DSO-style selected pixels,
+    relative-cost thresholds doubled: selected pixels have larger residuals
+    than the average pixel) the run meets the all-pixel bound of
+    test_end_to_end_accuracy; tracking uses at most the budget plus the
+    per-primitive minima at the finest level."""
+    from spgeo.vo import TrackerConfig
+    cfg = OdometryConfig(pixel_budget=1000, kf_max_relative_cost=0.4,
+                         tracker=TrackerConfig(max_relative_cost=0.7))
+    vo = Odometry(CAM, cfg, frontend())
+    results = [vo.track(f) for f in frames]
+    res = vo.result()
+    assert res.is_keyframe.sum() >= 2 and res.tracked.sum() >= N_FRAMES - 2
+    mapping = vo.report()["mapping"]
+    assert mapping and all("primitives_without_pixels" in m for m in mapping)
+    gt = np.array([f.T_world_cam for f in frames])
+    ok = res.tracked
+    ate = ate_sim3((res.timestamps[ok], res.poses[ok]), (res.timestamps, gt))
+    log.info("VO with pixel selection: ATE %.2f%%", ate.rmse_percent_of_length)
+    assert ate.rmse_percent_of_length < 3.0
+    n_min = cfg.pixel_selection.min_per_primitive
+    tracked = [r.track for r in results[-10:] if r.track is not None and r.track.ok]
+    assert tracked
+    for tr in tracked:
+        fine = tr.report[-1]
+        assert fine["level"] == 0 and fine["pixels"] <= 1000 + n_min * fine["primitives"]

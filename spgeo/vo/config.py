@@ -3,11 +3,13 @@ tracking) and :class:`OdometryConfig` (keyframes, window mapping,
 initialisation), and the primitive-shape ablations :data:`PRIMITIVE_MODELS`."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
 from ..factors.photometric import PhotometricConfig
 from ..sfm import SfMConfig
+from .pixels import PixelSelectionConfig
 
 __all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS"]
 
@@ -138,6 +140,14 @@ class OdometryConfig:
         map_pixel_fraction: fraction of the level's primitive pixels used by
             mapping, those with the largest reference image gradient (at least
             ``min_level_pixels`` per primitive), in (0, 1] (default 1: all).
+        pixel_budget: None (default): tracking uses every primitive pixel
+            of a level's lattice; a number: about this many pixels per level,
+            selected by :func:`spgeo.vo.pixels.select_pixels` with
+            ``pixel_selection``'s options.
+        map_pixel_budget: the same for the mapping factors at ``map_level``
+            (None, default: every pixel there).
+        pixel_selection: :class:`~spgeo.vo.pixels.PixelSelectionConfig` (its
+            ``budget`` is replaced by ``pixel_budget`` / ``map_pixel_budget``).
         map_iterations: LM iterations per smoother update (default 10).
         map_relative_tol: an update stops when an LM iteration lowers the
             window's cost by less than this fraction (default 1e-2: every
@@ -216,6 +226,9 @@ class OdometryConfig:
     map_lambda_max: float = 1e3
     map_lambda_initial: float = 1e-5
     map_pixel_fraction: float = 1.0
+    pixel_budget: Optional[int] = None
+    map_pixel_budget: Optional[int] = None
+    pixel_selection: PixelSelectionConfig = field(default_factory=PixelSelectionConfig)
     map_chunk: int = 32
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     primitive_model: str = "integrated"
@@ -249,6 +262,9 @@ class OdometryConfig:
             raise ValueError("OdometryConfig.map_chunk must be >= 1")
         if not 0 < self.map_pixel_fraction <= 1:
             raise ValueError("OdometryConfig.map_pixel_fraction must be in (0, 1]")
+        if any(b is not None and b < 1 for b in (self.pixel_budget, self.map_pixel_budget)):
+            raise ValueError("OdometryConfig: pixel_budget and map_pixel_budget must be None "
+                             "or >= 1")
         if not self.map_lambda_initial > 0:
             raise ValueError("OdometryConfig.map_lambda_initial must be > 0")
         if self.init_extra_views < 0:
@@ -272,3 +288,17 @@ class OdometryConfig:
         if self.primitive_model not in PRIMITIVE_MODELS:
             raise ValueError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")
+
+    @property
+    def selection(self) -> Optional[PixelSelectionConfig]:
+        """The tracker's pixel selection (None without ``pixel_budget``)."""
+        if self.pixel_budget is None:
+            return None
+        return dataclasses.replace(self.pixel_selection, budget=int(self.pixel_budget))
+
+    @property
+    def map_selection(self) -> Optional[PixelSelectionConfig]:
+        """The mapping factors' pixel selection (None without ``map_pixel_budget``)."""
+        if self.map_pixel_budget is None:
+            return None
+        return dataclasses.replace(self.pixel_selection, budget=int(self.map_pixel_budget))

@@ -27,6 +27,13 @@ keyframe's) and the lag keeps ``window`` keyframes: older keys are
 After each update the window's :class:`~spgeo.vo.tracking.Keyframe` objects
 are rebuilt from the smoother's estimate.
 
+With ``OdometryConfig.pixel_budget`` the keyframes entering the window take
+the tracker's pixel selection (:mod:`spgeo.vo.pixels`); with
+``map_pixel_budget`` the factors use the pixels of ``map_level`` selected
+with that budget (``Keyframe.level_data``, as the tracker's).  Primitives left
+without pixels have no photometric factor, are held by their priors and are
+counted in the report (``primitives_without_pixels``).
+
 A failed update (a gtsam ``RuntimeError``, e.g. an indeterminant system)
 restarts the window from the last two keyframes once; if the restarted
 two-keyframe window fails too, the keyframe poses stay as tracked.
@@ -261,14 +268,16 @@ class WindowMapper:
 
     def _map_pixels(self, ref: MapKeyframe):
         """Mapping pixels of a keyframe: ``(entries, compact ids, primitive
-        index, reference intensities)``; with ``map_pixel_fraction < 1`` the
+        index, reference intensities)``: the map level's pixels (with
+        ``map_pixel_budget`` the selected ones); with ``map_pixel_fraction < 1`` the
         highest-gradient fraction of the map level's pixels (at least
         ``min_level_pixels`` per primitive).  Cached per keyframe (mapping
         changes its scales and pose, never its pixels or image)."""
         cfg = self.config
         if ref.map_pixels is not None:
             return ref.map_pixels[0]
-        data = ref.keyframe.level_data(cfg.map_level, cfg.map_stride, cfg.min_level_pixels)
+        data = ref.keyframe.level_data(cfg.map_level, cfg.map_stride, cfg.min_level_pixels,
+                                       cfg.map_selection)
         out = None
         if data.prim_index.size:
             entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
@@ -304,6 +313,8 @@ class WindowMapper:
         from the last two keyframes (the caller's segment keeps only those).
         """
         kfs = list(segment_kfs)
+        for kf in kfs:
+            self._adopt(kf)
         restarted = False
         while True:
             try:
@@ -321,6 +332,16 @@ class WindowMapper:
                 log.warning("mapping keyframe %d failed (%s); restarting the window", k, exc)
                 self.reset()
                 kfs, restarted = kfs[-2:], True
+
+    def _adopt(self, kf: MapKeyframe) -> None:
+        """Give a keyframe the configured pixel selection (rebuilt when it
+        has another one; its cached mapping pixels are dropped then)."""
+        sel = self.config.selection
+        if kf.keyframe.selection != sel:
+            k = kf.keyframe
+            kf.keyframe = Keyframe.build(kf.image, k.primitives, k.T_world_kf,
+                                         self.config.levels, sel)
+            kf.map_pixels = None
 
     def _update(self, kfs: List[MapKeyframe], candidates: Sequence[SupportCandidate],
                 segment: int) -> None:
@@ -375,6 +396,8 @@ class WindowMapper:
             g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
                             tgt.keyframe.pyramid.cameras[lvl], bkey)
             n_pair += add_group(g, bkey, np.zeros(2), k)
+        sel_new = self._map_pixels(new)
+        n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
         link = self.depth_link(prev, new)
         if link is not None:
             graph.add(link.factor)
@@ -408,6 +431,7 @@ class WindowMapper:
                              "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
                              "depth_link_correspondences": 0 if link is None else link.n,
                              "support_frames": [c.frame for c in chosen],
+                             "primitives_without_pixels": int(n_empty),
                              "seconds": secs, "keys_in_window": int(est.size())})
         log.debug("mapping kf %d: %d + %d factors, %.2f s", k, n_pair, n_sup, secs)
 
@@ -428,7 +452,7 @@ class WindowMapper:
                 prims = prims.with_planes(th)[0]
             else:
                 prims = prims.with_log_scales(th[:, 0])
-            kf.keyframe = Keyframe.build(kf.image, prims, T, self.config.levels)
+            kf.keyframe = kf.keyframe.rebuilt(prims, T)
         for f in self._support_frames[-(self.config.window + 1) * max(self.config.n_support, 1):]:
             key = support_pose_key(f)
             if est.exists(key):

@@ -35,13 +35,20 @@ Pixel subsampling (``TrackerConfig.subsample``) keeps every ``s``-th lattice
 pixel along each axis at a level; it is a speed option that changes the cost
 (the per-primitive means are then taken over fewer pixels) and is off at the
 finest level by default.
+
+Pixel selection (``Keyframe.selection``, a
+:class:`~spgeo.vo.pixels.PixelSelectionConfig`) keeps, at each level, a budget
+of well-spread high-gradient pixels of the lattice (:func:`spgeo.vo.pixels.select_pixels`)
+instead of all of them; the primitives keep their dense shape.  The mapping
+factors take their pixels from the same :meth:`Keyframe.level_data`, so tracker
+and factors keep computing one cost on the same pixels.
 """
 from __future__ import annotations
 
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import cv2
 import numpy as np
@@ -49,11 +56,13 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..factors.photometric import robust_weights
+from ..factors import kernels
+from ..factors.photometric import residual_pass, robust_weights
 from ..geometry import check_pose, invert_pose
 from ..images import Pyramid, gaussian_pyramid, to_float_image, to_gray
 from ..primitives import PrimitiveSet
 from .config import TrackerConfig
+from .pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
 
 __all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame",
            "constant_velocity_guess", "TrackingCost"]
@@ -105,6 +114,8 @@ class Keyframe:
             to the primitives' resolution the same way).
         points: (M, 3) keyframe-frame points of all primitive entries.
         median_depth: median depth of those points.
+        selection: pixel selection of :meth:`level_data` (None: every
+            lattice pixel).
     """
 
     primitives: PrimitiveSet
@@ -113,14 +124,17 @@ class Keyframe:
     input_shape: Tuple[int, int]
     points: np.ndarray
     median_depth: float
-    _cache: Dict[Tuple[int, int, int], _LevelData] = field(default_factory=dict, repr=False)
+    selection: Optional[PixelSelectionConfig] = None
+    _cache: Dict[tuple, _LevelData] = field(default_factory=dict, repr=False)
+    # selected entries per (level, lattice, selection): they depend on the image and masks only
+    _selected: Dict[tuple, np.ndarray] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, image: np.ndarray, primitives: PrimitiveSet, T_world_kf: np.ndarray,
-              levels: int = 3) -> "Keyframe":
+              levels: int = 3, selection: Optional[PixelSelectionConfig] = None) -> "Keyframe":
         """Keyframe from its image (H, W[, 3]; uint8 or float [0, 1]), primitives
         and pose.  An image of another size than the primitives' camera is
-        resized to it (``INTER_AREA``)."""
+        resized to it (``INTER_AREA``).  ``selection``: see :meth:`level_data`."""
         if len(primitives) == 0:
             raise ValueError("Keyframe.build: the primitive set is empty")
         T = check_pose(np.asarray(T_world_kf, dtype=np.float64), "T_world_kf")
@@ -133,16 +147,64 @@ class Keyframe:
         rays = cam.rays().reshape(-1, 3)[primitives.pixels]
         X = rays * np.exp(primitives.scaled_log_depth())[:, None]
         return cls(primitives, pyr, T.copy(), tuple(image.shape[:2]), X,
-                   float(np.median(X[:, 2])))
+                   float(np.median(X[:, 2])), selection)
+
+    def rebuilt(self, primitives: PrimitiveSet, T_world_kf: np.ndarray) -> "Keyframe":
+        """The keyframe with new shapes / scales and pose: same image, and
+        the same primitive pixels (``primitives.pixels`` and ``offsets`` equal
+        to the current ones), so its pyramid and pixel selection are reused.
+        Raises ValueError when the pixels differ."""
+        old = self.primitives
+        if not (np.array_equal(primitives.pixels, old.pixels)
+                and np.array_equal(primitives.offsets, old.offsets)):
+            raise ValueError("Keyframe.rebuilt: the primitives' pixels changed")
+        T = check_pose(np.asarray(T_world_kf, dtype=np.float64), "T_world_kf")
+        rays = primitives.camera.rays().reshape(-1, 3)[primitives.pixels]
+        X = rays * np.exp(primitives.scaled_log_depth())[:, None]
+        return Keyframe(primitives, self.pyramid, T.copy(), self.input_shape, X,
+                        float(np.median(X[:, 2])), self.selection, _selected=self._selected)
 
     @property
     def camera(self) -> PinholeCamera:
         return self.primitives.camera
 
-    def level_data(self, level: int, subsample: int = 1,
-                   min_level_pixels: int = 4) -> _LevelData:
-        """Batched pixels at ``level`` (lattice ``2^level * subsample``), cached."""
-        key = (int(level), int(subsample), int(min_level_pixels))
+    def _select(self, level: int, lattice: int, on: np.ndarray,
+                selection: PixelSelectionConfig) -> np.ndarray:
+        """Mask (over all entries) of the selected lattice entries at ``level``."""
+        key = (int(level), int(lattice), selection)
+        if key not in self._selected:
+            prims = self.primitives
+            w = prims.camera.width
+            stride = 2 ** int(level)
+            cand = np.flatnonzero(on)
+            pix = prims.pixels[cand]
+            img = self.pyramid.images[level]
+            sel = select_pixels(img, (pix // w) // stride, (pix % w) // stride,
+                                prims.primitive_ids[cand], selection, len(prims),
+                                magnitude=gradient_magnitude(img))
+            self._selected[key] = cand[sel.indices]
+            log.debug("keyframe level %d: %d of %d pixels selected, %d primitives without",
+                      level, sel.indices.size, cand.size, sel.empty.size)
+        mask = np.zeros(on.size, dtype=bool)
+        mask[self._selected[key]] = True
+        return mask
+
+    def level_data(self, level: int, subsample: int = 1, min_level_pixels: int = 4,
+                   selection: Union[PixelSelectionConfig, None, str] = "keyframe"
+                   ) -> _LevelData:
+        """Batched pixels at ``level`` (lattice ``2^level * subsample``), cached.
+
+        With a pixel selection (``selection``; ``"keyframe"``: :attr:`selection`)
+        only the lattice pixels chosen by :func:`~spgeo.vo.pixels.select_pixels`
+        on the level's image (at level 0 always, above it when
+        ``selection.coarse_levels == "select"``); the per-primitive means are
+        taken over them.  Primitives with fewer than ``min_level_pixels``
+        pixels are left out."""
+        if isinstance(selection, str):
+            if selection != "keyframe":
+                raise ValueError("level_data: selection must be a config, None or 'keyframe'")
+            selection = self.selection
+        key = (int(level), int(subsample), int(min_level_pixels), selection)
         if key in self._cache:
             return self._cache[key]
         prims = self.primitives
@@ -150,6 +212,8 @@ class Keyframe:
         stride = 2 ** int(level)
         lattice = stride * int(subsample)
         on = ((prims.pixels % w) % lattice == 0) & ((prims.pixels // w) % lattice == 0)
+        if selection is not None and (level == 0 or selection.coarse_levels == "select"):
+            on = self._select(level, lattice, on, selection)
         ids_all = prims.primitive_ids
         counts = np.bincount(ids_all[on], minlength=len(prims))
         keep_prim = counts >= max(int(min_level_pixels), 1)
@@ -251,7 +315,7 @@ class TrackingCost:
         e = scale * robust_weights(r, self.config.photometric) * r * valid
         if behind.any():
             e = np.where(behind, scale * self._pen_row, e)
-        return float(0.5 * np.dot(e, e))
+        return 0.5 * float(np.einsum("i,i->", e, e))   # einsum: no BLAS threads for a dot
 
     def evaluate(self, T_world_frame: np.ndarray, brightness: Sequence[float] = (0.0, 0.0),
                  jacobians: bool = True) -> dict:
@@ -272,7 +336,10 @@ class TrackingCost:
         return out
 
     def _residuals(self, T_world_frame: np.ndarray, brightness: Sequence[float]) -> dict:
-        """Residual pass (mirrors ``PrimitivePhotometricFactor.evaluate``)."""
+        """Residual pass: the factors' compiled kernel
+        (:func:`spgeo.factors.photometric.residual_pass`), or with
+        ``photometric.backend="numpy"`` the numpy code below (mirrors
+        ``PrimitivePhotometricFactor.evaluate``)."""
         pc = self.config.photometric
         d = self.data
         cam = self.camera
@@ -281,6 +348,24 @@ class TrackingCost:
         R_wt, R_wr = T_wt[:3, :3], T_wr[:3, :3]
         R = R_wt.T @ R_wr                                   # R_frame_kf
         t = R_wt.T @ (T_wr[:3, 3] - T_wt[:3, 3])
+        if self.config.brightness:
+            a, b = float(brightness[0]), float(brightness[1])
+        else:
+            a, b = 0.0, 0.0
+        ab = np.array([a, b])
+        prior = 0.0
+        if self._prior_info is not None:
+            prior = 0.5 * float(np.dot(self._prior_info * ab, ab))
+        if kernels.resolve_backend(pc.backend) == "numba":
+            group_pixels = d.n_pixels if pc.normalise == "all" else np.ones(d.n_primitives)
+            res = residual_pass(d.points_t.T, None, np.ascontiguousarray(R), t, self.image, cam,
+                                d.ref_intensity, a, b, pc, d.ids, group_pixels)
+            photo = 0.5 * res["sum_sq"]
+            return {"e": res["e"], "r": res["r"], "valid": res["valid"], "behind": res["behind"],
+                    "ids": d.ids, "photometric_cost": photo, "prior_cost": prior,
+                    "cost": photo + prior,
+                    "valid_fraction": res["n_valid"] / max(d.ids.size, 1),
+                    "_kernel": (res, ab)}
         Y = R @ d.points_t
         Y += t[:, None]
         Yx, Yy, z = Y[0], Y[1], Y[2]
@@ -321,10 +406,6 @@ class TrackingCost:
         top = p00 + d0 * au
         bot = p10 + d1 * au
         I_t = top + (bot - top) * av
-        if self.config.brightness:
-            a, b = float(brightness[0]), float(brightness[1])
-        else:
-            a, b = 0.0, 0.0
         ea = np.exp(-a)
         r = ea * I_t + b - d.ref_intensity
         scale = self._scale(valid | behind)
@@ -333,10 +414,6 @@ class TrackingCost:
         if any_behind:
             e = np.where(behind, scale * self._pen_row, e)
         photo = 0.5 * float(np.einsum("i,i->", e, e))
-        ab = np.array([a, b])
-        prior = 0.0
-        if self._prior_info is not None:
-            prior = 0.5 * float(np.dot(self._prior_info * ab, ab))
         return {"e": e, "r": np.where(valid, r, 0.0), "valid": valid, "behind": behind,
                 "ids": d.ids, "photometric_cost": photo, "prior_cost": prior,
                 "cost": photo + prior,
@@ -345,6 +422,24 @@ class TrackingCost:
 
     def linearise(self, out: dict) -> dict:
         """Add ``J``, ``H`` and ``g`` to a dict from :meth:`evaluate`."""
+        if "_kernel" in out:
+            res, ab = out["_kernel"]
+            Jt = np.empty((self.dim, res["e"].size))
+            H = np.empty((self.dim, self.dim))
+            g = np.empty(self.dim)
+            kernels.pose_normal_equations(res["Y"], res["g"], res["weights"], res["I_t"],
+                                          res["ea"], res["e"], Jt, H, g)
+            J = Jt.T
+        else:
+            J, H, g, ab = self._linearise_numpy(out)
+        if self._prior_info is not None:
+            H[6:, 6:] += np.diag(self._prior_info)
+            g[6:] += self._prior_info * ab
+        out.update(J=J, H=H, g=g)
+        return out
+
+    def _linearise_numpy(self, out: dict):
+        """``(J, J^T J, J^T e, (a, b))`` of a numpy-backend :meth:`_residuals` dict."""
         Y, inv_z, w_, ea, I_t, d0, d1, gv, av, ab = out["_lin"]
         cam = self.camera
         gu = d0 * (1 - av) + d1 * av
@@ -364,13 +459,7 @@ class TrackingCost:
         if self.config.brightness:
             Jt[6] = -w_ * ea * I_t
             Jt[7] = w_
-        H = Jt @ Jt.T
-        g = Jt @ out["e"]
-        if self._prior_info is not None:
-            H[6:, 6:] += np.diag(self._prior_info)
-            g[6:] += self._prior_info * ab
-        out.update(J=Jt.T, H=H, g=g)
-        return out
+        return Jt.T, Jt @ Jt.T, Jt @ out["e"], ab
 
 
 # ====================================================================== tracking

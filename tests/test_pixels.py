@@ -1,0 +1,165 @@
+"""DSO-style pixel selection (spgeo.vo.pixels) and its use by the keyframes
+(tracking) and the window mapper (mapping factors)."""
+import cv2
+import gtsam
+import numpy as np
+import pytest
+
+from spgeo import synthetic
+from spgeo.frontend import make_frontend
+from spgeo.vo import OdometryConfig
+from spgeo.vo.mapping import MapKeyframe, WindowMapper, kf_pose_key, kf_scale_key
+from spgeo.vo.pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
+from spgeo.vo.tracking import Keyframe, TrackerConfig, TrackingCost
+
+H, W, CELL = 240, 320, 40
+TEXTURED_COLS = 240       # columns >= this are flat: their primitives have no texture
+
+
+@pytest.fixture(scope="module")
+def image():
+    """Smooth noise on the left, a flat area on the right (two primitive columns)."""
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((H, W)).astype(np.float32), (0, 0), 2.0)
+    img = 0.2 + 0.6 * (img - img.min()) / (img.max() - img.min())
+    img[:, TEXTURED_COLS - CELL:] = 0.5
+    return img
+
+
+@pytest.fixture(scope="module")
+def grid():
+    """Every pixel a candidate; primitives are CELL x CELL squares."""
+    rr, cc = np.mgrid[0:H, 0:W]
+    rows, cols = rr.ravel(), cc.ravel()
+    return rows, cols, (rows // CELL) * (W // CELL) + cols // CELL
+
+
+@pytest.mark.parametrize("budget", [500, 1000, 2000])
+def test_budget_spread_and_gradient(image, grid, budget):
+    rows, cols, ids = grid
+    sel = select_pixels(image, rows, cols, ids, PixelSelectionConfig(budget=budget))
+    n = sel.indices.size
+    assert 0.7 * budget <= n <= budget
+    assert np.all(np.diff(sel.indices) > 0)
+    # spread: every 40x40 cell with texture holds selected pixels, and no
+    # textured pixel is far from a selected one
+    r, c = rows[sel.indices], cols[sel.indices]
+    per_cell = np.bincount(ids[sel.indices], minlength=ids.max() + 1)
+    textured_cells = np.unique(ids[cols < TEXTURED_COLS - CELL])
+    assert np.all(per_cell[textured_cells] > 0)
+    mask = np.ones((H, W), np.uint8)
+    mask[r, c] = 0
+    dist = cv2.distanceTransform(mask, cv2.DIST_L2, 5)
+    assert dist[:, :TEXTURED_COLS - CELL].max() < 4 * sel.block + 4
+    # prefers high gradient
+    mag = gradient_magnitude(image)
+    assert mag[r, c].mean() > 1.5 * mag[:, :TEXTURED_COLS - CELL].mean()
+
+
+def test_minimum_per_primitive_and_empty_primitives(image, grid):
+    rows, cols, ids = grid
+    cfg = PixelSelectionConfig(budget=300, min_per_primitive=10)
+    sel = select_pixels(image, rows, cols, ids, cfg)
+    flat = np.unique(ids[cols >= TEXTURED_COLS])
+    textured = np.setdiff1d(np.arange(ids.max() + 1), flat)
+    assert np.all(sel.counts[textured] >= 10)
+    np.testing.assert_array_equal(sel.empty, flat)
+    # the minima alone exceed this budget: exactly them
+    assert sel.indices.size == 10 * textured.size > cfg.budget
+    larger = select_pixels(image, rows, cols, ids, PixelSelectionConfig(budget=600,
+                                                                         min_per_primitive=10))
+    assert np.all(larger.counts[textured] >= 10) and larger.indices.size <= 600
+    # deterministic
+    again = select_pixels(image, rows, cols, ids, cfg)
+    np.testing.assert_array_equal(sel.indices, again.indices)
+
+
+def test_few_candidates_and_bad_input(image, grid):
+    rows, cols, ids = grid
+    sub = np.flatnonzero((rows % 8 == 0) & (cols % 8 == 0))
+    sel = select_pixels(image, rows[sub], cols[sub], ids[sub], PixelSelectionConfig(budget=10_000))
+    assert 0 < sel.indices.size <= sub.size
+    empty = select_pixels(image, rows[:0], cols[:0], ids[:0], PixelSelectionConfig(), n_primitives=3)
+    assert empty.indices.size == 0 and empty.empty.tolist() == [0, 1, 2]
+    with pytest.raises(ValueError):
+        select_pixels(image, rows + H, cols, ids, PixelSelectionConfig())
+    with pytest.raises(ValueError):
+        PixelSelectionConfig(budget=0)
+    with pytest.raises(ValueError):
+        OdometryConfig(pixel_budget=0)
+
+
+@pytest.fixture(scope="module")
+def keyframe_pair():
+    """A synthetic keyframe (depth front-end, 160x120) and a frame moved by 2 cm."""
+    cam = synthetic.default_camera(160, 120)
+    scene = synthetic.SyntheticScene.generate(2)
+    T_kf, _ = synthetic.make_view_set(scene, cam, 1, 7.5, 0.05, 2)
+    kv = scene.render(cam, T_kf, supersample=2)
+    prims = make_frontend("depth").primify(kv.rgb, cam, kv.depth)
+    D = np.eye(4)
+    D[:3, 3] = [0.02, -0.01, 0.01]
+    frame = scene.render(cam, T_kf @ D, supersample=2).rgb
+    return cam, kv.rgb, prims, T_kf, T_kf @ D, frame
+
+
+def test_keyframe_levels_use_the_selection(keyframe_pair):
+    _, image, prims, T_kf, _, _ = keyframe_pair
+    cfg = PixelSelectionConfig(budget=800)
+    kf_all = Keyframe.build(image, prims, T_kf, 3)
+    kf_sel = Keyframe.build(image, prims, T_kf, 3, cfg)
+    for lvl in range(3):
+        a, s = kf_all.level_data(lvl), kf_sel.level_data(lvl)
+        assert np.all(np.isin(s.entries, a.entries))
+        if a.entries.size > cfg.budget:
+            assert s.entries.size < a.entries.size
+    assert kf_sel.level_data(0).entries.size <= max(cfg.budget,
+                                                    len(prims) * cfg.min_per_primitive)
+    # "all": coarser levels keep every lattice pixel
+    kf_c = Keyframe.build(image, prims, T_kf, 3, PixelSelectionConfig(budget=800,
+                                                                      coarse_levels="all"))
+    np.testing.assert_array_equal(kf_c.level_data(1).entries, kf_all.level_data(1).entries)
+    # a rebuilt keyframe (new scales) keeps its selection
+    re = kf_sel.rebuilt(prims.with_log_scales(prims.log_scales + 0.1), T_kf)
+    np.testing.assert_array_equal(re.level_data(0).entries, kf_sel.level_data(0).entries)
+    with pytest.raises(ValueError):
+        kf_sel.rebuilt(prims.subset([0]), T_kf)
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level):
+    """With selection, the tracker's cost at a level equals the error of the
+    mapper's photometric factors (same level, same selected pixels)."""
+    cam, image, prims, T_kf, T_f, frame = keyframe_pair
+    cfg = OdometryConfig(pixel_budget=600, map_pixel_budget=600, map_level=level)
+    kf = Keyframe.build(image, prims, T_kf, cfg.levels, cfg.selection)
+    mkf = MapKeyframe(0, 0, image, kf)
+    mapper = WindowMapper(cfg)
+    pyr = kf.frame_pyramid(frame)
+    tgt = gtsam.symbol("f", 1)
+    bkey = gtsam.symbol("d", 1)
+    group = mapper._group(mkf, tgt, pyr.images[level], pyr.cameras[level], bkey)
+    values = gtsam.Values()
+    values.insert(kf_pose_key(0), gtsam.Pose3(T_kf))
+    values.insert(tgt, gtsam.Pose3(T_f))
+    ab = np.array([0.02, -0.01])
+    values.insert(bkey, ab)
+    for i in range(len(prims)):
+        values.insert(kf_scale_key(0, i), np.array([prims.log_scales[i]]))
+    factor_cost = sum(f.error(values) for f in group.factors)
+    tc = TrackingCost(kf, pyr.images[level], pyr.cameras[level], level,
+                      TrackerConfig(photometric=cfg.photometric))
+    out = tc.evaluate(T_f, ab, jacobians=False)
+    assert tc.n_pixels <= 600 + len(prims) * cfg.pixel_selection.min_per_primitive
+    np.testing.assert_allclose(out["photometric_cost"], factor_cost, rtol=1e-6)
+
+
+def test_boundary_margin_keeps_block_picks_inside_primitives(image, grid):
+    rows, cols, ids = grid
+    sel = select_pixels(image, rows, cols, ids, PixelSelectionConfig(budget=1000, boundary_margin=2,
+                                                                     min_per_primitive=0))
+    r, c = rows[sel.indices], cols[sel.indices]
+    # the 40x40 primitives' interiors: at least 2 pixels from another primitive
+    inside = (np.minimum(r % CELL, CELL - 1 - r % CELL) >= 2) | (r < 2) | (r >= H - 2)
+    inside &= (np.minimum(c % CELL, CELL - 1 - c % CELL) >= 2) | (c < 2) | (c >= W - 2)
+    assert sel.indices.size > 500 and inside.all()
