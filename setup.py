@@ -19,6 +19,7 @@ INSTALL_REQUIRES = [
     "evo==1.38.1",
     "tqdm==4.70.1",
     "platformdirs==4.14.7",
+    "threadpoolctl==3.8.0",
     "numba==0.68.1",
 ]
 

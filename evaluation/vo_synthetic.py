@@ -31,6 +31,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
+from spgeo.apps.vo_run import blas_threads
 from spgeo.cli.config import apply_overrides, nest, parse_assignments
 from spgeo.vo import Odometry, OdometryConfig
 
@@ -78,9 +79,10 @@ def run_synthetic_vo(frames: Sequence[Frame], frontend: str = "depth",
     fe = make_frontend(frontend, FrontEndConfig(working_size=cam.size))
     vo = Odometry(cam, config, fe)
     t0 = time.perf_counter()
-    for f in frames:
-        depth = f.depth if fe.uses_depth else None
-        vo.track(Frame(f.image, cam, f.timestamp, depth))
+    with blas_threads(1):  # as the VO runner (VORunConfig.blas_threads)
+        for f in frames:
+            depth = f.depth if fe.uses_depth else None
+            vo.track(Frame(f.image, cam, f.timestamp, depth))
     secs = time.perf_counter() - t0
     res = vo.result()
     gt = (np.array([f.timestamp for f in frames]), np.array([f.T_world_cam for f in frames]))

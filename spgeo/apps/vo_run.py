@@ -76,6 +76,9 @@ class VORunConfig:
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
+        blas_threads: BLAS threads while the run lasts (threadpoolctl; default
+            1: the VO's matrices are small, and idle BLAS workers spinning on
+            the other core slow the main thread); None leaves BLAS as it is.
     """
 
     resolution: Tuple[int, int] = (160, 120)
@@ -85,6 +88,7 @@ class VORunConfig:
     sam_family: Optional[str] = None
     normal_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
+    blas_threads: Optional[int] = 1
 
     def __post_init__(self) -> None:
         res = tuple(self.resolution)
@@ -325,6 +329,23 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             strictly increasing, a depth-using front-end and a frame without
             depth, or an image the VO rejects.
     """
+    with blas_threads(config.blas_threads):
+        return _run_odometry(frames, config, frontend, n_frames)
+
+
+def blas_threads(n: Optional[int]):
+    """Context manager limiting BLAS to ``n`` threads (no-op for None)."""
+    import contextlib
+
+    if n is None:
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=int(n), user_api="blas")
+
+
+def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
+                  frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int]) -> VORun:
     fe = frontend if frontend is not None else make_vo_frontend(config)
     use_depth = bool(fe.uses_depth)
     size = config.resolution
