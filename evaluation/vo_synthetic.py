@@ -128,6 +128,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--runs", nargs="+", default=["depth", "classical", "classical:planar"],
                     help="FRONTEND[:MODEL] (models: integrated, constant_depth, "
                          "constant_normal, planar)")
+    ap.add_argument("--size", default="160x120", metavar="WxH",
+                    help="rendered (and working) resolution, e.g. 320x240")
     ap.add_argument("--rotation", default="90:120", help="frozen-translation frames A:B or 'none'")
     ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
                     help="OdometryConfig overrides (Python literals), e.g. "
@@ -140,12 +142,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (ValueError, TypeError, SyntaxError) as exc:
         ap.error(f"--set: {exc}")
     rot = None if args.rotation == "none" else tuple(int(x) for x in args.rotation.split(":"))
+    try:
+        size = tuple(int(x) for x in args.size.lower().split("x"))
+        if len(size) != 2 or min(size) < 1:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--size: expected WxH, got {args.size!r}")
     rows = []
     print("| run | seed | per-frame ATE % | keyframe-only ATE % | length m | KFs | lost | "
           "segments | FPS | track FPS | mapping s/KF |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
-        frames = synthetic_sequence(SyntheticVOConfig(args.frames, seed, rotation=rot))
+        frames = synthetic_sequence(SyntheticVOConfig(args.frames, seed, size, rot))
         for run in args.runs:
             fe, _, model = run.partition(":")
             cfg = odometry_config({"primitive_model": model or "integrated", **overrides})

@@ -250,6 +250,42 @@ def _solve_banded(P: np.ndarray, Q: np.ndarray, wgt: np.ndarray, diag: np.ndarra
     return x, stats
 
 
+def _solve(P: np.ndarray, Q: np.ndarray, wgt: np.ndarray, diag: np.ndarray, b: np.ndarray,
+           comp: np.ndarray, n_comp: int, colour: np.ndarray, config: IntegrationConfig,
+           info: dict) -> np.ndarray:
+    """Solve ``L x = b`` (``L`` as in :func:`_laplacian`, ``Q > P``, linked parts
+    ``comp``) with ``config.solver``; solver statistics go into ``info``."""
+    if config.solver == "cholesky":
+        x, stats = _solve_banded(P, Q, wgt, diag, b, comp, n_comp, colour, config)
+        info.update(stats)
+        info["iterations"] = 1
+    elif config.solver == "direct":
+        # Entries are block (region) ordered and raster ordered inside each
+        # region, so the natural order is already banded per block; for wide
+        # regions a fill-reducing ordering (threshold: natural_order_max_band).
+        permc = _permc(int((Q - P).max(initial=0)), config)
+        tf = time.perf_counter()
+        x, nnz = _solve_red_black(_laplacian(P, Q, wgt, diag), b, colour, permc)
+        info.update(iterations=1, ordering=permc, factor_bytes=12 * nnz,
+                    t_factor=time.perf_counter() - tf)
+    else:
+        L = _laplacian(P, Q, wgt, diag)
+        M = sp.diags(1.0 / diag)
+        iters = [0]
+
+        def _count(_):
+            iters[0] += 1
+
+        x, status = spla.cg(L, b, rtol=config.cg_tol, maxiter=config.cg_maxiter, M=M,
+                            callback=_count)
+        info["iterations"] = iters[0]
+        info["converged"] = status == 0
+        if status != 0:
+            log.warning("integrate_normals: CG did not reach rtol=%g in %d iterations",
+                        config.cg_tol, config.cg_maxiter)
+    return x
+
+
 def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray],
                               camera: PinholeCamera, anchors: Optional[Sequence[int]] = None,
                               config: IntegrationConfig = IntegrationConfig()
@@ -378,34 +414,25 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
 
     info: dict = {"solver": config.solver, "n_unknowns": m_tot, "n_edges": n_edges,
                   "n_components": int(n_comp)}
-    if config.solver == "cholesky":
-        x, stats = _solve_banded(P, Q, wgt, diag, b, comp, n_comp, colour, config)
-        info.update(stats)
-        info["iterations"] = 1
-    elif config.solver == "direct":
-        # Entries are block (region) ordered and raster ordered inside each
-        # region, so the natural order is already banded per block; for wide
-        # regions a fill-reducing ordering (threshold: natural_order_max_band).
-        permc = _permc(int((Q - P).max(initial=0)), config)
-        tf = time.perf_counter()
-        x, nnz = _solve_red_black(_laplacian(P, Q, wgt, diag), b, colour, permc)
-        info.update(iterations=1, ordering=permc, factor_bytes=12 * nnz,
-                    t_factor=time.perf_counter() - tf)
+    # a linked part whose right-hand side is zero (e.g. fronto-parallel
+    # normals) has the exact solution 0: only the others are solved
+    active = np.zeros(n_comp, dtype=bool)
+    active[comp[b != 0.0]] = True
+    info["n_solved_components"] = int(active.sum())
+    if active.all():
+        x = _solve(P, Q, wgt, diag, b, comp, n_comp, colour, config, info)
     else:
-        L = _laplacian(P, Q, wgt, diag)
-        M = sp.diags(1.0 / diag)
-        iters = [0]
-
-        def _count(_):
-            iters[0] += 1
-
-        x, status = spla.cg(L, b, rtol=config.cg_tol, maxiter=config.cg_maxiter, M=M,
-                            callback=_count)
-        info["iterations"] = iters[0]
-        info["converged"] = status == 0
-        if status != 0:
-            log.warning("integrate_normals: CG did not reach rtol=%g in %d iterations",
-                        config.cg_tol, config.cg_maxiter)
+        x = np.zeros(m_tot)
+        if active.any():
+            sub = active[comp]
+            idx = np.flatnonzero(sub)
+            new_pos = np.cumsum(sub) - 1
+            e_sub = sub[P]
+            new_comp = np.cumsum(active) - 1
+            x[idx] = _solve(new_pos[P[e_sub]], new_pos[Q[e_sub]], wgt[e_sub], diag[idx], b[idx],
+                            new_comp[comp[idx]], int(active.sum()), colour[idx], config, info)
+        else:
+            info["iterations"] = 0
     t_solve = time.perf_counter()
 
     # Fix constants: per component mean or anchor; unlinked parts at equal mean.

@@ -213,3 +213,26 @@ def test_cholesky_matches_direct_bench_case_and_wide_masks():
     assert lone.log_depth[0] == 0.0 and lone.log_depth[1] == 0.0
     with pytest.raises(ValueError, match="solver"):
         IntegrationConfig(solver="lu")
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "direct", "cg"])
+def test_zero_rhs_parts_are_not_solved(solver):
+    """Linked parts whose normals have no image-plane component integrate to 0
+    without a solve; the others get what the full solve gives."""
+    z, n = plane(CAM, [0.4, -0.3, -1.0], -2.0)
+    flat = np.zeros_like(n)
+    flat[..., 2] = -1.0
+    left, right = np.zeros(CAM.shape, bool), np.zeros(CAM.shape, bool)
+    left[10:100, 10:150] = True
+    right[10:100, 170:300] = True
+    regions = [np.flatnonzero(left), np.flatnonzero(right)]
+    cfg = IntegrationConfig(solver=solver)
+    res = integrate_normals_regions(flat, regions, CAM, None, cfg)
+    assert np.all(res.log_depth == 0.0) and res.solver_info["n_solved_components"] == 0
+    mixed = np.where(right[..., None], n, flat)     # only the right region is tilted
+    res = integrate_normals_regions(mixed, regions, CAM, None, cfg)
+    assert res.solver_info["n_solved_components"] == 1
+    assert np.all(res.region(0) == 0.0)
+    alone = integrate_normals_regions(n, regions[1:], CAM, None, cfg)
+    np.testing.assert_allclose(res.region(1), alone.region(0), atol=1e-9)
+    assert np.ptp(res.region(1)) > 0.1

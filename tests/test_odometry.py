@@ -290,17 +290,23 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
 
 
 def test_pixel_selection_accuracy(frames):
-    """With a pixel budget (tracking and mapping on DSO-style selected pixels,
-    relative-cost thresholds doubled: selected pixels have larger residuals
-    than the average pixel) the run meets the all-pixel bound of
-    test_end_to_end_accuracy; tracking uses at most the budget plus the
-    per-primitive minima at the finest level."""
-    from spgeo.vo import TrackerConfig
-    cfg = OdometryConfig(pixel_budget=1000, kf_max_relative_cost=0.4,
-                         tracker=TrackerConfig(max_relative_cost=0.7))
+    """With a pixel budget (tracking on DSO-style selected pixels, default
+    thresholds: the decisions are taken on the decision pixels) the
+    run meets the all-pixel bound of test_end_to_end_accuracy, with as many
+    keyframes as the all-pixel run give or take one; tracking uses at most
+    the budget plus the per-primitive minima at the finest level, every
+    keyframe (keyframe 0 of the initialisation included) the selection."""
+    cfg = OdometryConfig(pixel_budget=1000)
     vo = Odometry(CAM, cfg, frontend())
     results = [vo.track(f) for f in frames]
+    assert all(kf.selection == cfg.selection for kf in vo.keyframes)
+    assert results[1].track.report[-1]["pixels"] <= 1000 + (
+        cfg.pixel_selection.min_per_primitive * results[1].track.report[-1]["primitives"])
+    vo_all = Odometry(CAM, OdometryConfig(), frontend())
+    for f in frames:
+        vo_all.track(f)
     res = vo.result()
+    assert abs(res.is_keyframe.sum() - vo_all.result().is_keyframe.sum()) <= 1
     assert res.is_keyframe.sum() >= 2 and res.tracked.sum() >= N_FRAMES - 2
     mapping = vo.report()["mapping"]
     assert mapping and all("primitives_without_pixels" in m for m in mapping)

@@ -122,3 +122,45 @@ def test_working_size_and_bad_input(room_view):
         fe.primify(view.rgb, cam, np.full_like(view.depth, np.nan))
     with pytest.raises(ValueError, match="unknown front-end"):
         make_frontend("sam9000")
+
+
+def test_fronto_parallel_fast_path_equals_the_solve(room_view):
+    """Fronto-parallel normals skip the integration (log-depth 0 exactly); the
+    result equals what the solve gives for the same segments."""
+    from spgeo.frontend.depth_normals import FrontoParallelNormals
+    from spgeo.integration import integrate_normals_regions
+
+    cam, view = room_view
+    fe = make_frontend("classical")
+    assert isinstance(fe.normal_estimator, FrontoParallelNormals)
+    prims = fe.primify(view.rgb, cam)
+    assert len(prims) > 10 and np.all(prims.log_depth == 0.0)
+    normals = fe.normal_estimator.estimate(None, cam).astype(np.float64)
+    regions = [prims.pixels[prims.offsets[i]:prims.offsets[i + 1]] for i in range(len(prims))]
+    res = integrate_normals_regions(normals, regions, cam, prims.anchors,
+                                    fe.config.integration)
+    np.testing.assert_allclose(res.log_depth, prims.log_depth, atol=1e-9)
+
+
+def test_connected_segments_skip_the_split_identically(room_view):
+    """A segmentation that declares 4-connected regions of at least the minimum
+    area is used as it is; the result equals splitting it."""
+    cam, view = room_view
+    fe = make_frontend("classical")
+    seg = fe.segmenter.segment(view.rgb.astype(np.float32) / 255.0, fe.working_camera(cam))
+    wcam = fe.working_camera(cam)
+    assert seg.meta["regions_4connected"] and seg.meta["min_region_pixels"] >= np.ceil(
+        fe.config.min_area_frac * wcam.width * wcam.height)
+
+    class Plain:
+        def segment(self, image, camera):
+            s = fe.segmenter.segment(image, camera)
+            s.meta.pop("regions_4connected")
+            return s
+
+    a = fe.primify(view.rgb, cam)
+    b = PrimitiveFrontEnd(Plain(), fe.normal_estimator, fe.config).primify(view.rgb, cam)
+    np.testing.assert_array_equal(a.pixels, b.pixels)
+    np.testing.assert_array_equal(a.offsets, b.offsets)
+    np.testing.assert_array_equal(a.anchors, b.anchors)
+    np.testing.assert_array_equal(a.log_depth, b.log_depth)

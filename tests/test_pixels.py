@@ -10,7 +10,8 @@ from spgeo.frontend import make_frontend
 from spgeo.vo import OdometryConfig
 from spgeo.vo.mapping import MapKeyframe, WindowMapper, kf_pose_key, kf_scale_key
 from spgeo.vo.pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
-from spgeo.vo.tracking import Keyframe, TrackerConfig, TrackingCost
+from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, _valid_fraction,
+                               track_frame)
 
 H, W, CELL = 240, 320, 40
 TEXTURED_COLS = 240       # columns >= this are flat: their primitives have no texture
@@ -89,10 +90,9 @@ def test_few_candidates_and_bad_input(image, grid):
         OdometryConfig(pixel_budget=0)
 
 
-@pytest.fixture(scope="module")
-def keyframe_pair():
-    """A synthetic keyframe (depth front-end, 160x120) and a frame moved by 2 cm."""
-    cam = synthetic.default_camera(160, 120)
+def make_keyframe_pair(width, height):
+    """A synthetic keyframe (depth front-end) and a frame moved by 2 cm."""
+    cam = synthetic.default_camera(width, height)
     scene = synthetic.SyntheticScene.generate(2)
     T_kf, _ = synthetic.make_view_set(scene, cam, 1, 7.5, 0.05, 2)
     kv = scene.render(cam, T_kf, supersample=2)
@@ -101,6 +101,12 @@ def keyframe_pair():
     D[:3, 3] = [0.02, -0.01, 0.01]
     frame = scene.render(cam, T_kf @ D, supersample=2).rgb
     return cam, kv.rgb, prims, T_kf, T_kf @ D, frame
+
+
+@pytest.fixture(scope="module")
+def keyframe_pair():
+    """:func:`make_keyframe_pair` at 160x120."""
+    return make_keyframe_pair(160, 120)
 
 
 def test_keyframe_levels_use_the_selection(keyframe_pair):
@@ -163,3 +169,54 @@ def test_boundary_margin_keeps_block_picks_inside_primitives(image, grid):
     inside = (np.minimum(r % CELL, CELL - 1 - r % CELL) >= 2) | (r < 2) | (r >= H - 2)
     inside &= (np.minimum(c % CELL, CELL - 1 - c % CELL) >= 2) | (c < 2) | (c >= W - 2)
     assert sel.indices.size > 500 and inside.all()
+
+
+@pytest.fixture(scope="module")
+def keyframe_pair_320():
+    """:func:`make_keyframe_pair` at 320x240 (primitives at 320x240)."""
+    return make_keyframe_pair(320, 240)
+
+
+@pytest.mark.parametrize("pair", ["keyframe_pair", "keyframe_pair_320"])
+def test_decision_quantities_do_not_depend_on_the_selection(pair, request):
+    """At the same pose, relative cost and valid fraction are the same with
+    and without a pixel selection (decision pixels: the level closest to 160
+    wide, every lattice pixel); after tracking from a perturbed pose they
+    stay close."""
+    cam, image, prims, T_kf, T_f, frame = request.getfixturevalue(pair)
+    sel = PixelSelectionConfig(budget=500)
+    kf_all = Keyframe.build(image, prims, T_kf, 3)
+    kf_sel = Keyframe.build(image, prims, T_kf, 3, sel)
+    assert kf_sel.level_data(0).entries.size < kf_all.level_data(0).entries.size
+    fixed = TrackerConfig(iterations=(0,), decision_iterations=0)   # no step: at T_f
+    a = track_frame(kf_all, frame, T_f, (0.0, 0.0), fixed)
+    s = track_frame(kf_sel, frame, T_f, (0.0, 0.0), fixed)
+    np.testing.assert_array_equal(a.T_world_frame, s.T_world_frame)
+    assert a.decision_stride == s.decision_stride == cam.width // 160
+    assert a.photometric_cost != s.photometric_cost        # optimised on other pixels
+    assert a.relative_cost == s.relative_cost and a.valid_fraction == s.valid_fraction
+    assert 0 < a.relative_cost < 0.35 and a.valid_fraction > 0.6
+    # converged from a perturbed pose (the poses differ by about a millimetre):
+    # the decision quantities agree to a tenth of the keyframe thresholds
+    D = np.eye(4)
+    D[:3, 3] = [0.01, 0.0, -0.01]
+    a = track_frame(kf_all, frame, T_f @ D)
+    s = track_frame(kf_sel, frame, T_f @ D)
+    assert a.ok and s.ok and a.decision_steps == 0 and s.decision_steps > 0
+    assert abs(s.relative_cost - a.relative_cost) < 0.1 * OdometryConfig().kf_max_relative_cost
+    assert abs(s.valid_fraction - a.valid_fraction) < 0.01
+
+
+def test_decision_cost_at_160_is_the_finest_level_cost(keyframe_pair):
+    """Without selection at 160x120 the decision pixels are the finest
+    level's: the relative cost is that level's photometric cost over its
+    featureless cost, and the valid fraction is over every primitive pixel."""
+    cam, image, prims, T_kf, T_f, frame = keyframe_pair
+    kf = Keyframe.build(image, prims, T_kf, 3)
+    res = track_frame(kf, frame, T_kf)
+    tc = TrackingCost(kf, kf.frame_pyramid(frame).images[0], cam, 0, TrackerConfig())
+    out = tc.evaluate(res.T_world_frame, res.brightness, jacobians=False)
+    assert res.photometric_cost == out["photometric_cost"]
+    assert res.relative_cost == out["photometric_cost"] / tc.featureless_cost(out)
+    assert res.valid_fraction == _valid_fraction(kf, res.T_world_frame,
+                                                 TrackerConfig().photometric.min_depth)

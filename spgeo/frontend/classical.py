@@ -298,7 +298,8 @@ class ClassicalSegmenter:
     ``small_components="merge"``).  ``meta``
     holds ``method``, ``num_raw_labels``, ``num_components``,
     ``num_small`` (merged or dropped), ``coverage`` (fraction of pixels in a
-    region), ``working_size`` and ``time_s``.
+    region), ``working_size``, ``regions_4connected`` (True),
+    ``min_region_pixels`` (the smallest region's pixel count) and ``time_s``.
     """
 
     def __init__(self, config: Optional[ClassicalSegmenterConfig] = None, **overrides) -> None:
@@ -401,7 +402,8 @@ class ClassicalSegmenter:
             comp = comp[rows[:, None], cols[None, :]]
         else:
             anchors = anchors_w
-        covered = np.bincount(comp.ravel(), minlength=n)[keep].sum()
+        kept_sizes = np.bincount(comp.ravel(), minlength=n)[keep]
+        covered = kept_sizes.sum()
         meta = {
             "method": cfg.method,
             "num_raw_labels": int(raw.max()) + 1,
@@ -410,6 +412,9 @@ class ClassicalSegmenter:
             "small_components": cfg.small_components,
             "coverage": float(covered) / float(h_full * w_full),
             "working_size": (w, h),
+            # every region is one 4-connected component of at least this many pixels
+            "regions_4connected": True,
+            "min_region_pixels": int(kept_sizes.min()),
             "time_s": time.perf_counter() - t0,
         }
         return comp, keep, anchors, meta

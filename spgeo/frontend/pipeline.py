@@ -251,16 +251,31 @@ class PrimitiveFrontEnd:
         cfg = self.config
         w, h = cam.width, cam.height
         min_area = int(np.ceil(cfg.min_area_frac * w * h))
-        parts, parent = split_regions(list(seg.regions), w, h, min_area)
+        if seg.meta.get("regions_4connected") and seg.meta.get("min_region_pixels", 0) >= min_area:
+            # the segmenter's regions are already 4-connected parts large enough
+            parts, parent = list(seg.regions), np.arange(len(seg.regions))
+        else:
+            parts, parent = split_regions(list(seg.regions), w, h, min_area)
         anchors = self._anchors(parts, parent, seg.anchors, cam)
-        res = integrate_normals_regions(normals, parts, cam, anchors, cfg.integration)
-        if cfg.split_depth_jumps and parts:
+        # normals with no image-plane component (fronto-parallel) integrate to
+        # log-depth 0 exactly and imply no jump: no solve, no log-depth cut
+        flat = bool(np.all(normals[..., :2] == 0.0)) and bool(np.all(np.isfinite(normals)))
+
+        def integrate(parts: List[np.ndarray], anchors: np.ndarray) -> List[np.ndarray]:
+            if flat:
+                return [np.zeros(part.size) for part in parts]
+            res = integrate_normals_regions(normals, parts, cam, anchors, cfg.integration)
+            return [res.region(i) for i in range(len(parts))]
+
+        log_depth = integrate(parts, anchors)
+        if cfg.split_depth_jumps and parts and not (flat and depth is None):
+            res_ld = np.concatenate(log_depth)
             pix = np.concatenate(parts)
             rid = np.repeat(np.arange(len(parts)), [p.size for p in parts])
             edges = _neighbour_edges(pix, rid, w, h)
             p, q, axis = edges
             focal = np.where(axis == 0, cam.fx, cam.fy)
-            cut = np.abs(res.log_depth[q] - res.log_depth[p]) * focal > cfg.jump_threshold
+            cut = np.abs(res_ld[q] - res_ld[p]) * focal > cfg.jump_threshold
             # the gradient each pixel's own normal implies (what a gradient
             # filter of the integrated depth sees inside the mask): grazing
             # normals mark occluding rims that least squares would smooth over
@@ -278,9 +293,9 @@ class PrimitiveFrontEnd:
                 parent = parent[new_parent]
                 anchors = self._anchors(new_parts, parent, seg.anchors, cam)
                 parts = new_parts
-                res = integrate_normals_regions(normals, parts, cam, anchors, cfg.integration)
+                log_depth = integrate(parts, anchors)
         nrm = np.concatenate([normals.reshape(-1, 3)[p] for p in parts]) if parts else None
-        return PrimitiveSet.from_regions(cam, parts, [res.region(i) for i in range(len(parts))],
+        return PrimitiveSet.from_regions(cam, parts, log_depth,
                                          anchors, scores=seg.scores[parent] if len(parts) else None,
                                          normals=nrm,
                                          meta={"parent_region": parent.tolist()})

@@ -58,14 +58,25 @@ class TrackerConfig:
             value repeats): at level ``l`` only pixels on the
             ``2^l * subsample[l]`` lattice are used.  Default ``(1,)``: the
             exact factor-graph cost at every level.
-        min_valid_fraction: status ``"lost"`` when fewer keyframe primitive
-            pixels (all of them, full resolution) project inside the frame at
-            the final pose (default 0.3).
+        min_valid_fraction: status ``"lost"`` when fewer of the decision
+            pixels (``decision_width``) project inside the frame at the final
+            pose (default 0.3).
         max_relative_cost: status ``"lost"`` when the final photometric cost
             exceeds this fraction of the cost of a featureless frame (every
-            residual ``mean(I_kf) - I_kf``, same valid pixels): default 0.35
-            (a tracked frame is well below, a different scene or a blank frame
-            near 1).
+            residual ``mean(I_kf) - I_kf``, same valid pixels), both on the
+            decision pixels: default 0.35 (a tracked frame is well below, a
+            different scene or a blank frame near 1).
+        decision_width: the tracking decisions (``min_valid_fraction``,
+            ``max_relative_cost`` and the keyframe thresholds of
+            :class:`OdometryConfig`) are taken on the *decision pixels*: the
+            primitive pixels of the finest level on a lattice of stride
+            ``round(width / decision_width)`` (default 160: every pixel at
+            160x120, every other one at 320x240), whatever pixels the pose was
+            optimised on (pixel selection, subsampling).
+        decision_iterations: when the finest level was optimised on fewer
+            pixels than the decision pixels (pixel selection), at most this
+            many LM steps on the decision pixels refine the pose before the
+            decisions (default 2; 0: none).
         max_cost_increase: with ``reference_cost`` given to
             :func:`~spgeo.vo.tracking.track_frame` (e.g. the previous frame's
             final cost against the same keyframe), status ``"lost"`` when the
@@ -88,6 +99,8 @@ class TrackerConfig:
     min_valid_fraction: float = 0.3
     max_relative_cost: float = 0.35
     max_cost_increase: float = 10.0
+    decision_width: int = 160
+    decision_iterations: int = 2
 
     def __post_init__(self) -> None:
         if self.levels < 1:
@@ -107,6 +120,9 @@ class TrackerConfig:
             raise ValueError("TrackerConfig.min_valid_fraction must be in [0, 1]")
         if not self.max_relative_cost > 0 or not self.max_cost_increase > 0:
             raise ValueError("TrackerConfig.max_relative_cost and max_cost_increase must be > 0")
+        if self.decision_width < 1 or self.decision_iterations < 0:
+            raise ValueError("TrackerConfig: decision_width >= 1 and decision_iterations >= 0 "
+                             "required")
 
 
 @dataclass(frozen=True)
@@ -158,8 +174,9 @@ class OdometryConfig:
             this (default 1e3; each rejected trial costs a solve and a cost
             evaluation of the whole window, and near convergence gtsam keeps
             raising the damping until this bound).
-        map_chunk: primitives per gtsam factor in mapping (default 32; 1 =
-            one factor per primitive; the cost and the Gauss-Newton system
+        map_chunk: shape-variable columns per gtsam factor in mapping
+            (default 128: 128 scaled or 42 planar primitives; 1 = one factor
+            per primitive; the cost and the Gauss-Newton system
             are identical, :class:`~spgeo.factors.photometric.PhotometricFactorGroup`,
             whose chunks are in square-root form).  gtsam's Python
             ``CustomFactor`` copies the whole ``Values`` on every call, so
@@ -229,7 +246,7 @@ class OdometryConfig:
     pixel_budget: Optional[int] = None
     map_pixel_budget: Optional[int] = None
     pixel_selection: PixelSelectionConfig = field(default_factory=PixelSelectionConfig)
-    map_chunk: int = 32
+    map_chunk: int = 128
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     primitive_model: str = "integrated"
     scale_prior_weight: float = 1e-5

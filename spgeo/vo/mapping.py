@@ -264,7 +264,7 @@ class WindowMapper:
         return PhotometricFactorGroup(kf_pose_key(ref.index), tgt_key, keys, shape, offsets,
                                       ref_int, tgt_image, tgt_camera, bkey,
                                       cfg.photometric, n_pixels=counts.astype(float),
-                                      chunk=cfg.map_chunk)
+                                      chunk=max(1, cfg.map_chunk // shape.dim))
 
     def _map_pixels(self, ref: MapKeyframe):
         """Mapping pixels of a keyframe: ``(entries, compact ids, primitive

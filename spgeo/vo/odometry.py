@@ -32,6 +32,11 @@ One thread, one call per frame (:meth:`Odometry.track`):
   cannot know the old scale: its depths are set to the last keyframe's median
   depth, so segments may differ in scale (``report.json`` counts segments;
   the status file marks every frame).
+* **Pixels.**  With ``OdometryConfig.pixel_budget`` every keyframe (keyframe 0
+  of the initialisation included) is built with that pixel selection: the
+  tracker optimises on it, while its decision quantities (valid fraction,
+  relative cost: ``TrackerConfig.decision_width``) and the mapping factors
+  (``map_pixel_budget``) do not depend on it.
 * **Keyframes.**  A tracked frame becomes a keyframe when its valid fraction
   drops below ``kf_min_valid_fraction``, its translation from the latest
   keyframe over that keyframe's median depth exceeds ``kf_max_translation``,
@@ -253,7 +258,7 @@ class Odometry:
         prims = apply_primitive_model(prims, self.config.primitive_model)
         timings["frontend"] = time.perf_counter() - t
         k = len(self._kf_order)
-        kf = Keyframe.build(frame.image, prims, T_world, self.config.levels)
+        kf = Keyframe.build(frame.image, prims, T_world, self.config.levels, self.config.selection)
         self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
         self._kf_order.append(k)
         self._seg_kfs = [k]
@@ -340,7 +345,8 @@ class Odometry:
             T_01[:3, 3] *= np.exp(c)
         else:
             T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
-        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels)
+        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels,
+                                      self.config.selection)
         T1 = T_w0 @ T_01
         # re-track the buffered frames against the solved keyframe 0
         prev = None
@@ -475,7 +481,8 @@ class Odometry:
         timings["frontend"] = time.perf_counter() - t
         k = len(self._kf_order)
         kf = MapKeyframe(k, idx, np.asarray(frame.image),
-                 Keyframe.build(frame.image, prims, T_world, cfg.levels), self._segment,
+                 Keyframe.build(frame.image, prims, T_world, cfg.levels, cfg.selection),
+                 self._segment,
                  prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
                                         cfg.scale_prior_weight, cfg.render_prior_weight))
         self._kfs[k] = kf

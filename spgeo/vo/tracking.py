@@ -42,6 +42,16 @@ of well-spread high-gradient pixels of the lattice (:func:`spgeo.vo.pixels.selec
 instead of all of them; the primitives keep their dense shape.  The mapping
 factors take their pixels from the same :meth:`Keyframe.level_data`, so tracker
 and factors keep computing one cost on the same pixels.
+
+Decisions (``TrackResult.relative_cost`` and ``valid_fraction``, which the
+failure test and the VO's keyframe test compare with thresholds) are taken on
+*decision pixels* that do not depend on the pixels optimised on: every
+primitive pixel of the finest level on a lattice of stride
+``round(width / TrackerConfig.decision_width)``.  When the finest level was
+optimised on fewer pixels (a selection), ``TrackerConfig.decision_iterations``
+LM steps on the decision pixels refine the pose first; otherwise (all pixels)
+the decision pixels are evaluated once, or, when they are the finest level's
+own pixels (160x120 without selection), its evaluation is reused.
 """
 from __future__ import annotations
 
@@ -128,6 +138,9 @@ class Keyframe:
     _cache: Dict[tuple, _LevelData] = field(default_factory=dict, repr=False)
     # selected entries per (level, lattice, selection): they depend on the image and masks only
     _selected: Dict[tuple, np.ndarray] = field(default_factory=dict, repr=False)
+    # indices of the entries on each pixel lattice (they depend on the pixels only)
+    _lattice: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+    _lattice_points: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, image: np.ndarray, primitives: PrimitiveSet, T_world_kf: np.ndarray,
@@ -162,11 +175,31 @@ class Keyframe:
         rays = primitives.camera.rays().reshape(-1, 3)[primitives.pixels]
         X = rays * np.exp(primitives.scaled_log_depth())[:, None]
         return Keyframe(primitives, self.pyramid, T.copy(), self.input_shape, X,
-                        float(np.median(X[:, 2])), self.selection, _selected=self._selected)
+                        float(np.median(X[:, 2])), self.selection, _selected=self._selected,
+                        _lattice=self._lattice)
 
     @property
     def camera(self) -> PinholeCamera:
         return self.primitives.camera
+
+    def lattice_entries(self, stride: int) -> np.ndarray:
+        """Indices of the primitive entries on the pixel lattice of ``stride``
+        (cached)."""
+        stride = int(stride)
+        if stride not in self._lattice:
+            w = self.primitives.camera.width
+            pix = self.primitives.pixels
+            self._lattice[stride] = np.flatnonzero(((pix % w) % stride == 0)
+                                                   & ((pix // w) % stride == 0))
+        return self._lattice[stride]
+
+    def lattice_points(self, stride: int) -> np.ndarray:
+        """(3, K) keyframe-frame points of :meth:`lattice_entries` (cached)."""
+        stride = int(stride)
+        if stride not in self._lattice_points:
+            P = self.points if stride == 1 else self.points[self.lattice_entries(stride)]
+            self._lattice_points[stride] = np.ascontiguousarray(P.T)
+        return self._lattice_points[stride]
 
     def _select(self, level: int, lattice: int, on: np.ndarray,
                 selection: PixelSelectionConfig) -> np.ndarray:
@@ -258,10 +291,15 @@ class TrackingCost:
         level: pyramid level.
         config: :class:`TrackerConfig` (photometric options, brightness,
             prior, subsampling, ``min_level_pixels``).
+        selection: pixel selection (:meth:`Keyframe.level_data`; default the
+            keyframe's own).
+        subsample: lattice stride on the level (default ``config.subsample``).
     """
 
     def __init__(self, keyframe: Keyframe, image: np.ndarray, camera: PinholeCamera,
-                 level: int, config: TrackerConfig = TrackerConfig()) -> None:
+                 level: int, config: TrackerConfig = TrackerConfig(),
+                 selection: Union[PixelSelectionConfig, None, str] = "keyframe",
+                 subsample: Optional[int] = None) -> None:
         img = np.asarray(image)
         if img.ndim != 2 or img.shape != camera.shape:
             raise ValueError(f"TrackingCost: image must be (H, W) = {camera.shape}, got {img.shape}")
@@ -269,8 +307,10 @@ class TrackingCost:
         self.camera = camera
         self.level = int(level)
         self.config = config
-        sub = config.subsample[min(self.level, len(config.subsample) - 1)]
-        self.data = keyframe.level_data(self.level, int(sub), config.min_level_pixels)
+        if subsample is None:
+            subsample = config.subsample[min(self.level, len(config.subsample) - 1)]
+        self.data = keyframe.level_data(self.level, int(subsample), config.min_level_pixels,
+                                        selection)
         self.T_world_kf = keyframe.T_world_kf
         self.dim = 8 if config.brightness else 6
         pc = config.photometric
@@ -472,11 +512,14 @@ class TrackResult:
         brightness: ``(a, b)`` of the frame relative to the keyframe.
         cost: final cost (photometric + brightness prior) at the finest level.
         photometric_cost: its photometric part (the factors' total error).
-        relative_cost: ``photometric_cost`` over the cost of a featureless
-            frame on the same valid pixels at the finest level (see
-            ``TrackerConfig.max_relative_cost``).
-        valid_fraction: fraction of all keyframe primitive pixels that project
-            inside the frame (in front of it) at the final pose.
+        relative_cost: photometric cost over the cost of a featureless frame
+            on the same valid pixels (see ``TrackerConfig.max_relative_cost``),
+            both on the *decision pixels*: every primitive pixel of the
+            finest level on the lattice of ``decision_stride`` (no pixel
+            selection), so it does not depend on the pixels the pose was
+            optimised on.
+        valid_fraction: fraction of the decision pixels that project inside
+            the frame (in front of it) at the final pose.
         iterations: LM iterations (tried steps) per level, coarsest first.
         levels: the pyramid levels processed, coarsest first.
         status: ``"ok"`` or ``"lost"``.
@@ -486,6 +529,12 @@ class TrackResult:
             ``total``.
         report: per level: pixels, primitives, initial/final cost, accepted
             steps, final damping.
+        decision_stride: lattice stride of the decision pixels
+            (:func:`decision_stride`).
+        decision_steps: LM steps tried on the decision pixels after the
+            pyramid (``TrackerConfig.decision_iterations``); ``T_world_frame``
+            and ``brightness`` include them, ``cost`` and
+            ``photometric_cost`` are the finest level's before them.
     """
 
     T_world_frame: np.ndarray
@@ -500,6 +549,8 @@ class TrackResult:
     reason: Optional[str]
     timings: Dict[str, float]
     report: List[dict]
+    decision_stride: int = 1
+    decision_steps: int = 0
 
     @property
     def ok(self) -> bool:
@@ -515,11 +566,13 @@ def _retract(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
     return gtsam.Pose3(T).retract(np.asarray(xi, dtype=np.float64)).matrix()
 
 
-def _valid_fraction(keyframe: Keyframe, T_world_frame: np.ndarray, min_depth: float) -> float:
-    """Fraction of all keyframe primitive points inside the frame's image."""
+def _valid_fraction(keyframe: Keyframe, T_world_frame: np.ndarray, min_depth: float,
+                    stride: int = 1) -> float:
+    """Fraction of the keyframe primitive points on the lattice of ``stride``
+    (1: all of them) inside the frame's image."""
     T = invert_pose(T_world_frame) @ keyframe.T_world_kf
-    P = keyframe.points
-    Y = [T[i, 0] * P[:, 0] + T[i, 1] * P[:, 1] + T[i, 2] * P[:, 2] + T[i, 3] for i in range(3)]
+    P = keyframe.lattice_points(stride)
+    Y = [T[i, 0] * P[0] + T[i, 1] * P[1] + T[i, 2] * P[2] + T[i, 3] for i in range(3)]
     cam = keyframe.camera
     z = Y[2]
     front = z > min_depth
@@ -528,6 +581,91 @@ def _valid_fraction(keyframe: Keyframe, T_world_frame: np.ndarray, min_depth: fl
     v = cam.fy * Y[1] / zs + cam.cy
     inside = front & (u >= 0) & (u <= cam.width - 1) & (v >= 0) & (v <= cam.height - 1)
     return float(np.count_nonzero(inside)) / max(inside.size, 1)
+
+
+def _levenberg_marquardt(fn: TrackingCost, T: np.ndarray, ab: np.ndarray, cur: dict,
+                         max_it: int, tr_tol: float, config: TrackerConfig):
+    """LM over one :class:`TrackingCost` from ``(T, ab)`` (``cur``: its
+    linearised evaluation there); returns ``(T, ab, evaluation (not
+    linearised after an accepted last step), tried steps, accepted steps,
+    final damping)``."""
+    nd = fn.dim
+    lam = config.lm_lambda_initial
+    its = accepted = 0
+    while its < max_it and np.isfinite(cur["cost"]):
+        H, g = cur["H"], cur["g"]
+        diag = np.diag(H).copy()
+        diag = np.maximum(diag, 1e-9 * max(float(diag.max()), 1e-12))
+        its += 1
+        try:
+            delta = np.linalg.solve(H + lam * np.diag(diag), -g)
+        except np.linalg.LinAlgError:
+            delta = np.full(nd, np.nan)
+        if not np.all(np.isfinite(delta)):
+            lam *= config.lm_lambda_factor
+            if lam > config.lm_lambda_max:
+                break
+            continue
+        T_new = _retract(T, delta[:6])
+        ab_new = ab + delta[6:] if config.brightness else ab
+        new = fn.evaluate(T_new, ab_new, jacobians=False)
+        small = (np.linalg.norm(delta[:3]) < config.rotation_tol
+                 and np.linalg.norm(delta[3:6]) < tr_tol)
+        if np.isfinite(new["cost"]) and new["cost"] < cur["cost"]:
+            rel = (cur["cost"] - new["cost"]) / max(cur["cost"], 1e-300)
+            T, ab, cur = T_new, ab_new, new
+            accepted += 1
+            lam = max(lam / config.lm_lambda_factor, 1e-12)
+            if rel < config.relative_cost_tol or small or its >= max_it:
+                break
+            fn.linearise(cur)
+        else:
+            # a rejected step that was already negligible: converged
+            lam *= config.lm_lambda_factor
+            if small or lam > config.lm_lambda_max:
+                break
+    return T, ab, cur, its, accepted, lam
+
+
+def decision_stride(width: int, decision_width: int) -> int:
+    """Lattice stride of the decision pixels of an image ``width`` wide:
+    ``round(width / decision_width)``, at least 1."""
+    return max(1, int(round(int(width) / int(decision_width))))
+
+
+def _decision_quantities(keyframe: Keyframe, pyr: Pyramid, stride: int, T: np.ndarray,
+                         ab: np.ndarray, config: TrackerConfig, final: dict,
+                         final_fn: TrackingCost, tr_tol: float
+                         ) -> Tuple[np.ndarray, np.ndarray, float, float, int]:
+    """``(T, ab, relative cost, valid fraction, refinement steps)`` on the
+    decision pixels (the finest level's lattice of ``stride``,
+    :class:`TrackResult`) from the pose ``T`` and brightness ``ab``;
+    ``final`` / ``final_fn``: the last level's evaluation at that state
+    (reused when it ran on the decision pixels).  When the last level had
+    fewer pixels than the decision pixels, up to
+    ``config.decision_iterations`` LM steps on the decision pixels refine
+    ``(T, ab)`` first."""
+    its = 0
+    if (final_fn.level == 0
+            and final_fn.data is keyframe.level_data(0, stride, config.min_level_pixels, None)):
+        out, fn = final, final_fn
+    else:
+        fn = TrackingCost(keyframe, pyr.images[0], pyr.cameras[0], 0, config,
+                          selection=None, subsample=stride)
+        if fn.n_pixels == 0:
+            return T, ab, float("nan"), _valid_fraction(
+                keyframe, T, config.photometric.min_depth, stride), 0
+        if config.decision_iterations > 0 and final_fn.n_pixels < fn.n_pixels:
+            out = fn.evaluate(T, ab, jacobians=True)
+            T, ab, out, its, _, _ = _levenberg_marquardt(fn, T, ab, out,
+                                                         config.decision_iterations, tr_tol,
+                                                         config)
+        else:
+            out = fn.evaluate(T, ab, jacobians=False)
+    vfrac = _valid_fraction(keyframe, T, config.photometric.min_depth, stride)
+    flat = fn.featureless_cost(out)
+    rel = float(out["photometric_cost"]) / flat if flat > 0 else float("inf")
+    return T, ab, rel, vfrac, its
 
 
 def constant_velocity_guess(T_world_prev: np.ndarray,
@@ -589,7 +727,6 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
     tr_tol = config.translation_tol * keyframe.median_depth
     final: Optional[dict] = None
     final_cost_fn: Optional[TrackingCost] = None
-    nd = 8 if config.brightness else 6
     for lvl in reversed(range(n_levels)):
         t0 = time.perf_counter()
         fn = TrackingCost(keyframe, pyr.images[lvl], pyr.cameras[lvl], lvl, config)
@@ -601,39 +738,8 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
             continue
         cur = fn.evaluate(T, ab, jacobians=True)
         cost0 = cur["cost"]
-        lam = config.lm_lambda_initial
-        its = accepted = 0
-        while its < max_it and np.isfinite(cur["cost"]):
-            H, g = cur["H"], cur["g"]
-            diag = np.diag(H).copy()
-            diag = np.maximum(diag, 1e-9 * max(float(diag.max()), 1e-12))
-            its += 1
-            try:
-                delta = np.linalg.solve(H + lam * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                delta = np.full(nd, np.nan)
-            if not np.all(np.isfinite(delta)):
-                lam *= config.lm_lambda_factor
-                if lam > config.lm_lambda_max:
-                    break
-                continue
-            T_new = _retract(T, delta[:6])
-            ab_new = ab + delta[6:] if config.brightness else ab
-            new = fn.evaluate(T_new, ab_new, jacobians=False)
-            small = (np.linalg.norm(delta[:3]) < config.rotation_tol
-                     and np.linalg.norm(delta[3:6]) < tr_tol)
-            if np.isfinite(new["cost"]) and new["cost"] < cur["cost"]:
-                rel = (cur["cost"] - new["cost"]) / max(cur["cost"], 1e-300)
-                T, ab, cur = T_new, ab_new, fn.linearise(new)
-                accepted += 1
-                lam = max(lam / config.lm_lambda_factor, 1e-12)
-                if rel < config.relative_cost_tol or small:
-                    break
-            else:
-                # a rejected step that was already negligible: converged
-                lam *= config.lm_lambda_factor
-                if small or lam > config.lm_lambda_max:
-                    break
+        T, ab, cur, its, accepted, lam = _levenberg_marquardt(fn, T, ab, cur, max_it, tr_tol,
+                                                              config)
         iterations.append(its)
         final, final_cost_fn = cur, fn
         dt = time.perf_counter() - t0
@@ -645,17 +751,24 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
         log.debug("tracking level %d: %d px, %d its (%d accepted), cost %.4g -> %.4g",
                   lvl, fn.n_pixels, its, accepted, cost0, cur["cost"])
 
-    # ---- assessment
+    # ---- assessment on the decision pixels
     reason: Optional[str] = None
+    finite = bool(np.all(np.isfinite(T)) and np.all(np.isfinite(ab)))
+    dec = decision_stride(keyframe.camera.width, config.decision_width)
+    rel_cost, vfrac, decision_steps = float("nan"), 0.0, 0
     if final is None:
         reason = "no_pixels"
-        cost = photo = rel_cost = float("nan")
+        cost = photo = float("nan")
+        if finite:
+            vfrac = _valid_fraction(keyframe, T, config.photometric.min_depth, dec)
     else:
         cost, photo = float(final["cost"]), float(final["photometric_cost"])
-        flat = final_cost_fn.featureless_cost(final)
-        rel_cost = photo / flat if flat > 0 else float("inf")
-    finite = np.all(np.isfinite(T)) and np.all(np.isfinite(ab))
-    vfrac = _valid_fraction(keyframe, T, config.photometric.min_depth) if finite else 0.0
+        if finite:
+            t0 = time.perf_counter()
+            T, ab, rel_cost, vfrac, decision_steps = _decision_quantities(
+                keyframe, pyr, dec, T, ab, config, final, final_cost_fn, tr_tol)
+
+            timings["decision"] = time.perf_counter() - t0
     if reason is None:
         if not (finite and np.isfinite(cost)):
             reason = "diverged"
@@ -667,6 +780,7 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
               and cost > config.max_cost_increase * float(reference_cost)):
             reason = "cost_increase"
     if not finite:
+        vfrac = 0.0
         T, ab = check_pose(np.asarray(T_world_init, dtype=np.float64)).copy(), np.zeros(2)
     status = "ok" if reason is None else "lost"
     timings["total"] = time.perf_counter() - t_start
@@ -674,4 +788,4 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
         log.info("tracking lost (%s): valid fraction %.2f, relative cost %.3g",
                  reason, vfrac, rel_cost)
     return TrackResult(T, ab.copy(), cost, photo, float(rel_cost), vfrac, iterations, levels,
-                       status, reason, timings, report)
+                       status, reason, timings, report, dec, decision_steps)
