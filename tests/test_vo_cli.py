@@ -82,7 +82,7 @@ def test_cli_depth_frontend_writes_trajectory_and_ate(depth_run, capsys):
     assert len(status) == N and status[0] == "keyframe"
     rep = json.loads((out / "report.json").read_text())
     assert rep["n_frames"] == N and rep["run"]["n_frames"] == N
-    assert rep["run"]["resolution"] == [160, 120] and rep["run"]["fps_wall"] > 0
+    assert rep["run"]["resolution"] == [320, 240] and rep["run"]["fps_wall"] > 0  # the default
     ate = rep["ate"]
     pf = ate["per-frame"]
     assert pf["label"] == "per-frame"
@@ -280,4 +280,4 @@ def test_cli_report_has_effective_config(depth_run):
     rep = json.loads((out / "report.json").read_text())
     assert rep["config"]["window"] == OdometryConfig().window
     assert rep["run_config"]["frontend"] == "depth"
-    assert rep["run_config"]["resolution"] == [160, 120] and "odometry" not in rep["run_config"]
+    assert rep["run_config"]["resolution"] == [320, 240] and "odometry" not in rep["run_config"]

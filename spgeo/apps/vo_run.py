@@ -60,7 +60,7 @@ class VORunConfig:
 
     Attributes:
         resolution: ``(width, height)`` in pixels the frames are resized to
-            before the VO sees them (default ``(160, 120)``); also the
+            before the VO sees them (default ``(320, 240)``); also the
             front-end's working size.
         frontend: front-end name for :func:`spgeo.frontend.make_frontend`:
             ``"classical"`` (default; monocular, reads no depth), ``"depth"``
@@ -81,7 +81,7 @@ class VORunConfig:
             the other core slow the main thread); None leaves BLAS as it is.
     """
 
-    resolution: Tuple[int, int] = (160, 120)
+    resolution: Tuple[int, int] = (320, 240)
     frontend: str = "classical"
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     progress: bool = True
@@ -438,7 +438,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     return run_odometry(seq, config, fe, n_frames=len(seq))
 
 
-def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (160, 120),
+def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (320, 240),
            frontend: str = "classical", config: OdometryConfig = OdometryConfig(),
            progress: bool = True) -> Tuple[Odometry, List[Optional[np.ndarray]], float]:
     """VO over a frame sequence resized to ``resolution`` (width, height pixels).

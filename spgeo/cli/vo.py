@@ -1,7 +1,7 @@
 """``spgeo vo``: argument wiring for :func:`spgeo.apps.vo_run.run_dataset`.
 
     spgeo vo --dataset {tum,7scenes,icl,folder} PATH [--frames A:B[:STEP]]
-             [--resolution 160x120] [--frontend classical|depth|onnx]
+             [--resolution 320x240] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
@@ -94,7 +94,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
                    help="frame numbers A <= n < B, every STEP-th (default: all)")
     p.add_argument("--resolution", default=None, metavar="WxH",
-                   help="processing resolution (default 160x120)")
+                   help="processing resolution (default 320x240)")
     p.add_argument("--frontend", default=None, choices=["classical", "onnx", "depth"],
                    help="classical (default, monocular), onnx (needs `spgeo models fetch`) or "
                         "depth (reads the sensor depth: RGB-D / oracle)")

@@ -156,10 +156,10 @@ class OdometryConfig:
         map_pixel_fraction: fraction of the level's primitive pixels used by
             mapping, those with the largest reference image gradient (at least
             ``min_level_pixels`` per primitive), in (0, 1] (default 1: all).
-        pixel_budget: None (default): tracking uses every primitive pixel
-            of a level's lattice; a number: about this many pixels per level,
+        pixel_budget: about this many tracking pixels per pyramid level,
             selected by :func:`spgeo.vo.pixels.select_pixels` with
-            ``pixel_selection``'s options.
+            ``pixel_selection``'s options (default 1000; docs/results.md
+            says why); None: every primitive pixel of a level's lattice.
         map_pixel_budget: the same for the mapping factors at ``map_level``
             (None, default: every pixel there).
         pixel_selection: :class:`~spgeo.vo.pixels.PixelSelectionConfig` (its
@@ -243,7 +243,7 @@ class OdometryConfig:
     map_lambda_max: float = 1e3
     map_lambda_initial: float = 1e-5
     map_pixel_fraction: float = 1.0
-    pixel_budget: Optional[int] = None
+    pixel_budget: Optional[int] = 1000
     map_pixel_budget: Optional[int] = None
     pixel_selection: PixelSelectionConfig = field(default_factory=PixelSelectionConfig)
     map_chunk: int = 128

@@ -9,18 +9,15 @@ One thread, one call per frame (:meth:`Odometry.track`):
   (translation / median depth >= ``OdometryConfig.init_min_parallax``), or
   that is about to lose keyframe 0 (valid fraction or rotation past the
   keyframe thresholds), or the frame ``init_max_gap`` frames after keyframe
-  0, becomes keyframe 1 and few-view SfM
-  (:func:`spgeo.sfm.few_view_sfm`, keyframe 0 as reference; keyframe 1 and
-  ``init_extra_views`` frames between them as supporting views) gives
-  keyframe 0's log-scales and ``T_0_1``.  The frames in between are then re-tracked
-  against the solved keyframe 0.  With a depth-using front-end (RGB-D /
-  oracle, ``frontend.uses_depth``) keyframe 0's scales start from that depth
-  (so the trajectory is metric); with a monocular front-end they start at 0
-  and SfM starts from the feature-based two-view pose.
-* **Tracking.**  :func:`spgeo.vo.tracking.track_frame` (a batched Gauss-Newton
-  / LM over the pyramid minimising exactly the factors' cost, tested) against
-  the latest keyframe from a constant-velocity guess, then from the last good
-  pose.
+  0, becomes keyframe 1 and few-view SfM (:func:`spgeo.sfm.few_view_sfm`,
+  keyframe 0 as reference; keyframe 1 and ``init_extra_views`` frames between
+  them as supporting views) gives keyframe 0's log-scales and ``T_0_1``.  The
+  frames in between are then re-tracked against the solved keyframe 0.  With a
+  depth-using front-end (``frontend.uses_depth``) keyframe 0's scales start from
+  that depth (metric trajectory); monocular: at 0, SfM from the two-view pose.
+* **Tracking.**  :func:`spgeo.vo.tracking.track_frame` (coarse-to-fine LM on the
+  factors' cost) against the latest keyframe from a constant-velocity guess,
+  then from the last good pose.
 * **Failure.**  A frame that cannot be tracked (low valid fraction, cost
   blow-up, divergence) is tried against the window's other keyframes
   (newest first, *relocalisation*); if that fails too it is flagged
@@ -33,28 +30,25 @@ One thread, one call per frame (:meth:`Odometry.track`):
   depth, so segments may differ in scale (``report.json`` counts segments;
   the status file marks every frame).
 * **Pixels.**  With ``OdometryConfig.pixel_budget`` every keyframe (keyframe 0
-  of the initialisation included) is built with that pixel selection: the
-  tracker optimises on it, while its decision quantities (valid fraction,
-  relative cost: ``TrackerConfig.decision_width``) and the mapping factors
-  (``map_pixel_budget``) do not depend on it.
+  included) is built with that pixel selection: the tracker optimises on it;
+  its decision quantities (``TrackerConfig.decision_width``) and the mapping
+  factors (``map_pixel_budget``) do not depend on it.
 * **Keyframes.**  A tracked frame becomes a keyframe when its valid fraction
   drops below ``kf_min_valid_fraction``, its translation from the latest
   keyframe over that keyframe's median depth exceeds ``kf_max_translation``,
   its rotation exceeds ``kf_max_rotation_deg`` or its relative photometric
-  cost exceeds ``kf_max_relative_cost``.  Its primitives get log-scales from
-  the z-buffered rendering of the window's keyframes
-  (:func:`spgeo.vo.rendering.render_primitives`,
-  :func:`spgeo.vo.rendering.init_scales_from_render`).
-* **Mapping.**  :class:`spgeo.vo.mapping.WindowMapper` (a fixed-lag smoother
-  over the last ``window`` keyframes and their supporting frames).
+  cost exceeds ``kf_max_relative_cost``.  Its primitives get log-scales from the
+  z-buffered rendering of the window's keyframes (:mod:`spgeo.vo.rendering`).
+* **Mapping.**  :class:`spgeo.vo.mapping.WindowMapper` (fixed-lag smoother over
+  the last ``window`` keyframes and their supporting frames).
 * **Trajectory.**  :meth:`Odometry.result` gives keyframes and supporting
   frames at their latest smoothed poses and every other tracked frame at its
   tracked pose relative to its keyframe composed with that keyframe's latest
   pose (lost frames repeat the previous frame's pose).  ``FrameResult`` keeps
   the online (causal) estimate.
 
-Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5);
-depth-derived (oracle) normals are the ``"depth"`` front-end.
+Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
+the ``"depth"`` front-end.
 """
 from __future__ import annotations
 
