@@ -74,9 +74,9 @@ class Trajectory:
 
     timestamps: np.ndarray
     poses: np.ndarray
-    status: List[FrameStatus] = None  # type: ignore[assignment]
-    is_keyframe: np.ndarray = None  # type: ignore[assignment]
-    segment: np.ndarray = None  # type: ignore[assignment]
+    status: Optional[Sequence[Union[str, FrameStatus]]] = None
+    is_keyframe: Optional[np.ndarray] = None
+    segment: Optional[np.ndarray] = None
     columns: Dict[str, Sequence[object]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
