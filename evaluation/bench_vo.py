@@ -37,6 +37,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from spgeo.evaluation.vo_frontier import setting_config
+from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
 from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
 
@@ -94,7 +95,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     frames = synthetic_sequence(SyntheticVOConfig(args.frames, args.seed))
     print(f"machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; "
           f"{args.frames} synthetic frames (seed {args.seed}) at 160x120")
-    tr = bench_tracking(frames)
+    with blas_threads(VORunConfig().blas_threads):  # as the VO runner
+        tr = bench_tracking(frames)
     print(f"tracking alone: {tr['fps']:.1f} FPS (median {1e3 * tr['median_s']:.1f} ms over "
           f"{tr['frames']} frames vs keyframe 0; median translation error "
           f"{1e3 * tr['median_translation_err_m']:.1f} mm)")

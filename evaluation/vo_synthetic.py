@@ -31,7 +31,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.apps.vo_run import blas_threads
+from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.cli.config import apply_overrides, nest, parse_assignments
 from spgeo.vo import Odometry, OdometryConfig
 
@@ -79,7 +79,7 @@ def run_synthetic_vo(frames: Sequence[Frame], frontend: str = "depth",
     fe = make_frontend(frontend, FrontEndConfig(working_size=cam.size))
     vo = Odometry(cam, config, fe)
     t0 = time.perf_counter()
-    with blas_threads(1):  # as the VO runner (VORunConfig.blas_threads)
+    with blas_threads(VORunConfig().blas_threads):  # as the VO runner
         for f in frames:
             depth = f.depth if fe.uses_depth else None
             vo.track(Frame(f.image, cam, f.timestamp, depth))
