@@ -12,7 +12,8 @@ from spgeo import synthetic
 from spgeo.cli import main
 from spgeo.evaluation.trajectory import read_status, read_tum
 from spgeo.frame import Frame
-from spgeo.apps.vo_run import VORunConfig, parse_resolution, run_dataset, run_odometry
+from spgeo.apps.vo_run import VORunConfig, run_dataset, run_odometry
+from spgeo.cli.args import parse_resolution
 
 N = 20
 CAM = synthetic.default_camera(160, 120)

@@ -38,7 +38,7 @@ from typing import Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
-from ..cli.args import parse_resolution  # noqa: F401  (re-exported)
+from ..cli.config import config_to_dict
 from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..jsonio import json_default
@@ -46,7 +46,7 @@ from ..vo import Odometry, OdometryConfig, OdometryResult
 from ..vo.result import write_keyframe_clouds
 
 __all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
-           "parse_resolution", "ATE_LABELS"]
+           "blas_threads", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
 
@@ -244,7 +244,8 @@ class VORun:
         frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
         ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
         keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
-        ``"run"`` (resolution, front-end, wall time, FPS) and, with
+        ``"run"`` (resolution, front-end, wall time, FPS), ``"run_config"``
+        (this :class:`VORunConfig` without ``odometry``) and, with
         ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
         report.  ``ate``: a result of :meth:`ate` to reuse.  Returns the
         paths (``"clouds"``: a list).
@@ -261,6 +262,8 @@ class VORun:
                          "n_frames": self.n_frames,
                          "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
                          "frame_names": list(self.names)}
+        report["run_config"] = {k: v for k, v in config_to_dict(self.config).items()
+                                if k != "odometry"}  # the odometry's is under "config"
         if with_ate:
             report["ate"] = self.ate_report(ate)
         report_path.write_text(json.dumps(report, indent=1, default=json_default),

@@ -12,11 +12,9 @@ explicit options (``--resolution``, ``--frontend``, ...) override
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 from .args import DATASET_KINDS, parse_resolution
-from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
+from .config import add_config_arguments, apply_overrides, resolve_config
 
 __all__ = ["add_vo_cli"]
 
@@ -65,23 +63,12 @@ def _run(args: argparse.Namespace) -> int:
     run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg)
     ate = run.ate()
     paths = run.save(args.out, ate=ate)
-    _add_run_config(Path(paths["report"]), cfg)
     for line in run.summary_lines(ate):
         print(line)
     n_clouds = len(paths.get("clouds") or [])
     print(f"wrote {paths['trajectory']}, keyframes.txt, report.json"
           f"{f', {n_clouds} keyframe clouds' if n_clouds else ''} in {args.out}")
     return 0
-
-
-def _add_run_config(report_path: Path, cfg) -> None:
-    """Add ``"run_config"`` (the ``VORunConfig`` without ``odometry``, which the
-    report already holds under ``"config"``) to the run's ``report.json``."""
-    from ..jsonio import json_default
-
-    report = json.loads(report_path.read_text(encoding="utf-8"))
-    report["run_config"] = {k: v for k, v in config_to_dict(cfg).items() if k != "odometry"}
-    report_path.write_text(json.dumps(report, indent=1, default=json_default), encoding="utf-8")
 
 
 def add_vo_cli(subparsers) -> argparse.ArgumentParser:
