@@ -28,7 +28,6 @@ after the Sim(3) alignment.
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections import Counter
@@ -41,7 +40,6 @@ import numpy as np
 from ..cli.config import config_to_dict
 from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
-from ..jsonio import json_default
 from ..vo import Odometry, OdometryConfig, OdometryResult
 from ..vo.result import write_keyframe_clouds
 
@@ -251,23 +249,21 @@ class VORun:
         paths (``"clouds"``: a list).
         """
         out = Path(directory)
-        paths: Dict[str, object] = dict(self.odometry.save(out))
+        w, h = self.config.resolution
+        extra: Dict[str, object] = {
+            "run": {"resolution": [w, h], "frontend": self.frontend_name,
+                    "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
+                    "n_frames": self.n_frames,
+                    "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
+                    "frame_names": list(self.names)},
+            # the odometry's own configuration is the report's "config"
+            "run_config": {k: v for k, v in config_to_dict(self.config).items()
+                           if k != "odometry"}}
+        if with_ate:
+            extra["ate"] = self.ate_report(ate)
+        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra))
         if "clouds" not in paths:
             paths["clouds"] = self._write_clouds(out / "clouds")
-        report_path = Path(paths["report"])  # type: ignore[arg-type]
-        report = json.loads(report_path.read_text(encoding="utf-8"))
-        w, h = self.config.resolution
-        report["run"] = {"resolution": [w, h], "frontend": self.frontend_name,
-                         "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
-                         "n_frames": self.n_frames,
-                         "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
-                         "frame_names": list(self.names)}
-        report["run_config"] = {k: v for k, v in config_to_dict(self.config).items()
-                                if k != "odometry"}  # the odometry's is under "config"
-        if with_ate:
-            report["ate"] = self.ate_report(ate)
-        report_path.write_text(json.dumps(report, indent=1, default=json_default),
-                               encoding="utf-8")
         return paths
 
     def _write_clouds(self, folder: Path) -> List[Path]:

@@ -224,14 +224,13 @@ class Odometry:
                        for f in self._frames],
         }
 
-    def save(self, directory: Union[str, Path], clouds: bool = True) -> Dict[str, object]:
-        """Write ``trajectory.txt`` (every frame, TUM ``timestamp tx ty tz qx qy
-        qz qw``, camera-to-world, :meth:`result` poses), ``keyframes.txt``,
-        ``trajectory.status.txt`` (per-frame status, keyframe flag, segment),
-        ``report.json`` and, with ``clouds``, one PLY per keyframe in
-        ``clouds/`` (world frame, metres, coloured); returns their paths."""
+    def save(self, directory: Union[str, Path], clouds: bool = True,
+             extra_report: Optional[dict] = None) -> Dict[str, object]:
+        """:func:`spgeo.vo.result.save_run` of :meth:`result`, :meth:`report`
+        updated with ``extra_report`` and, with ``clouds``, the keyframes."""
         kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self._kf_order]
-        return save_run(directory, self.result(), self.report(), kfs if clouds else None)
+        return save_run(directory, self.result(), {**self.report(), **(extra_report or {})},
+                        kfs if clouds else None)
 
     # ------------------------------------------------------------ stages
     def _primify(self, frame: Frame) -> PrimitiveSet:
