@@ -68,6 +68,12 @@ class _LevelData:
         return int(self.prim_index.size)
 
 
+def _points(primitives: PrimitiveSet) -> np.ndarray:
+    """(K, 3) keyframe-frame points of every primitive pixel."""
+    rays = primitives.camera.rays().reshape(-1, 3)[primitives.pixels]
+    return rays * np.exp(primitives.scaled_log_depth())[:, None]
+
+
 @dataclass
 class Keyframe:
     """A keyframe as the tracker sees it.
@@ -115,8 +121,7 @@ class Keyframe:
             raise ValueError(f"Keyframe.build: image must be (H, W[, C]), got {image.shape}")
         grey = _prepare_grey(image, image.shape[:2], cam.shape, "keyframe image")
         pyr = gaussian_pyramid(grey, cam, int(levels))
-        rays = cam.rays().reshape(-1, 3)[primitives.pixels]
-        X = rays * np.exp(primitives.scaled_log_depth())[:, None]
+        X = _points(primitives)
         return cls(primitives, pyr, T.copy(), tuple(image.shape[:2]), X,
                    float(np.median(X[:, 2])), selection)
 
@@ -130,8 +135,7 @@ class Keyframe:
                 and np.array_equal(primitives.offsets, old.offsets)):
             raise ValueError("Keyframe.rebuilt: the primitives' pixels changed")
         T = check_pose(np.asarray(T_world_kf, dtype=np.float64), "T_world_kf")
-        rays = primitives.camera.rays().reshape(-1, 3)[primitives.pixels]
-        X = rays * np.exp(primitives.scaled_log_depth())[:, None]
+        X = _points(primitives)
         return Keyframe(primitives, self.pyramid, T.copy(), self.input_shape, X,
                         float(np.median(X[:, 2])), self.selection, _selected=self._selected,
                         _lattice=self._lattice)
@@ -202,7 +206,8 @@ class Keyframe:
         w = prims.camera.width
         stride = 2 ** int(level)
         lattice = stride * int(subsample)
-        on = ((prims.pixels % w) % lattice == 0) & ((prims.pixels // w) % lattice == 0)
+        on = np.zeros(prims.pixels.size, dtype=bool)
+        on[self.lattice_entries(lattice)] = True
         if selection is not None and (level == 0 or selection.coarse_levels == "select"):
             on = self._select(level, lattice, on, selection)
         ids_all = prims.primitive_ids
