@@ -41,6 +41,7 @@ SLOW_FIXTURES = {
     "test_odometry.py": {"run", "run_frequent_kf"},
     "test_vo_cli.py": {"depth_run"},
     "test_vo_evaluation.py": {"synthetic_sequence"},
+    "test_vo_fast_motion.py": {"frames"},
     "test_vo_references.py": {"colmap_result"},
 }
 SLOW_TESTS = {

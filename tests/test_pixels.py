@@ -10,7 +10,7 @@ from spgeo.frontend import make_frontend
 from spgeo.vo import OdometryConfig
 from spgeo.vo.mapping import MapKeyframe, WindowMapper, kf_pose_key, kf_scale_key
 from spgeo.vo.pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
-from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, _valid_fraction,
+from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, valid_fraction,
                                track_frame)
 
 H, W, CELL = 240, 320, 40
@@ -218,5 +218,5 @@ def test_decision_cost_at_160_is_the_finest_level_cost(keyframe_pair):
     out = tc.evaluate(res.T_world_frame, res.brightness, jacobians=False)
     assert res.photometric_cost == out["photometric_cost"]
     assert res.relative_cost == out["photometric_cost"] / tc.featureless_cost(out)
-    assert res.valid_fraction == _valid_fraction(kf, res.T_world_frame,
+    assert res.valid_fraction == valid_fraction(kf, res.T_world_frame,
                                                  TrackerConfig().photometric.min_depth)

@@ -28,16 +28,18 @@ constancy holds exactly apart from sampling/aliasing.
 """
 from __future__ import annotations
 
-from .config import SceneConfig, TextureConfig, TrajectoryConfig
+from .config import (ForwardTrajectoryConfig, SceneConfig, TextureConfig, TrajectoryConfig,
+                     forward_scene_config)
 from .objects import (BoxSpec, CylinderSpec, PanelSpec, RenderedView, SphereSpec, Surface,
                       SurfaceKind)
-from .poses import (camera_rotation, default_camera, look_at, make_trajectory, make_view_set,
-                    orbit_views)
+from .poses import (camera_rotation, default_camera, look_at, make_forward_trajectory,
+                    make_trajectory, make_view_set, orbit_views)
 from .scene import SyntheticScene
 from .sequence import render_frames, write_tum_sequence
 
 __all__ = [
-    "TextureConfig", "SceneConfig", "TrajectoryConfig", "SurfaceKind", "Surface",
+    "TextureConfig", "SceneConfig", "TrajectoryConfig", "ForwardTrajectoryConfig",
+    "forward_scene_config", "make_forward_trajectory", "SurfaceKind", "Surface",
     "BoxSpec", "CylinderSpec", "SphereSpec", "PanelSpec", "RenderedView", "SyntheticScene",
     "default_camera", "look_at", "camera_rotation", "make_trajectory", "orbit_views",
     "make_view_set", "render_frames", "write_tum_sequence",

@@ -147,3 +147,42 @@ class TrajectoryConfig:
     pure_rotation: Optional[Tuple[int, int]] = None
     start_yaw_deg: Optional[float] = None
 
+
+@dataclass(frozen=True)
+class ForwardTrajectoryConfig:
+    """Parameters of :func:`~spgeo.synthetic.poses.make_forward_trajectory`: a
+    forward drive with large inter-frame motion (a vehicle at a low frame rate).
+
+    Attributes:
+        step: forward distance between consecutive frames (m), default 0.25.
+        start: first camera centre (world, m), default (0, -3.4, 1.2).
+        heading_deg: mean driving direction (yaw, degrees; 90 drives along +y),
+            default 90.
+        lateral_amplitude: amplitude of the sideways weave (m), default 0.3.
+        weave_wavelength: wavelength of the weave along the path (m), default 8.
+        yaw_follows_path: the camera looks along the path's tangent (so it
+            turns with the weave), default True.
+        pitch_deg: constant pitch (positive looks up), default -4.
+        bounce_deg: amplitude of a pitch/roll bounce (degrees), default 1.
+        bounce_period: period of the bounce (frames), default 7.
+    """
+
+    step: float = 0.25
+    start: Tuple[float, float, float] = (0.0, -3.4, 1.2)
+    heading_deg: float = 90.0
+    lateral_amplitude: float = 0.3
+    weave_wavelength: float = 8.0
+    yaw_follows_path: bool = True
+    pitch_deg: float = -4.0
+    bounce_deg: float = 1.0
+    bounce_period: float = 7.0
+
+
+def forward_scene_config() -> SceneConfig:
+    """A long hall for :class:`ForwardTrajectoryConfig`: a 12 x 12 x 3 m room
+    whose objects keep 3.6 m (in plan) from the centre, so the default drive
+    (28 frames: 6.75 m along y through the centre, weaving 0.3 m) never
+    enters one."""
+    return SceneConfig(room_size=(12.0, 12.0, 3.0), free_zone_radius=3.6, n_boxes=10,
+                       n_cylinders=4, n_spheres=3, n_panels=4)
+

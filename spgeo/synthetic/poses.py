@@ -13,11 +13,11 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..geometry import check_pose, rotation_angle_deg, so3_exp
-from .config import TrajectoryConfig
+from .config import ForwardTrajectoryConfig, TrajectoryConfig
 from .scene import SyntheticScene
 
-__all__ = ["default_camera", "camera_rotation", "look_at", "make_trajectory", "orbit_views",
-           "make_view_set"]
+__all__ = ["default_camera", "camera_rotation", "look_at", "make_trajectory",
+           "make_forward_trajectory", "orbit_views", "make_view_set"]
 
 
 def default_camera(width: int = 640, height: int = 480) -> PinholeCamera:
@@ -151,6 +151,45 @@ def make_trajectory(n_frames: int, seed: int,
     for i in range(n):  # per frame (not per pixel): a few 3x3 products
         poses[i, :3, :3] = camera_rotation(yaw[i], pitch[i], roll[i]) @ so3_exp(jit_rot[i])
         poses[i, :3, 3] = trans[i]
+    return poses
+
+
+def make_forward_trajectory(n_frames: int, seed: int = 0,
+                            config: ForwardTrajectoryConfig = ForwardTrajectoryConfig()
+                            ) -> np.ndarray:
+    """(n, 4, 4) camera-to-world poses of a forward drive with large inter-frame
+    motion (``config.step`` metres per frame, a sideways weave, the camera
+    turning with the path, a small pitch/roll bounce); deterministic in
+    ``seed`` (which draws the weave's and bounce's phases).  Pair it with
+    :func:`~spgeo.synthetic.config.forward_scene_config` so the path stays in
+    the free zone."""
+    n = int(n_frames)
+    if n < 1:
+        raise ValueError(f"make_forward_trajectory: n_frames must be >= 1, got {n_frames}")
+    cfg = config
+    if not cfg.step > 0 or not cfg.weave_wavelength > 0 or not cfg.bounce_period > 0:
+        raise ValueError(f"make_forward_trajectory: step, wavelength and period must be > 0, got {cfg}")
+    rng = np.random.default_rng([int(seed), 5])
+    ph_w, ph_p, ph_r = rng.uniform(0, 2 * np.pi, 3)
+    k = np.arange(n, dtype=float)
+    head = math.radians(cfg.heading_deg)
+    fwd = np.array([math.cos(head), math.sin(head), 0.0])
+    side = np.array([math.sin(head), -math.cos(head), 0.0])
+    s = k * cfg.step  # distance along the heading (the weave adds a little arc length)
+    w = 2 * np.pi / cfg.weave_wavelength
+    lat = cfg.lateral_amplitude * np.sin(w * s + ph_w)
+    centres = np.asarray(cfg.start, float) + s[:, None] * fwd + lat[:, None] * side
+    yaw = np.full(n, head)
+    if cfg.yaw_follows_path:  # along the tangent: d(lat)/ds = A w cos(w s + phase)
+        yaw = yaw - np.arctan(cfg.lateral_amplitude * w * np.cos(w * s + ph_w))
+    b = math.radians(cfg.bounce_deg)
+    wb = 2 * np.pi / cfg.bounce_period
+    pitch = math.radians(cfg.pitch_deg) + b * np.sin(wb * k + ph_p)
+    roll = b * np.sin(wb * k + ph_r)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    for i in range(n):  # per frame: a 3x3 product
+        poses[i, :3, :3] = camera_rotation(yaw[i], pitch[i], roll[i])
+        poses[i, :3, 3] = centres[i]
     return poses
 
 

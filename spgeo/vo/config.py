@@ -9,6 +9,7 @@ from typing import Optional, Tuple
 
 from ..factors.photometric import PhotometricConfig
 from ..sfm import SfMConfig
+from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
 
 __all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS"]
@@ -147,6 +148,13 @@ class OdometryConfig:
         window: keyframes kept in the smoother (default 5, >= 2); older ones
             are marginalised.
         n_support: supporting non-keyframes linked to each keyframe (paper: 4).
+        covisible_links: besides the previous keyframe, a new keyframe is
+            linked (photometric factors both ways) to up to this many older
+            window keyframes, those sharing the largest view with it (default
+            0: the paper's chain; docs/results.md says why).
+        covisible_min_overlap: an older keyframe is linked only when at least
+            this fraction of its primitive pixels project into the new
+            keyframe's image (default 0.5).
         levels: pyramid levels of the keyframes (default 3).
         map_level: pyramid level of the mapping factors (default 1: half
             resolution, 80x60 at 160x120), in ``[0, levels)``: speed against
@@ -214,7 +222,10 @@ class OdometryConfig:
             translation over keyframe 0's median depth reaches this
             (default 0.08) ...
         init_max_gap: ... or the frame this many frames after keyframe 0
-            (default 30: 1 s at 30 Hz).
+            (default 30: 1 s at 30 Hz), or the first frame whose tracking
+            against keyframe 0 fails (large motion; its initialisation is
+            kept only when the SfM's status is ``"ok"`` and its own baseline
+            reaches ``init_min_parallax``).
         init_min_gap: keyframe 1 is at least this many frames after keyframe
             0 (default 3; ``1 <= init_min_gap <= init_max_gap``).
         init_extra_views: frames between keyframes 0 and 1 (evenly spaced)
@@ -226,6 +237,9 @@ class OdometryConfig:
         sfm: :class:`SfMConfig` of the two-view initialisation (its
             ``reset_scales`` is overridden: False with a depth-using
             front-end, True otherwise).
+        feature_retry: :class:`~spgeo.vo.feature_retry.FeatureRetryConfig`:
+            when tracking against the latest keyframe fails, a PnP pose from
+            features lifted with its primitive depth restarts the tracker.
     """
 
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -235,6 +249,8 @@ class OdometryConfig:
     kf_max_rotation_deg: float = 15.0
     window: int = 5
     n_support: int = 4
+    covisible_links: int = 0
+    covisible_min_overlap: float = 0.5
     levels: int = 3
     map_level: int = 1
     map_stride: int = 1
@@ -265,6 +281,7 @@ class OdometryConfig:
     init_extra_views: int = 1
     max_lost_frames: int = 10
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
+    feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
 
     def __post_init__(self) -> None:
         if self.window < 2:

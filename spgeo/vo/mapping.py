@@ -6,7 +6,8 @@ poses.  Variables: keyframe poses, per-keyframe primitive shape variables
 (log-scales, or inverse-depth planes with ``primitive_model="planar"``),
 supporting-frame poses and an affine brightness per directed (reference,
 target) pair.  Each new keyframe is linked to the previous one by photometric
-factors in both directions, and the previous keyframe to up to ``n_support``
+factors in both directions (and to up to ``covisible_links`` older window
+keyframes that share enough of its view), and the previous keyframe to up to ``n_support``
 supporting non-keyframes tracked against it (evenly spaced; paper: 4), whose
 poses are optimised too.  One
 :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` per primitive
@@ -56,7 +57,7 @@ from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_pri
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
 from .config import PRIMITIVE_MODELS, OdometryConfig
-from .tracking import Keyframe
+from .tracking import Keyframe, decision_stride, valid_fraction
 
 __all__ = ["WindowMapper", "MapKeyframe", "SupportCandidate", "kf_pose_key", "kf_scale_key",
            "kf_brightness_key", "support_pose_key", "apply_primitive_model"]
@@ -78,9 +79,13 @@ def kf_scale_key(k: int, i: int) -> int:
 
 
 def kf_brightness_key(ref: int, tgt: int) -> int:
-    """Smoother key of the affine brightness of keyframe ``tgt`` seen from ``ref``
-    (``ref`` and ``tgt`` are consecutive keyframes)."""
-    return gtsam.symbol("b" if tgt > ref else "c", int(max(ref, tgt)))
+    """Smoother key of the affine brightness of keyframe ``tgt`` seen from
+    ``ref`` (any two keyframes; consecutive ones use the symbols ``b``/``c``
+    indexed by the later keyframe, others ``e``/``g``)."""
+    hi, lo = int(max(ref, tgt)), int(min(ref, tgt))
+    if hi - lo == 1:
+        return gtsam.symbol("b" if tgt > ref else "c", hi)
+    return gtsam.symbol("e" if tgt > ref else "g", hi * _MAX_PRIMS + lo)
 
 
 def support_pose_key(frame: int) -> int:
@@ -266,6 +271,26 @@ class WindowMapper:
                                       cfg.photometric, n_pixels=counts.astype(float),
                                       chunk=max(1, cfg.map_chunk // shape.dim))
 
+    def _covisible(self, older: Sequence[MapKeyframe], new: MapKeyframe) -> List[MapKeyframe]:
+        """Up to ``covisible_links`` of the ``older`` keyframes still in the
+        window whose primitive pixels project into ``new``'s image for at
+        least ``covisible_min_overlap`` of them, the largest overlap first."""
+        cfg = self.config
+        if cfg.covisible_links <= 0 or not older:
+            return []
+        est = self.estimate()
+        stride = decision_stride(new.keyframe.camera.width, cfg.tracker.decision_width)
+        scored = []
+        for kf in older[-cfg.window:]:
+            if not est.exists(kf_pose_key(kf.index)):
+                continue
+            frac = valid_fraction(kf.keyframe, new.keyframe.T_world_kf,
+                                  cfg.photometric.min_depth, stride)
+            if frac >= cfg.covisible_min_overlap:
+                scored.append((frac, kf.index, kf))
+        scored.sort(key=lambda x: (-x[0], -x[1]))
+        return [kf for _, _, kf in scored[:cfg.covisible_links]]
+
     def _map_pixels(self, ref: MapKeyframe):
         """Mapping pixels of a keyframe: ``(entries, compact ids, primitive
         index, reference intensities)``: the map level's pixels (with
@@ -390,12 +415,18 @@ class WindowMapper:
             graph.add(pose_gauge_prior(kf_pose_key(prev.index), prev.keyframe.T_world_kf,
                                        cfg.gauge_sigma))
         add_kf(new)
-        n_pair = 0
+        n_pair = n_cov = 0
         for ref, tgt in ((prev, new), (new, prev)):
             bkey = kf_brightness_key(ref.index, tgt.index)
             g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
                             tgt.keyframe.pyramid.cameras[lvl], bkey)
             n_pair += add_group(g, bkey, np.zeros(2), k)
+        for old in self._covisible(kfs[:-2], new):
+            for ref, tgt in ((old, new), (new, old)):
+                bkey = kf_brightness_key(ref.index, tgt.index)
+                g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
+                                tgt.keyframe.pyramid.cameras[lvl], bkey)
+                n_cov += add_group(g, bkey, np.zeros(2), k)
         sel_new = self._map_pixels(new)
         n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
         link = self.depth_link(prev, new)
@@ -428,7 +459,8 @@ class WindowMapper:
         self._refresh(est, kfs)
         self._groups = [g for g in self._groups if est.exists(g.ref_key) and est.exists(g.tgt_key)]
         self.reports.append({"keyframe": k, "segment": segment,
-                             "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
+                             "factors_keyframe_pairs": n_pair, "factors_covisible": n_cov,
+                             "factors_support": n_sup,
                              "depth_link_correspondences": 0 if link is None else link.n,
                              "support_frames": [c.frame for c in chosen],
                              "primitives_without_pixels": int(n_empty),

@@ -1,51 +1,13 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives (docs/design.md §5):
 the per-frame state machine (initialise, track, lose, re-initialise).
 
-One thread, one call per frame (:meth:`Odometry.track`):
-
-* **Initialisation.**  The first frame is keyframe 0 (pose identity: the
-  gauge).  Following frames are tracked against it (status ``INIT``).
-  From ``init_min_gap`` frames on, the first frame with enough parallax
-  (translation / median depth >= ``OdometryConfig.init_min_parallax``), or
-  that is about to lose keyframe 0 (valid fraction or rotation past the
-  keyframe thresholds), or the frame ``init_max_gap`` frames after keyframe
-  0, becomes keyframe 1 and few-view SfM (:func:`spgeo.sfm.few_view_sfm`,
-  keyframe 0 as reference; keyframe 1 and ``init_extra_views`` frames between
-  them as supporting views) gives keyframe 0's log-scales and ``T_0_1``.  The
-  frames in between are then re-tracked against the solved keyframe 0.  With a
-  depth-using front-end (``frontend.uses_depth``) keyframe 0's scales start from
-  that depth (metric trajectory); monocular: at 0, SfM from the two-view pose.
-* **Tracking.**  :func:`spgeo.vo.tracking.track_frame` (coarse-to-fine LM on the
-  factors' cost) against the latest keyframe from a constant-velocity guess,
-  then from the last good pose.
-* **Failure.**  A frame that cannot be tracked (low valid fraction, cost
-  blow-up, divergence) is tried against the window's other keyframes
-  (newest first, *relocalisation*); if that fails too it is flagged
-  ``LOST`` and keeps the last good pose.  The first frame tracked after a
-  loss is ``RELOCALISED``.  After ``max_lost_frames`` consecutive lost
-  frames the map is *re-initialised*: the frame becomes keyframe 0 of a new
-  map segment (status ``REINIT``) at the last good pose, the smoother is
-  restarted and two-view initialisation runs again.  A monocular re-init
-  cannot know the old scale: its depths are set to the last keyframe's median
-  depth, so segments may differ in scale (``report.json`` counts segments;
-  the status file marks every frame).
-* **Pixels.**  With ``OdometryConfig.pixel_budget`` every keyframe (keyframe 0
-  included) is built with that pixel selection: the tracker optimises on it;
-  its decision quantities (``TrackerConfig.decision_width``) and the mapping
-  factors (``map_pixel_budget``) do not depend on it.
-* **Keyframes.**  A tracked frame becomes a keyframe when its valid fraction
-  drops below ``kf_min_valid_fraction``, its translation from the latest
-  keyframe over that keyframe's median depth exceeds ``kf_max_translation``,
-  its rotation exceeds ``kf_max_rotation_deg`` or its relative photometric
-  cost exceeds ``kf_max_relative_cost``.  Its primitives get log-scales from the
-  z-buffered rendering of the window's keyframes (:mod:`spgeo.vo.rendering`).
-* **Mapping.**  :class:`spgeo.vo.mapping.WindowMapper` (fixed-lag smoother over
-  the last ``window`` keyframes and their supporting frames).
-* **Trajectory.**  :meth:`Odometry.result` gives keyframes and supporting
-  frames at their latest smoothed poses and every other tracked frame at its
-  tracked pose relative to its keyframe composed with that keyframe's latest
-  pose (lost frames repeat the previous frame's pose).  ``FrameResult`` keeps
-  the online (causal) estimate.
+One thread, one call per frame (:meth:`Odometry.track`).  The states and
+their rules (initialisation, tracking with its retries, relocalisation,
+re-initialisation, keyframe decisions, the trajectory that
+:meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
+are :class:`~spgeo.vo.config.OdometryConfig`'s.  Mapping is
+:class:`spgeo.vo.mapping.WindowMapper`'s (fixed-lag smoother over the last
+``window`` keyframes and their supporting frames).
 
 Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
 the ``"depth"`` front-end.
@@ -69,6 +31,7 @@ from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
 from ..sfm import few_view_sfm
 from .config import OdometryConfig
+from .feature_retry import FeatureRetry
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
@@ -103,6 +66,7 @@ class Odometry:
         self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
         self._candidates: List[SupportCandidate] = []
         self._init_buffer: List[tuple] = []   # (frame index, image) before keyframe 1
+        self._init_retry_gap = 0    # a lost frame may end the wait from this gap on
         self._segment = 0
         self._seg_kfs: List[int] = []          # keyframes of the current segment
         self._last_good: Optional[np.ndarray] = None
@@ -110,6 +74,7 @@ class Odometry:
         self._brightness = np.zeros(2)
         self._n_lost = 0
         self._mapper = WindowMapper(config)
+        self._retry = FeatureRetry(camera, config.feature_retry)
         self._sfm_reports: List[dict] = []
 
     # ------------------------------------------------------------ public API
@@ -257,20 +222,33 @@ class Odometry:
         self._seg_kfs = [k]
         self._candidates.clear()
         self._init_buffer.clear()
+        self._init_retry_gap = 0
         self._last_good, self._prev_good = np.array(T_world, dtype=float), None
         self._brightness = np.zeros(2)
         self._n_lost = 0
         return FrameResult(idx, float(frame.timestamp), np.array(T_world, dtype=float),
                            FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT, keyframe_index=k)
 
-    def _track_against(self, kf: Keyframe, image: np.ndarray):
-        """Constant-velocity guess, then the last good pose; returns the TrackResult."""
-        guess = constant_velocity_guess(self._last_good, self._prev_good)
-        tr = track_frame(kf, image, guess, self._brightness, self.config.tracker)
-        if not tr.ok and self._prev_good is not None:
-            tr2 = track_frame(kf, image, self._last_good, self._brightness, self.config.tracker)
-            if tr2.ok or tr2.photometric_cost < tr.photometric_cost:
+    def _track_against(self, kf: Keyframe, image: np.ndarray,
+                       retry: Optional[MapKeyframe] = None) -> TrackResult:
+        """Constant-velocity guess, then the last good pose, then (``retry``:
+        ``kf``'s map keyframe) the feature-based PnP pose; the best TrackResult."""
+        guesses = [lambda: constant_velocity_guess(self._last_good, self._prev_good)]
+        if self._prev_good is not None:
+            guesses.append(lambda: self._last_good)
+        if retry is not None and self.config.feature_retry.enabled:
+            guesses.append(lambda: self._retry.guess(retry.index, retry.image, kf.primitives,
+                                                     kf.T_world_kf, image))
+        tr = None
+        for guess in guesses:
+            T0 = guess()
+            if T0 is None:
+                continue
+            tr2 = track_frame(kf, image, T0, self._brightness, self.config.tracker)
+            if tr is None or tr2.ok or tr2.photometric_cost < tr.photometric_cost:
                 tr = tr2
+            if tr.ok:
+                break
         return tr
 
     def _accept(self, tr: TrackResult) -> None:
@@ -297,8 +275,12 @@ class Odometry:
         rot = rotation_angle_deg(T_kf0_f[:3, :3])
         overlap_ending = tr.ok and (tr.valid_fraction < cfg.kf_min_valid_fraction
                                     or rot > cfg.kf_max_rotation_deg)
-        wait = (gap < cfg.init_max_gap and not overlap_ending
-                and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
+        # a frame lost against keyframe 0's unscaled shapes (large motion) ends
+        # the wait too (retries spaced out); its SfM must then pass its own checks
+        early = not tr.ok and gap < cfg.init_max_gap
+        wait = gap < cfg.init_max_gap and not overlap_ending and (
+            (tr.ok and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
+            or (early and gap < self._init_retry_gap))
         if wait:
             self._init_buffer.append((idx, np.asarray(frame.image)))
             if tr.ok:
@@ -313,11 +295,18 @@ class Odometry:
         prims0 = kf0.keyframe.primitives
         sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
         timings["init"] = time.perf_counter() - t
+        finite = bool(np.all(np.isfinite(sfm.T_ref_view[0])))
+        if not tr.ok and finite:  # the SfM's own baseline over its median depth
+            parallax = float(np.linalg.norm(sfm.T_ref_view[0][:3, 3]) / np.median(
+                np.exp(sfm.primitives.scaled_log_depth())))
         self._sfm_reports.append({
             "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
             "n_views": len(views),
             **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
-        if sfm.status == "diverged" or not np.all(np.isfinite(sfm.T_ref_view[0])):
+        failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
+                                                         or parallax < cfg.init_min_parallax))
+        if failed or not finite:
+            self._init_retry_gap = gap + max(1, gap // 2)
             log.warning("two-view initialisation failed (%s) at frame %d; retrying later",
                         sfm.status, idx)
             self._init_buffer.append((idx, np.asarray(frame.image)))
@@ -397,7 +386,7 @@ class Odometry:
         latest = self._kfs[self._seg_kfs[-1]]
         ref = latest
         t = time.perf_counter()
-        tr = self._track_against(latest.keyframe, frame.image)
+        tr = self._track_against(latest.keyframe, frame.image, retry=latest)
         relocalised = False
         if not tr.ok:
             tr_old, kf_old = self._relocalise(frame.image)

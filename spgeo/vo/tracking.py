@@ -38,7 +38,7 @@ from .config import TrackerConfig
 from .keyframe import Keyframe
 from .tracking_cost import TrackingCost
 
-__all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame",
+__all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame", "valid_fraction",
            "constant_velocity_guess", "TrackingCost"]
 
 log = logging.getLogger(__name__)
@@ -107,7 +107,7 @@ def _retract(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
     return gtsam.Pose3(T).retract(np.asarray(xi, dtype=np.float64)).matrix()
 
 
-def _valid_fraction(keyframe: Keyframe, T_world_frame: np.ndarray, min_depth: float,
+def valid_fraction(keyframe: Keyframe, T_world_frame: np.ndarray, min_depth: float,
                     stride: int = 1) -> float:
     """Fraction of the keyframe primitive points on the lattice of ``stride``
     (1: all of them) inside the frame's image."""
@@ -194,7 +194,7 @@ def _decision_quantities(keyframe: Keyframe, pyr: Pyramid, stride: int, T: np.nd
         fn = TrackingCost(keyframe, pyr.images[0], pyr.cameras[0], 0, config,
                           selection=None, subsample=stride)
         if fn.n_pixels == 0:
-            return T, ab, float("nan"), _valid_fraction(
+            return T, ab, float("nan"), valid_fraction(
                 keyframe, T, config.photometric.min_depth, stride), 0
         if config.decision_iterations > 0 and final_fn.n_pixels < fn.n_pixels:
             out = fn.evaluate(T, ab, jacobians=True)
@@ -203,7 +203,7 @@ def _decision_quantities(keyframe: Keyframe, pyr: Pyramid, stride: int, T: np.nd
                                                          config)
         else:
             out = fn.evaluate(T, ab, jacobians=False)
-    vfrac = _valid_fraction(keyframe, T, config.photometric.min_depth, stride)
+    vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, stride)
     flat = fn.featureless_cost(out)
     rel = float(out["photometric_cost"]) / flat if flat > 0 else float("inf")
     return T, ab, rel, vfrac, its
@@ -302,7 +302,7 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
         reason = "no_pixels"
         cost = photo = float("nan")
         if finite:
-            vfrac = _valid_fraction(keyframe, T, config.photometric.min_depth, dec)
+            vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, dec)
     else:
         cost, photo = float(final["cost"]), float(final["photometric_cost"])
         if finite:

@@ -1,0 +1,153 @@
+"""Feature-based pose of a frame against a keyframe: the tracker's retry after a
+photometric failure under large inter-frame motion.
+
+Photometric tracking converges only from a pose within its basin (a few
+pixels at the coarsest level).  When the motion model's guess is outside it
+(fast forward motion, a jolt), SIFT/ORB features of the keyframe image,
+lifted to 3-D with the keyframe's primitive depth, are matched with the
+frame's, and a RANSAC PnP gives a pose in the map's scale that the
+photometric tracker then refines (docs/design.md §5).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..geometry import invert_pose
+from ..primitives import PrimitiveSet
+from ..twoview import TwoViewConfig, to_gray_uint8
+from ..twoview_backends import opencv_features, ratio_matches
+
+__all__ = ["FeatureRetryConfig", "FeatureRetry"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FeatureRetryConfig:
+    """Parameters of :class:`FeatureRetry`.
+
+    Attributes:
+        enabled: try the feature-based pose when photometric tracking fails
+            (default True).
+        features: feature type, count and matching (``features``,
+            ``max_features``, ``sift_contrast_threshold``, ``ratio``,
+            ``cross_check`` of :class:`~spgeo.twoview.TwoViewConfig` are used).
+        min_inliers: PnP inliers needed to accept a pose (default 25).
+        reprojection_px: RANSAC inlier threshold (pixels of the frame's
+            image, default 2.0).
+        ransac_iterations: RANSAC iteration cap (default 500).
+    """
+
+    enabled: bool = True
+    features: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(max_features=1500))
+    min_inliers: int = 25
+    reprojection_px: float = 2.0
+    ransac_iterations: int = 500
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 4 or not self.reprojection_px > 0 or self.ransac_iterations < 1:
+            raise ValueError("FeatureRetryConfig: need min_inliers >= 4, reprojection_px > 0 and "
+                             f"ransac_iterations >= 1, got {self}")
+
+
+@dataclass
+class _KeyframeFeatures:
+    primitives: PrimitiveSet  # the shapes the points were lifted with
+    points: np.ndarray  # (N, 3) keyframe-camera points of the features (NaN: no depth)
+    descriptors: Optional[np.ndarray]
+
+
+class FeatureRetry:
+    """Feature-based ``T_world_frame`` guesses against keyframes (features of
+    each keyframe computed once and cached by its key).
+
+    Args:
+        camera: camera of the images passed to :meth:`guess`.
+        config: :class:`FeatureRetryConfig`.
+    """
+
+    def __init__(self, camera: PinholeCamera, config: FeatureRetryConfig = FeatureRetryConfig()
+                 ) -> None:
+        self.camera = camera
+        self.config = config
+        self._cache: Dict[int, _KeyframeFeatures] = {}
+
+    def _features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+        return opencv_features(to_gray_uint8(image), self.config.features)
+
+    def _keyframe_features(self, key: int, image: np.ndarray, primitives: PrimitiveSet
+                           ) -> _KeyframeFeatures:
+        cached = self._cache.get(key)
+        if cached is not None and cached.primitives is primitives:
+            return cached
+        pts, desc = self._features(image)
+        depth, depth_camera = primitives.depth_map(), primitives.camera
+        # feature pixel (image camera) -> depth-camera pixel (pixel centres at integers)
+        sx = depth_camera.width / self.camera.width
+        sy = depth_camera.height / self.camera.height
+        u = (pts[:, 0] + 0.5) * sx - 0.5
+        v = (pts[:, 1] + 0.5) * sy - 0.5
+        ui = np.clip(np.round(u).astype(np.int64), 0, depth_camera.width - 1)
+        vi = np.clip(np.round(v).astype(np.int64), 0, depth_camera.height - 1)
+        z = depth[vi, ui] if len(pts) else np.zeros(0)
+        ok = np.isfinite(z) & (z > 0)
+        X = np.stack([(u - depth_camera.cx) / depth_camera.fx * z,
+                      (v - depth_camera.cy) / depth_camera.fy * z, z], 1)
+        points = np.where(ok[:, None], X, np.nan)
+        feats = _KeyframeFeatures(primitives, points, desc)
+        self._cache[key] = feats
+        return feats
+
+    def forget(self, keep: set) -> None:
+        """Drop the cached features of keyframes whose key is not in ``keep``."""
+        for k in [k for k in self._cache if k not in keep]:
+            del self._cache[k]
+
+    def guess(self, key: int, kf_image: np.ndarray, primitives: PrimitiveSet,
+              T_world_kf: np.ndarray, image: np.ndarray) -> Optional[np.ndarray]:
+        """Camera-to-world pose of ``image`` from PnP on the keyframe's features.
+
+        Args:
+            key: the keyframe's cache key (its features are recomputed when
+                ``primitives`` is another object than at the last call).
+            kf_image: the keyframe's image (size of ``camera``).
+            primitives: the keyframe's scaled primitives (their depth map lifts
+                the features to 3-D; any resolution of the same view).
+            T_world_kf: the keyframe's camera-to-world pose.
+            image: the frame (size of ``camera``).
+        Returns:
+            ``T_world_frame`` (4, 4), or None with too few PnP inliers.
+        """
+        import cv2
+
+        cfg = self.config
+        kf = self._keyframe_features(key, kf_image, primitives)
+        pts, desc = self._features(image)
+        norm = cv2.NORM_L2 if cfg.features.features == "sift" else cv2.NORM_HAMMING
+        pairs = ratio_matches(kf.descriptors, desc, cfg.features, norm)
+        if len(pairs):
+            pairs = pairs[np.isfinite(kf.points[pairs[:, 0], 0])]
+        if len(pairs) < cfg.min_inliers:
+            log.debug("feature retry: %d matches with depth", len(pairs))
+            return None
+        K = self.camera.K.astype(np.float64)
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            kf.points[pairs[:, 0]].astype(np.float64), pts[pairs[:, 1]].astype(np.float64),
+            K, None, iterationsCount=int(cfg.ransac_iterations),
+            reprojectionError=float(cfg.reprojection_px), confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP)
+        n_in = 0 if inliers is None else len(inliers)
+        if not ok or n_in < cfg.min_inliers:
+            log.debug("feature retry: %d PnP inliers of %d matches", n_in, len(pairs))
+            return None
+        T_frame_kf = np.eye(4)
+        T_frame_kf[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T_frame_kf[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(T_frame_kf)):
+            return None
+        return np.asarray(T_world_kf, dtype=np.float64) @ invert_pose(T_frame_kf)
