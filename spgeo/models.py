@@ -5,7 +5,8 @@ The cache directory is ``$SPGEO_MODEL_DIR`` if set, else
 public ONNX exports with their URL, sha256 (where one is published), size,
 licence and the config preset that drives them
 (:data:`spgeo.frontend.onnx_sam.SAM_PRESETS`,
-:data:`spgeo.frontend.onnx_normals.NORMAL_PRESETS`).
+:data:`spgeo.frontend.onnx_normals.NORMAL_PRESETS`,
+:data:`spgeo.frontend.onnx_depth.DEPTH_PRESETS`).
 
 Downloads go to a temporary file in the cache directory with a progress bar,
 are checked against the size and sha256 and then renamed into place
@@ -39,7 +40,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
-KINDS = ("sam-encoder", "sam-decoder", "normals")
+KINDS = ("sam-encoder", "sam-decoder", "normals", "depth")
 _CHUNK = 1 << 20
 
 
@@ -53,12 +54,12 @@ class ModelEntry:
 
     Attributes:
         name: registry key (``<family>-encoder`` / ``<family>-decoder`` for SAM pairs).
-        kind: ``"sam-encoder"``, ``"sam-decoder"`` or ``"normals"``.
+        kind: ``"sam-encoder"``, ``"sam-decoder"``, ``"normals"`` or ``"depth"``.
         url: download URL (``https://`` or ``file://``).
         sha256: published hex digest, or ``None`` when none is published.
         size: size in bytes if published, else ``None``.
         licence: SPDX-style licence of the weights.
-        preset: name of the config preset (SAM_PRESETS / NORMAL_PRESETS).
+        preset: name of the config preset (SAM_PRESETS / NORMAL_PRESETS / DEPTH_PRESETS).
         filename: file name in the cache (default: the URL's last component).
         source: where the URL / checksum come from.
         notes: caveats (e.g. single-mask decoder, unverified convention).
@@ -95,6 +96,11 @@ _OSAM_SAM = ("sha256 from wkentaro/osam osam/_models/sam/_models.py (the labelme
 _OSAM_ESAM = "sha256 from wkentaro/osam osam/_models/efficientsam/_models.py"
 _SINGLE = ("quantized export made with --return-single-mask (labelme export script): one "
            "candidate per prompt, so the 3-candidate stability/smallest rule degenerates")
+
+
+_DAV2 = "https://huggingface.co/onnx-community/depth-anything-v2-small/resolve/main/onnx/"
+_DAV2_NOTE = ("relative (affine-invariant) inverse depth: normals approximate "
+              "(spgeo.frontend.onnx_depth)")
 
 
 def _e(*args, **kw) -> ModelEntry:
@@ -152,6 +158,18 @@ REGISTRY: Mapping[str, ModelEntry] = MappingProxyType({e.name: e for e in [
        None, None, "BSD-2-Clause", "metric3d-onnx", filename="metric3d-vit-small.onnx",
        source="URL from YvanYin/Metric3D README (ONNX checkpoints, issue #117)",
        notes="fp32; no published sha256 (fetch needs allow_unverified); convention unverified"),
+    _e("depth-anything-v2-small", "depth", _DAV2 + "model.onnx",
+       "afb6a5c28f3b6bf1618c6e43f02073ef9dfdc70e937502d51603e57b0a1df10c", 99060839,
+       "Apache-2.0", "depth-anything-v2", filename="depth-anything-v2-small.onnx",
+       source="sha256 from the Hugging Face file page (onnx-community/depth-anything-v2-small, "
+              "onnx/model.onnx, 99.1 MB); exact byte size pinned by third-party download scripts",
+       notes=_DAV2_NOTE),
+    _e("depth-anything-v2-small-fp16", "depth", _DAV2 + "model_fp16.onnx",
+       "2df6223f206b5164e21f664ace61dabeb9bb6a49b8b5a3e00510b4807d0f5b04", 49642442,
+       "Apache-2.0", "depth-anything-v2", filename="depth-anything-v2-small-fp16.onnx",
+       source="sha256 / size pinned by third-party download scripts (the Hugging Face file "
+              "listing shows 49.6 MB), not by the publisher",
+       notes=_DAV2_NOTE + "; fp16 weights"),
 ]})
 
 

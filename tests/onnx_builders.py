@@ -17,6 +17,9 @@ contracts of spgeo's ONNX front-end, for tests.
 * :func:`normal_model`: decodes an RGB image as colour-coded normals
   ``2 * rgb - 1`` (after undoing the configured mean/std), optionally with a
   4th (confidence) channel or a separate confidence output.
+* :func:`depth_model`: a plane's inverse depth (or depth), affine in the
+  normalised pixel coordinates at any input size, plus a term that is zero
+  only when the front-end normalised a grey-0.5 image as configured.
 """
 from __future__ import annotations
 
@@ -364,3 +367,84 @@ def normal_model(path, input_size=(48, 64), mean=(0.0, 0.0, 0.0), std=(1.0, 1.0,
 def encode_normals(normals: np.ndarray) -> np.ndarray:
     """Colour-code unit normals (..., 3) as an RGB image in [0, 1]."""
     return np.clip((np.asarray(normals, np.float64) + 1.0) / 2.0, 0.0, 1.0).astype(np.float32)
+
+
+# ------------------------------------------------------------------ depth
+def depth_model(path, coeffs=(0.0, 0.0, 1.0), kind: str = "inverse", input_size=None,
+                mean=(0.0, 0.0, 0.0), std=(1.0, 1.0, 1.0), scale: float = 1.0,
+                gain: float = 1.0, output_rank: int = 3, channels: int = 1,
+                input_rank: int = 4, input_name: str = "pixel_values",
+                output_name: str = "predicted_depth") -> Path:
+    """A monocular depth network contract whose output is a known plane.
+
+    For an input of (any, unless ``input_size``) size h x w, with normalised
+    coordinates ``x = (j + 0.5) / w``, ``y = (i + 0.5) / h`` (the pixel-centre
+    mapping of a stretch resize, so ``x = (u + 0.5) / W`` in the image), the
+    inverse depth is ``q = a x + b y + c`` (``coeffs = (a, b, c)``) plus
+    ``gain * (mean over channels of rgb - 0.5)``, ``rgb = (x_in * std + mean) /
+    scale`` undoing the front-end normalisation.  ``kind`` ``"inverse"``
+    outputs ``q``, ``"depth"`` outputs ``1 / q``.  Output (1, h, w)
+    (``output_rank=3``) or (1, channels, h, w) (``output_rank=4``).
+    ``input_rank=3`` declares a (3, h, w) input (a broken contract).
+    """
+    h, w = input_size if input_size is not None else ("h", "w")
+    a, b, c = (float(v) for v in coeffs)
+    inits = [_const("mean", np.asarray(mean, np.float32).reshape(1, 3, 1, 1)),
+             _const("std", np.asarray(std, np.float32).reshape(1, 3, 1, 1)),
+             _const("inv_scale", np.array(1.0 / scale, np.float32)),
+             _const("half", np.array(0.5, np.float32)), _const("zero", np.array(0.0, np.float32)),
+             _const("one", np.array(1.0, np.float32)), _const("gain", np.array(gain, np.float32)),
+             _const("ca", np.array(a, np.float32)), _const("cb", np.array(b, np.float32)),
+             _const("cc", np.array(c, np.float32)),
+             _const("i2", np.array(2, np.int64)), _const("i3", np.array(3, np.int64)),
+             _const("ax0", np.array([0], np.int64)), _const("ax1", np.array([1], np.int64))]
+    nodes = []
+    x = input_name
+    if input_rank == 3:
+        nodes.append(helper.make_node("Unsqueeze", [input_name, "ax0"], ["x4"]))
+        x = "x4"
+    nodes += [
+        helper.make_node("Shape", [x], ["shp"]),
+        helper.make_node("Gather", ["shp", "i2"], ["h_i"], axis=0),
+        helper.make_node("Gather", ["shp", "i3"], ["w_i"], axis=0),
+        helper.make_node("Cast", ["h_i"], ["h_f"], to=TensorProto.FLOAT),
+        helper.make_node("Cast", ["w_i"], ["w_f"], to=TensorProto.FLOAT),
+        helper.make_node("Range", ["zero", "h_f", "one"], ["rows0"]),
+        helper.make_node("Range", ["zero", "w_f", "one"], ["cols0"]),
+        helper.make_node("Add", ["rows0", "half"], ["rows1"]),
+        helper.make_node("Add", ["cols0", "half"], ["cols1"]),
+        helper.make_node("Div", ["rows1", "h_f"], ["yn"]),                     # (h,)
+        helper.make_node("Div", ["cols1", "w_f"], ["xn"]),                     # (w,)
+        helper.make_node("Mul", ["xn", "ca"], ["ax_"]),
+        helper.make_node("Mul", ["yn", "cb"], ["by_"]),
+        helper.make_node("Unsqueeze", ["by_", "ax1"], ["by_c"]),              # (h,1)
+        helper.make_node("Unsqueeze", ["ax_", "ax0"], ["ax_r"]),              # (1,w)
+        helper.make_node("Add", ["by_c", "ax_r"], ["plane0"]),
+        helper.make_node("Add", ["plane0", "cc"], ["plane"]),                 # (h,w)
+        helper.make_node("Mul", [x, "std"], ["s1"]),
+        helper.make_node("Add", ["s1", "mean"], ["s2"]),
+        helper.make_node("Mul", ["s2", "inv_scale"], ["rgb"]),
+        helper.make_node("ReduceMean", ["rgb"], ["grey"], axes=[1], keepdims=1),  # (1,1,h,w)
+        helper.make_node("Sub", ["grey", "half"], ["dev"]),
+        helper.make_node("Mul", ["dev", "gain"], ["term"]),
+        helper.make_node("Add", ["plane", "term"], ["q"]),                     # (1,1,h,w)
+    ]
+    out = "q"
+    if kind == "depth":
+        nodes.append(helper.make_node("Reciprocal", ["q"], ["z"]))
+        out = "z"
+    if channels != 1:
+        nodes.append(helper.make_node("Concat", [out] * channels, ["multi"], axis=1))
+        out = "multi"
+    if output_rank == 3:
+        nodes.append(helper.make_node("Squeeze", [out, "ax1"], [output_name]))
+        out_shape = [1, h, w]
+    else:
+        nodes.append(helper.make_node("Identity", [out], [output_name]))
+        out_shape = [1, channels, h, w]
+    in_shape = [1, 3, h, w] if input_rank == 4 else [3, h, w]
+    graph = helper.make_graph(
+        nodes, "depth",
+        [helper.make_tensor_value_info(input_name, TensorProto.FLOAT, in_shape)],
+        [helper.make_tensor_value_info(output_name, TensorProto.FLOAT, out_shape)], inits)
+    return _save(graph, path)

@@ -12,6 +12,7 @@ from spgeo import models
 from spgeo.camera import PinholeCamera
 from spgeo.frontend import from_cache
 from spgeo.frontend.base import Segmenter
+from spgeo.frontend.onnx_depth import DEPTH_PRESETS
 from spgeo.frontend.onnx_normals import NORMAL_PRESETS, NormalModel
 from spgeo.frontend.mask_generator import SamMaskGeneratorConfig
 from spgeo.frontend.onnx_sam import SAM_PRESETS, SegmentModel
@@ -54,8 +55,9 @@ def test_registry_is_consistent():
         assert e.name == name and e.kind in models.KINDS
         assert e.url.startswith("https://") and e.filename.endswith(".onnx")
         assert e.licence and e.source
-        assert e.preset in (NORMAL_PRESETS if e.kind == "normals" else SAM_PRESETS)
-        if e.kind != "normals":
+        presets = {"normals": NORMAL_PRESETS, "depth": DEPTH_PRESETS}.get(e.kind, SAM_PRESETS)
+        assert e.preset in presets
+        if e.kind.startswith("sam-"):
             families.add(name.rsplit("-", 1)[0])
     for fam in families:
         assert f"{fam}-encoder" in reg and f"{fam}-decoder" in reg

@@ -67,10 +67,12 @@ class VORunConfig:
             ``spgeo models fetch``).  Ignored when a built front-end is given.
         odometry: :class:`~spgeo.vo.OdometryConfig` of the VO.
         progress: show a tqdm progress bar with live FPS (default True).
-        sam_family: ``onnx`` only: SAM registry family (default None: the
-            registry default, ``efficientsam-vitt``).
-        normal_model: ``onnx`` only: normal-network registry name or ``.onnx``
-            path (default None: ``metric3d-vit-small-fp16``).
+        sam_family: ``onnx`` / ``onnx-depth``: SAM registry family (default
+            None: the registry default, ``efficientsam-vitt``; ``onnx-depth``
+            then uses classical segments).
+        normal_model: ``onnx``: normal-network registry name or ``.onnx`` path
+            (default None: ``metric3d-vit-small-fp16``); ``onnx-depth``: the
+            depth network's (default None: ``depth-anything-v2-small``).
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
@@ -106,10 +108,12 @@ class VORunConfig:
 def make_vo_frontend(config: VORunConfig = VORunConfig()) -> PrimitiveFrontEnd:
     """The front-end named by ``config.frontend`` with working size ``config.resolution``.
 
-    ``onnx`` raises ``FileNotFoundError`` when its models are not in the cache.
+    ``onnx`` and ``onnx-depth`` raise ``FileNotFoundError`` when their models are
+    not in the cache (``sam_family`` / ``normal_model`` name them; for
+    ``onnx-depth`` ``normal_model`` is the depth network).
     """
     sam = normals = None
-    if config.frontend == "onnx":
+    if config.frontend in ("onnx", "onnx-depth"):
         sam = {"family": config.sam_family} if config.sam_family else None
         normals = {"name_or_path": config.normal_model} if config.normal_model else None
     return make_frontend(config.frontend, FrontEndConfig(working_size=config.resolution),

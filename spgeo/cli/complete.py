@@ -2,7 +2,7 @@
 (:func:`spgeo.completion.complete_depth`); the work is in the library.
 
     spgeo complete --rgb IMG --sparse SPARSE --intrinsics fx,fy,cx,cy --out DEPTH.png
-                   [--frontend classical|onnx] [--method median|joint]
+                   [--frontend classical|manhattan|onnx|onnx-depth] [--method median|joint]
                    [--config FILE] [--set FIELD=VALUE ...]
 
 ``SPARSE`` is a 16-bit PNG in millimetres (0 = missing) or a ``.npy`` array in
@@ -18,6 +18,7 @@ import os
 import numpy as np
 
 from ..datasets.common import read_depth_png
+from ..frontend import MONOCULAR_FRONTENDS
 from .args import parse_intrinsics
 from .config import add_config_arguments, apply_overrides, resolve_config
 
@@ -88,8 +89,9 @@ def add_complete_cli(subparsers) -> argparse.ArgumentParser:
                    help="sparse depth: 16-bit PNG in mm (0 = missing) or .npy in metres")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels of --rgb")
     p.add_argument("--out", required=True, help="output depth, 16-bit PNG in millimetres")
-    p.add_argument("--frontend", default="classical", choices=("classical", "onnx"),
-                   help="primitive front-end (default classical; onnx needs 'spgeo models fetch')")
+    p.add_argument("--frontend", default="classical", choices=MONOCULAR_FRONTENDS,
+                   help="primitive front-end (default classical; onnx and onnx-depth need "
+                        "'spgeo models fetch')")
     p.add_argument("--method", default=None, choices=("median", "joint"),
                    help="per-primitive scale: robust median (default) or joint GTSAM solve")
     add_config_arguments(p, "CompletionConfig")

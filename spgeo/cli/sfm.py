@@ -1,7 +1,7 @@
 """``spgeo sfm``: argument wiring for :func:`spgeo.sfm.few_view_sfm`.
 
     spgeo sfm --ref IMG --views IMG [IMG ...] --intrinsics fx,fy,cx,cy --out DIR
-              [--frontend classical|onnx] [--shape-model scaled|planar]
+              [--frontend classical|manhattan|onnx|onnx-depth] [--shape-model scaled|planar]
               [--init twoview|identity] [--config FILE] [--set FIELD=VALUE ...]
 
 Writes ``DIR/poses.txt`` (one line per image: ``name tx ty tz qx qy qz qw``,
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..jsonio import json_default
+from ..frontend import MONOCULAR_FRONTENDS
 from .args import parse_intrinsics
 from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
 
@@ -88,8 +89,9 @@ def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--views", required=True, nargs="+", help="supporting images (same camera)")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels (undistorted)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--frontend", default="classical", choices=["classical", "onnx"],
-                   help="front-end (default classical; onnx needs `spgeo models fetch`)")
+    p.add_argument("--frontend", default="classical", choices=MONOCULAR_FRONTENDS,
+                   help="front-end (default classical; onnx and onnx-depth need "
+                        "`spgeo models fetch`)")
     p.add_argument("--shape-model", default=None, choices=["scaled", "planar"],
                    help="SfMConfig.shape_model (default scaled)")
     p.add_argument("--init", default=None, choices=["twoview", "identity"],

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..frontend import FRONTENDS
 from .args import DATASET_KINDS, parse_resolution
 from .config import add_config_arguments, apply_overrides, resolve_config
 
@@ -82,13 +83,15 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="frame numbers A <= n < B, every STEP-th (default: all)")
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default 320x240)")
-    p.add_argument("--frontend", default=None, choices=["classical", "onnx", "depth"],
-                   help="classical (default, monocular), onnx (needs `spgeo models fetch`) or "
-                        "depth (reads the sensor depth: RGB-D / oracle)")
+    p.add_argument("--frontend", default=None, choices=FRONTENDS,
+                   help="classical (default, monocular), manhattan (monocular), onnx and "
+                        "onnx-depth (need `spgeo models fetch`) or depth (reads the sensor "
+                        "depth: RGB-D / oracle)")
     p.add_argument("--sam-family", default=None,
                    help="onnx: SAM model family in the cache (default efficientsam-vitt)")
     p.add_argument("--normal-model", default=None,
-                   help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16)")
+                   help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16); "
+                        "onnx-depth: depth model (default depth-anything-v2-small)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(p, "VORunConfig / OdometryConfig")

@@ -2,10 +2,17 @@
 
 * ``classical``: opencv-contrib superpixels + fronto-parallel normals (constant
   depth per primitive; offline default, reads no depth, needs no model file).
+* ``manhattan``: classical segments + vanishing-point (Manhattan) normals
+  (:class:`~spgeo.frontend.manhattan.ManhattanNormals`, one orientation per
+  segment from line segments and vanishing directions, fronto-parallel where
+  unknown; offline, reads no depth, needs no model file).
 * ``depth``: classical segments + normals computed from a depth image
   (**uses depth**: RGB-D input or oracle ablations).
 * ``onnx``: SAM-style promptable segmenter + surface-normal network run with
   onnxruntime (the design's main path; models via ``spgeo models``).
+* ``onnx-depth``: classical (or SAM) segments + normals of a monocular depth
+  network's output (:class:`~spgeo.frontend.onnx_depth.OnnxDepthNormals`;
+  reads no sensor depth; models via ``spgeo models``).
 """
 from __future__ import annotations
 
@@ -15,11 +22,13 @@ from .base import NormalEstimator, Segmentation, Segmenter, masks_to_segmentatio
 from .pipeline import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, split_regions
 
 __all__ = [
-    "FRONTENDS", "FrontEndConfig", "LabelSegmenter", "NormalEstimator", "PrimitiveFrontEnd",
+    "FRONTENDS", "MONOCULAR_FRONTENDS", "FrontEndConfig", "LabelSegmenter", "NormalEstimator", "PrimitiveFrontEnd",
     "Segmentation", "Segmenter", "make_frontend", "masks_to_segmentation", "split_regions",
 ]
 
-FRONTENDS = ("classical", "depth", "onnx")
+FRONTENDS = ("classical", "manhattan", "depth", "onnx", "onnx-depth")
+#: the front-ends that never read a depth image (all but ``depth``)
+MONOCULAR_FRONTENDS = tuple(f for f in FRONTENDS if f != "depth")
 
 
 def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
@@ -32,7 +41,10 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
     holds keyword arguments of :func:`spgeo.frontend.from_cache.sam_frontend_from_cache`
     (registry family or ``encoder=``/``decoder=`` paths) and ``normals`` those
     of :func:`spgeo.frontend.from_cache.normal_model_from_cache` (registry
-    name or path).  Raises ``ValueError`` for an unknown name.
+    name or path).  For ``onnx-depth``, ``normals`` holds keyword arguments of
+    :func:`spgeo.frontend.from_cache.depth_normals_from_cache` and the segments
+    are SAM's when ``sam`` is given, else classical.  Raises ``ValueError`` for
+    an unknown name.
     """
     from .classical import ClassicalSegmenter
     from .depth_normals import DepthNormalEstimator, FrontoParallelNormals
@@ -40,6 +52,12 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
     if name == "classical":
         return PrimitiveFrontEnd(segmenter or ClassicalSegmenter(), FrontoParallelNormals(),
                                  config, name="classical")
+    if name == "manhattan":
+        from .manhattan import ManhattanNormals, SharedSegmenter
+
+        shared = SharedSegmenter(segmenter or ClassicalSegmenter())
+        return PrimitiveFrontEnd(shared, ManhattanNormals(segmenter=shared), config,
+                                 name="manhattan")
     if name == "depth":
         return PrimitiveFrontEnd(segmenter or ClassicalSegmenter(), DepthNormalEstimator(),
                                  config, name="depth (uses depth)")
@@ -49,4 +67,11 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
         seg = segmenter or sam_frontend_from_cache(**(sam or {}))
         return PrimitiveFrontEnd(seg, normal_model_from_cache(**(normals or {})), config,
                                  name="onnx")
+    if name == "onnx-depth":
+        from .from_cache import depth_normals_from_cache, sam_frontend_from_cache
+
+        seg = segmenter or (sam_frontend_from_cache(**sam) if sam is not None
+                            else ClassicalSegmenter())
+        return PrimitiveFrontEnd(seg, depth_normals_from_cache(**(normals or {})), config,
+                                 name="onnx-depth")
     raise ValueError(f"unknown front-end {name!r}; choose one of {FRONTENDS}")

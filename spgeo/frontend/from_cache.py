@@ -1,6 +1,6 @@
 """ONNX front-end pieces built from model names: the registry of :mod:`spgeo.models` resolves
-a name (or a local path) to a file, the presets of :mod:`.onnx_sam` / :mod:`.onnx_normals`
-drive it.  Nothing is downloaded here (``spgeo models fetch`` does that).
+a name (or a local path) to a file, the presets of :mod:`.onnx_sam` / :mod:`.onnx_normals` /
+:mod:`.onnx_depth` drive it.  Nothing is downloaded here (``spgeo models fetch`` does that).
 """
 from __future__ import annotations
 
@@ -8,10 +8,12 @@ from typing import Mapping, Optional
 
 from ..models import ModelEntry, PathLike, resolve_model
 from .mask_generator import SamMaskGenerator, SamMaskGeneratorConfig
+from .onnx_depth import OnnxDepthNormals
 from .onnx_normals import NormalModel
 from .onnx_sam import SegmentModel
 
-__all__ = ["sam_model_from_cache", "sam_frontend_from_cache", "normal_model_from_cache"]
+__all__ = ["sam_model_from_cache", "sam_frontend_from_cache", "normal_model_from_cache",
+           "depth_normals_from_cache"]
 
 
 def sam_model_from_cache(family: Optional[str] = "efficientsam-vitt",
@@ -73,3 +75,20 @@ def normal_model_from_cache(name_or_path: PathLike = "metric3d-vit-small-fp16",
     path, entry = resolve_model(name_or_path, registry)
     preset = preset or (entry.preset if entry else "generic-480x640")
     return NormalModel.from_path(path, preset=preset, **overrides)
+
+
+def depth_normals_from_cache(name_or_path: PathLike = "depth-anything-v2-small",
+                             preset: Optional[str] = None,
+                             registry: Optional[Mapping[str, ModelEntry]] = None,
+                             **overrides) -> OnnxDepthNormals:
+    """An :class:`~spgeo.frontend.onnx_depth.OnnxDepthNormals` (depth network -> normals)
+    from a registry name or a path.
+
+    ``preset`` defaults to the registry entry's, else ``"generic-depth-518"``;
+    ``overrides`` are :class:`~spgeo.frontend.onnx_depth.DepthOnnxConfig`
+    fields (e.g. ``output_kind="depth"`` for a metric-depth export).  Raises
+    ``FileNotFoundError`` for a model not in the cache or a missing file.
+    """
+    path, entry = resolve_model(name_or_path, registry)
+    preset = preset or (entry.preset if entry else "generic-depth-518")
+    return OnnxDepthNormals.from_path(path, preset=preset, **overrides)

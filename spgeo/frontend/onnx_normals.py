@@ -26,7 +26,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, check_convention_on_plane,
                                  parse_convention, render_synthetic_room, signed_permutations)
-from .onnx_runtime import as_rgb01, check_size, io_nodes, open_session, resize_map
+from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_nodes,
+                           open_session, resize_map, to_hwc, uncrop)
 
 __all__ = [
     "NormalOnnxConfig", "NORMAL_CONVENTIONS", "NORMAL_PRESETS", "NormalPrediction",
@@ -39,8 +40,11 @@ logger = logging.getLogger(__name__)
 
 # ----------------------------------------------------------------- config
 @dataclass(frozen=True)
-class NormalOnnxConfig:
+class NormalOnnxConfig(ImageIOConfig):
     """The I/O contract and convention of a single-image normal network.
+
+    The shared I/O fields (``resize_mode`` ... ``intra_op_num_threads``) come
+    from :class:`~spgeo.frontend.onnx_runtime.ImageIOConfig` and are keyword-only.
 
     Attributes:
         model_path: ``.onnx`` file.
@@ -76,36 +80,16 @@ class NormalOnnxConfig:
 
     model_path: Optional[str] = None
     input_size: Optional[Tuple[int, int]] = (480, 640)
-    resize_mode: str = "stretch"
-    pad_value: Optional[Tuple[float, float, float]] = None
-    input_name: Optional[str] = None
-    output_name: Optional[str] = None
     confidence_output_name: Optional[str] = None
-    input_range: str = "0-1"
-    mean: Tuple[float, float, float] = (0.485, 0.456, 0.406)
-    std: Tuple[float, float, float] = (0.229, 0.224, 0.225)
-    channel_order: str = "RGB"
-    layout: str = "NCHW"
-    output_layout: str = "NCHW"
     output_encoding: str = "unit"
     convention: str = "spgeo"
     model_to_spgeo: Optional[Tuple[Tuple[float, float, float], ...]] = None
     convention_verified: bool = True
-    providers: Optional[Tuple[str, ...]] = None
-    intra_op_num_threads: int = 0
 
     def __post_init__(self) -> None:
-        checks = [("resize_mode", ("stretch", "letterbox")), ("input_range", ("0-1", "0-255")),
-                  ("channel_order", ("RGB", "BGR")), ("layout", ("NCHW", "NHWC")),
-                  ("output_layout", ("NCHW", "NHWC")), ("output_encoding", ("unit", "rgb01"))]
-        for name, allowed in checks:
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"NormalOnnxConfig.{name} must be one of {allowed}, "
-                                 f"got {getattr(self, name)!r}")
+        self.check_io([("output_encoding", ("unit", "rgb01"))])
         object.__setattr__(self, "input_size",
                            check_size(self.input_size, "NormalOnnxConfig.input_size"))
-        if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
-            raise ValueError("NormalOnnxConfig.mean / std must hold 3 values, std > 0")
         self.matrix()  # validate the convention now
 
     def matrix(self) -> np.ndarray:
@@ -165,33 +149,10 @@ class NormalModel:
         self.session = open_session(config.model_path, "normal", config.providers,
                                     config.intra_op_num_threads)
         what = f"normal model {config.model_path}"
-        inputs = io_nodes(self.session)
         outputs = io_nodes(self.session, outputs=True)
-        if config.input_name is None:
-            if len(inputs) != 1:
-                raise ValueError(f"{what}: expected a single input, found {list(inputs)}; set "
-                                 "NormalOnnxConfig.input_name")
-            self.input_name = next(iter(inputs))
-        elif config.input_name not in inputs or len(inputs) != 1:
-            raise ValueError(f"{what}: expected the single input {config.input_name!r}, found "
-                             f"inputs {list(inputs)}")
-        else:
-            self.input_name = config.input_name
-        node = inputs[self.input_name]
-        shape = list(node.shape)
-        c_axis = 1 if config.layout == "NCHW" else 3
-        if len(shape) != 4 or (isinstance(shape[c_axis], int) and shape[c_axis] != 3):
-            raise ValueError(f"{what}: input {self.input_name!r} must be a {config.layout} "
-                             f"3-channel image, model declares {shape}")
-        hw = shape[2:4] if config.layout == "NCHW" else shape[1:3]
-        if config.input_size is not None and all(isinstance(d, int) and d > 0 for d in hw):
-            if tuple(hw) != tuple(config.input_size):
-                raise ValueError(f"{what}: input {self.input_name!r} is {hw[0]}x{hw[1]} but "
-                                 f"NormalOnnxConfig.input_size is {config.input_size}")
-        self.input_dtype = {"tensor(float)": np.float32, "tensor(float16)": np.float16,
-                            "tensor(double)": np.float64}.get(node.type)
-        if self.input_dtype is None:
-            raise ValueError(f"{what}: input {self.input_name!r} has unsupported type {node.type}")
+        self.input_name, self.input_dtype = image_input(
+            self.session, config.input_name, config.layout, config.input_size, what,
+            "NormalOnnxConfig")
         self.output_name = config.output_name or next(iter(outputs))
         for name in (self.output_name, config.confidence_output_name):
             if name is not None and name not in outputs:
@@ -213,54 +174,7 @@ class NormalModel:
 
     # ---- pre / post processing
     def _prepare(self, rgb01: np.ndarray):
-        cfg = self.config
-        h, w = rgb01.shape[:2]
-        x = rgb01 * np.float32(255.0 if cfg.input_range == "0-255" else 1.0)
-        if cfg.channel_order == "BGR":
-            x = x[..., ::-1]
-        mean = np.asarray(cfg.mean, np.float32)  # per network input channel
-        std = np.asarray(cfg.std, np.float32)
-        crop = None
-        if cfg.input_size is not None:
-            ih, iw = cfg.input_size
-            if cfg.resize_mode == "stretch":
-                x = resize_map(x, ih, iw)
-            else:
-                s = min(ih / h, iw / w)
-                rh, rw = max(1, int(round(h * s))), max(1, int(round(w * s)))
-                top, left = (ih - rh) // 2, (iw - rw) // 2
-                pad = np.asarray(cfg.pad_value if cfg.pad_value is not None else cfg.mean,
-                                 np.float32)
-                canvas = np.empty((ih, iw, 3), np.float32)
-                canvas[:] = pad
-                canvas[top:top + rh, left:left + rw] = resize_map(x, rh, rw)
-                x = canvas
-                crop = (top / ih, left / iw, rh / ih, rw / iw)
-        x = (x - mean) / std
-        x = np.moveaxis(x, -1, 0)[None] if cfg.layout == "NCHW" else x[None]
-        return np.ascontiguousarray(x, dtype=self.input_dtype), crop
-
-    @staticmethod
-    def _to_hwc(arr: np.ndarray, layout: str, what: str) -> np.ndarray:
-        arr = np.asarray(arr, dtype=np.float32)
-        if arr.ndim == 4:
-            if arr.shape[0] != 1:
-                raise ValueError(f"{what}: batch size {arr.shape[0]}, expected 1")
-            arr = arr[0]
-        if arr.ndim == 2:
-            return arr[..., None]
-        if arr.ndim != 3:
-            raise ValueError(f"{what}: output has shape {arr.shape}, expected an image")
-        return np.moveaxis(arr, 0, -1) if layout == "NCHW" else arr
-
-    @staticmethod
-    def _uncrop(arr: np.ndarray, crop) -> np.ndarray:
-        if crop is None:
-            return arr
-        oh, ow = arr.shape[:2]
-        t, l, rh, rw = crop
-        t0, l0 = int(round(t * oh)), int(round(l * ow))
-        return arr[t0:t0 + max(1, int(round(rh * oh))), l0:l0 + max(1, int(round(rw * ow)))]
+        return self.config.prepare(rgb01, self.config.input_size, self.input_dtype)
 
     def predict_raw(self, image: np.ndarray) -> NormalPrediction:
         """Model output in the MODEL's convention (unit, (H, W, 3)), resized to the image."""
@@ -272,24 +186,24 @@ class NormalModel:
             names.append(self.config.confidence_output_name)
         outs = self.session.run(names, {self.input_name: x})
         what = f"normal model {self.config.model_path}"
-        raw = self._to_hwc(outs[0], self.config.output_layout, what)
+        raw = to_hwc(outs[0], self.config.output_layout, what)
         if raw.shape[-1] not in (3, 4):
             raise ValueError(f"{what}: output {self.output_name!r} has {raw.shape[-1]} channels, "
                              "expected 3 (normals) or 4 (normals + confidence)")
         conf = raw[..., 3:4] if raw.shape[-1] == 4 else None
         if len(outs) > 1:
-            conf = self._to_hwc(outs[1], self.config.output_layout, what)[..., :1]
+            conf = to_hwc(outs[1], self.config.output_layout, what)[..., :1]
         n = raw[..., :3]
         if not np.all(np.isfinite(n)):
             raise ValueError(f"{what}: output contains NaN/inf")
         if self.config.output_encoding == "rgb01":
             n = 2.0 * n - 1.0
-        n = resize_map(self._uncrop(n, crop), h, w, bilinear=True)
+        n = resize_map(uncrop(n, crop), h, w, bilinear=True)
         norm = np.linalg.norm(n, axis=-1, keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             n = np.where(norm > 1e-6, n / norm, np.nan).astype(np.float32)
         if conf is not None:
-            conf = resize_map(self._uncrop(conf, crop), h, w, bilinear=True).reshape(h, w)
+            conf = resize_map(uncrop(conf, crop), h, w, bilinear=True).reshape(h, w)
             conf = conf.astype(np.float32)
         return NormalPrediction(n, conf)
 
