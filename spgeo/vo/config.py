@@ -218,6 +218,12 @@ class OdometryConfig:
         min_level_pixels: primitives with fewer pixels at ``map_level`` get no
             mapping factor.
         render_splat: splat size when rendering the window into a new keyframe.
+        render_tolerance: the window's keyframes are rendered into a new
+            keyframe with this log-depth tolerance of
+            :func:`~spgeo.vo.rendering.render_depth`: depths within it of a
+            pixel's nearest are averaged (0: the nearest wins, which biases
+            overlapping estimates of one surface towards the camera and makes
+            the monocular scale shrink keyframe after keyframe).
         init_min_parallax: keyframe 1 is the first frame whose tracked
             translation over keyframe 0's median depth reaches this
             (default 0.08) ...
@@ -275,6 +281,7 @@ class OdometryConfig:
     gauge_sigma: float = 1e-6
     min_level_pixels: int = 4
     render_splat: int = 2
+    render_tolerance: float = 0.2
     init_min_parallax: float = 0.08
     init_max_gap: int = 30
     init_min_gap: int = 3

@@ -452,7 +452,8 @@ class Odometry:
         prims = self._primify(frame)
         window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
-                                  prims.camera, T_world, splat=cfg.render_splat)
+                                  prims.camera, T_world, splat=cfg.render_splat,
+                                  tolerance=cfg.render_tolerance)
         try:
             init = init_scales_from_render(prims, depth)
         except ValueError as exc:
