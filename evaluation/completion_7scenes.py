@@ -24,7 +24,11 @@ Methods (rows):
 * ``ORACLE normals (sensor depth)`` — classical segments + normals computed
   from the *dense* sensor depth (``make_frontend("depth")``): not monocular,
   an upper bound for what better normals would give;
-* ``linear`` and ``ip_basic`` — the sparse-only baselines.
+* ``linear`` and ``ip_basic`` — the sparse-only baselines; ``colorization``
+  — the image-guided fill of the NYU toolbox.
+
+:mod:`spgeo.evaluation.completion_real` runs the same protocol on all three
+real samples with more spgeo variants.
 
 The ``"depth"`` front-end as a monocular method is not applicable: it needs
 dense depth.
@@ -46,8 +50,10 @@ import numpy as np
 
 from spgeo.completion import CompletionConfig, complete_depth
 
-from .baselines_depth import IPBasicConfig, ip_basic_completion, linear_interpolation_completion
-from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
+from .baselines_depth import (IPBasicConfig, colorization_completion, ip_basic_completion,
+                              linear_interpolation_completion)
+from .completion_real import sparse_frames
+from .void import METRIC_KEYS, void_metrics
 
 __all__ = ["default_path", "SevenScenesCompletionResult", "run_7scenes", "main"]
 
@@ -117,6 +123,7 @@ def _methods(config: CompletionConfig, with_onnx: bool, camera):
         im, sp, cam, oracle, config, frontend_depth=dep).depth
     fns["linear"] = lambda im, sp, cam, dep: linear_interpolation_completion(sp)
     fns["ip_basic"] = lambda im, sp, cam, dep: ip_basic_completion(sp, IPBasicConfig())
+    fns["colorization"] = lambda im, sp, cam, dep: colorization_completion(im, sp)
     return fns, not_run
 
 
@@ -127,8 +134,6 @@ def run_7scenes(path=None, frames: str = "0:300:10", n_points: int = 150, seed: 
 
     Raises ``FileNotFoundError`` when the data are absent.
     """
-    from tqdm import tqdm
-
     from spgeo.datasets import open_dataset
 
     path = Path(path) if path is not None else default_path()
@@ -140,11 +145,9 @@ def run_7scenes(path=None, frames: str = "0:300:10", n_points: int = 150, seed: 
     per = {m: {k: np.full(n, np.nan) for k in METRIC_KEYS} for m in fns}
     secs = {m: np.zeros(n) for m in fns}
     names: List[str] = []
-    for i in tqdm(range(n), desc="7-Scenes completion", disable=not progress):
-        f = ds[i]
+    for i, (f, gt, sparse) in enumerate(sparse_frames(ds, n_points, seed, "7-Scenes completion",
+                                                      progress)):
         names.append(f.name)
-        gt = np.nan_to_num(f.depth, nan=0.0)
-        sparse = keypoint_sparse_depth(f.image, gt, n_points, rel_noise=0.0, seed=seed + i)
         for m, fn in fns.items():
             t0 = time.perf_counter()
             pred = fn(f.image, sparse, f.camera, f.depth)

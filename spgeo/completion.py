@@ -16,6 +16,18 @@ sparse depth fixes one log-scale per primitive:
    with outliers both are robust (the median has a 50 % breakdown point, the
    Huber estimate bounds each point's influence).  The joint form is the one
    that composes with photometric factors on the same keys.
+   ``method="graph"`` (:mod:`spgeo.completion_graph`) solves all scales
+   together with Cauchy losses and a coupling between neighbours separated by
+   a weak image edge: keypoints sit on region borders and often carry the
+   neighbour's depth, which this outvotes; primitives without points get a
+   scale through the coupling.
+   ``shape_model="plane"`` then adds a planar inverse-depth correction per
+   primitive (:mod:`spgeo.completion_planes`: robust plane fits with a prior
+   towards the primitive's own orientation where it holds three or more
+   points, depth lent across weak edges to empty primitives; with "graph",
+   one joint solve with continuity across weak edges).  ``"graph"`` with
+   ``"plane"`` is the default; ``method="median", shape_model="scale"`` is the
+   paper's.
 2. **drop** primitives with fewer than ``min_points`` sparse points (1: any
    primitive without a point has no scale).
 3. **render** — the kept primitives' depths are averaged where they overlap
@@ -55,7 +67,11 @@ from .camera import PinholeCamera
 from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
                               check_sparse_depth, fill_holes, linear_fill, nearest_fill,
                               resample_sparse, upsample)
-from .completion_scales import grouped_median, solve_log_scales_joint, sparse_point_assignments
+from .completion_graph import solve_log_scales_graph, solve_planes_graph
+from .completion_planes import (MODE_NONE, MODE_SCALE, fit_primitive_planes,
+                                lend_across_weak_edges)
+from .completion_scales import (grouped_median, solve_log_scales_joint, sparse_point_assignments,
+                                working_pixels)
 from .images import to_float_image
 from .primitives import PrimitiveSet
 
@@ -71,7 +87,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-METHODS = ("median", "joint")
+METHODS = ("median", "joint", "graph")
+SHAPE_MODELS = ("scale", "plane")
 
 
 # ----------------------------------------------------------------- config / result
@@ -80,9 +97,21 @@ class CompletionConfig:
     """Options of :func:`complete_depth`.
 
     Attributes:
-        method: ``"median"`` (default; the paper's per-primitive median of the
-            log-depth ratios) or ``"joint"`` (GTSAM Levenberg–Marquardt over
-            all log-scales with robust :class:`SparseDepthFactor` s).
+        method: ``"median"`` (the paper's per-primitive median of the
+            log-depth ratios), ``"joint"`` (GTSAM Levenberg–Marquardt over
+            all log-scales with robust :class:`SparseDepthFactor` s) or
+            ``"graph"`` (default; :mod:`spgeo.completion_graph`: Cauchy-robust
+            scales coupled across weak image edges; primitives without points
+            get scales through the coupling, outlier points are down-weighted;
+            docs/results.md says why it is the default).
+        graph_coupling: ``"graph"``: weight of a neighbour coupling relative
+            to one sparse point (>= 0).
+        plane_prior_flat: ``"graph"`` with ``"plane"``: ``plane_prior`` for
+            primitives whose shape is constant (fronto-parallel: no normal
+            was known), so that points and continuity decide their tilt (>= 0).
+        plane_coupling: ``"graph"`` with ``"plane"``: weight of one boundary
+            pixel pair's continuity term relative to one sparse point
+            (:func:`spgeo.completion_graph.solve_planes_graph`; >= 0).
         working_width: when the front-end is built here (``frontend`` None or
             a name), primitives are computed on a copy resized to this width
             (aspect kept) if the image is wider; None keeps the input size.
@@ -95,17 +124,69 @@ class CompletionConfig:
         max_iterations: ``"joint"``: Levenberg–Marquardt iteration limit.  Default 50.
         min_coverage: below this fraction of the image covered by supported
             primitives, fall back to plain linear interpolation.  Default 0.05.
+        shape_model: ``"scale"`` (the paper: one log-scale per primitive, its
+            shape kept) or ``"plane"`` (default; :mod:`spgeo.completion_planes`: a
+            planar inverse-depth correction fitted where a primitive holds
+            ``plane_min_points`` points, normal hypotheses from
+            ``PrimitiveSet.meta["normal_hypotheses"]`` ((N, H, 3) camera-frame
+            normals) tried, and depth lent to empty primitives across weak
+            edges; with ``method="graph"`` one joint solve with continuity
+            across weak edges, :func:`spgeo.completion_graph.solve_planes_graph`).
+        plane_min_points: ``"plane"``: points needed for the planar fit (>= 3).
+        plane_prior: ``"plane"``: ridge weight pulling the plane towards the
+            primitive's own orientation (>= 0).
+        plane_huber: ``"plane"``: Huber threshold on the relative
+            inverse-depth residual (> 0).
+        lend_edge_threshold: ``"plane"``: largest mean absolute colour step
+            (image in [0, 1]) along a shared boundary across which a neighbour
+            lends depth to a primitive without points; None: no lending.
+        lend_rounds: ``"plane"``: lending passes (depth spreads one primitive
+            per pass).
     """
 
-    method: str = "median"
+    method: str = "graph"
     working_width: Optional[int] = 320
     min_points: int = 1
     sigma: float = 0.01
     huber_k: Optional[float] = 1.345
     max_iterations: int = 50
     min_coverage: float = 0.05
+    shape_model: str = "plane"
+    plane_min_points: int = 3
+    plane_prior: float = 0.1
+    plane_huber: float = 0.05
+    lend_edge_threshold: Optional[float] = 0.08
+    lend_rounds: int = 3
+    graph_coupling: float = 1.0
+    plane_coupling: float = 0.03
+    plane_prior_flat: float = 1e-4
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.plane_prior_flat) and self.plane_prior_flat >= 0):
+            raise ValueError(f"CompletionConfig: plane_prior_flat must be >= 0, "
+                             f"got {self.plane_prior_flat}")
+        if not (np.isfinite(self.plane_coupling) and self.plane_coupling >= 0):
+            raise ValueError(f"CompletionConfig: plane_coupling must be >= 0, "
+                             f"got {self.plane_coupling}")
+        if not (np.isfinite(self.graph_coupling) and self.graph_coupling >= 0):
+            raise ValueError(f"CompletionConfig: graph_coupling must be >= 0, "
+                             f"got {self.graph_coupling}")
+        if self.shape_model not in SHAPE_MODELS:
+            raise ValueError(f"CompletionConfig: shape_model must be one of {SHAPE_MODELS}, "
+                             f"got {self.shape_model!r}")
+        if int(self.plane_min_points) != self.plane_min_points or self.plane_min_points < 3:
+            raise ValueError(f"CompletionConfig: plane_min_points must be an integer >= 3, "
+                             f"got {self.plane_min_points}")
+        if not (np.isfinite(self.plane_prior) and self.plane_prior >= 0):
+            raise ValueError(f"CompletionConfig: plane_prior must be >= 0, got {self.plane_prior}")
+        if not (np.isfinite(self.plane_huber) and self.plane_huber > 0):
+            raise ValueError(f"CompletionConfig: plane_huber must be > 0, got {self.plane_huber}")
+        if self.lend_edge_threshold is not None and not (
+                np.isfinite(self.lend_edge_threshold) and self.lend_edge_threshold >= 0):
+            raise ValueError(f"CompletionConfig: lend_edge_threshold must be >= 0 or None, "
+                             f"got {self.lend_edge_threshold}")
+        if int(self.lend_rounds) < 0:
+            raise ValueError(f"CompletionConfig: lend_rounds must be >= 0, got {self.lend_rounds}")
         if self.method not in METHODS:
             raise ValueError(f"CompletionConfig: method must be one of {METHODS}, "
                              f"got {self.method!r}")
@@ -152,6 +233,9 @@ class CompletionResult:
         timings: seconds per stage (``frontend``, ``scales``, ``render``,
             ``fill``, ``total``).
         solver: ``"joint"``: LM report (iterations, initial / final error).
+        modes: (N_kept,) how each kept primitive got its depth
+            (:data:`spgeo.completion_planes.MODE_SCALE` / ``MODE_PLANE`` /
+            ``MODE_LENT``); all ``MODE_SCALE`` for ``shape_model="scale"``.
     """
 
     depth: np.ndarray
@@ -169,6 +253,7 @@ class CompletionResult:
     fallback: bool
     timings: Dict[str, float] = field(default_factory=dict)
     solver: Dict[str, float] = field(default_factory=dict)
+    modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
 
     def summary(self) -> str:
         """One line for logs."""
@@ -232,6 +317,47 @@ def _primitives(image, camera, frontend, frontend_depth, config):
     return prims, name, uses
 
 
+def _working_image(image: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
+    """``image`` as float in [0, 1] at the primitives' resolution."""
+    import cv2
+
+    img = to_float_image(image)
+    if img.shape[:2] != prims.camera.shape:
+        img = cv2.resize(img, prims.camera.size, interpolation=cv2.INTER_AREA)
+    return img
+
+
+def _plane_model(image, prims, uv, camera, point, prim, point_d, s, counts, kept, config,
+                 point_w):
+    """``shape_model="plane"``: (kept subset with fitted shapes, kept indices, modes)."""
+    n = len(prims)
+    s_ok = np.full(n, np.nan)
+    s_ok[kept] = s[kept]
+    pix = working_pixels(uv, camera, prims.camera)[point]
+    if config.method == "graph":
+        fit = solve_planes_graph(prims, _working_image(image, prims), prim, pix, point_d, s_ok,
+                                 point_w, prior=config.plane_prior,
+                                 coupling=config.plane_coupling,
+                                 prior_flat=config.plane_prior_flat)
+        kept = np.flatnonzero(fit.mode != MODE_NONE)
+        sub = prims.with_scaled_log_depth(fit.scaled_log_depth).subset(kept)
+        return sub, kept, fit.mode[kept]
+    hyp = prims.meta.get("normal_hypotheses")
+    if hyp is not None and np.shape(hyp)[:1] != (n,):
+        log.debug("completion: normal_hypotheses of shape %s do not match %d primitives; "
+                  "ignored", np.shape(hyp), n)
+        hyp = None
+    fit = fit_primitive_planes(prims, prim, pix, point_d, s_ok, counts, config.plane_min_points,
+                               config.plane_prior, config.plane_huber, hypotheses=hyp)
+    if config.lend_edge_threshold is not None and config.lend_rounds > 0:
+        fit = lend_across_weak_edges(prims, fit, _working_image(image, prims),
+                                     config.lend_edge_threshold,
+                                     config.lend_rounds)
+    kept = np.flatnonzero(fit.mode != MODE_NONE)
+    sub = prims.with_scaled_log_depth(fit.scaled_log_depth).subset(kept)
+    return sub, kept, fit.mode[kept]
+
+
 # ----------------------------------------------------------------- main entry point
 def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeCamera,
                    frontend: Union[None, str, "PrimitiveFrontEnd", PrimitiveSet] = None,
@@ -284,10 +410,23 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
     if config.method == "joint" and point.size:
         s, solver = solve_log_scales_joint(prim, ldep, sd[point], n, s_med, config.sigma,
                                            config.huber_k, config.max_iterations)
-    kept = np.flatnonzero((counts >= config.min_points) & np.isfinite(s))
+    point_w = np.ones(point.size)
+    if config.method == "graph" and point.size:
+        g = solve_log_scales_graph(prims, _working_image(image, prims), prim, ldep, sd[point],
+                                   s_med, coupling=config.graph_coupling)
+        s, point_w = g.log_scales, g.point_weights
+        solver = {"coupled_pairs": float(g.n_edges)}
+        kept = np.flatnonzero(np.isfinite(s))
+    else:
+        kept = np.flatnonzero((counts >= config.min_points) & np.isfinite(s))
+    modes = np.full(kept.size, MODE_SCALE, np.int8)
+    if config.shape_model == "plane" and n:
+        sub, kept, modes = _plane_model(image, prims, uv, camera, point, prim, sd[point], s,
+                                        counts, kept, config, point_w)
+    else:
+        sub = prims.subset(kept).with_log_scales(s[kept])
     t_sc = time.perf_counter()
 
-    sub = prims.subset(kept).with_log_scales(s[kept])
     dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
     covered = np.isfinite(dmap)
     coverage = float(covered.mean())
@@ -306,12 +445,12 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         depth, conf = upsample(depth_w, conf_w, camera)
     t_fi = time.perf_counter()
     res = CompletionResult(
-        depth=depth, confidence=conf, primitives=sub, log_scales=s[kept].copy(),
+        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
         n_points=counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
         coverage=coverage, method=config.method, frontend=fe_name,
         uses_depth=uses_depth, fallback=fallback,
         timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
                  "fill": t_fi - t_re, "total": time.perf_counter() - t0},
-        solver=solver)
+        solver=solver, modes=modes)
     log.info("%s", res.summary())
     return res

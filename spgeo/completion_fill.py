@@ -14,6 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from .camera import PinholeCamera
+from .completion_scales import working_pixels
 
 __all__ = [
     "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST", "check_sparse_depth",
@@ -115,10 +116,7 @@ def resample_sparse(uv: np.ndarray, d: np.ndarray, camera: PinholeCamera,
         out = np.zeros(camera.shape)
         out[uv[:, 1].astype(np.int64), uv[:, 0].astype(np.int64)] = d
         return out
-    sx, sy = target.width / camera.width, target.height / camera.height
-    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, target.width - 1).astype(np.int64)
-    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, target.height - 1).astype(np.int64)
-    flat = v * target.width + u
+    flat = working_pixels(uv, camera, target)
     npix = target.width * target.height
     tot = np.bincount(flat, weights=d, minlength=npix)
     cnt = np.bincount(flat, minlength=npix)

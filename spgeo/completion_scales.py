@@ -14,7 +14,19 @@ import numpy as np
 from .camera import PinholeCamera
 from .primitives import PrimitiveSet
 
-__all__ = ["sparse_point_assignments", "grouped_median", "solve_log_scales_joint"]
+__all__ = ["working_pixels", "sparse_point_assignments", "grouped_median",
+           "solve_log_scales_joint"]
+
+
+def working_pixels(uv: np.ndarray, camera: PinholeCamera, target: PinholeCamera) -> np.ndarray:
+    """(K,) flat pixel index ``v * width + u`` in ``target`` (a resize of
+    ``camera``) of the pixels ``uv`` (K, 2) of ``camera``: ``cv2.resize``
+    convention, rounded and clipped to the image."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    sx, sy = target.width / camera.width, target.height / camera.height
+    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, target.width - 1).astype(np.int64)
+    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, target.height - 1).astype(np.int64)
+    return v * target.width + u
 
 
 def sparse_point_assignments(primitives: PrimitiveSet, uv: np.ndarray, camera: PinholeCamera):
@@ -26,12 +38,7 @@ def sparse_point_assignments(primitives: PrimitiveSet, uv: np.ndarray, camera: P
     entry per (point, containing primitive) pair — overlapping primitives each
     get the point — with ``l`` the primitive's unscaled log-depth there.
     """
-    pc = primitives.camera
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    sx, sy = pc.width / camera.width, pc.height / camera.height
-    u = np.clip(np.rint((uv[:, 0] + 0.5) * sx - 0.5), 0, pc.width - 1).astype(np.int64)
-    v = np.clip(np.rint((uv[:, 1] + 0.5) * sy - 0.5), 0, pc.height - 1).astype(np.int64)
-    flat = v * pc.width + u
+    flat = working_pixels(uv, camera, primitives.camera)
     order = np.argsort(primitives.pixels, kind="stable")
     spix = primitives.pixels[order]
     lo = np.searchsorted(spix, flat, "left")

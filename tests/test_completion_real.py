@@ -1,0 +1,54 @@
+"""``spgeo eval completion_real`` on two TUM frames (skips without the shared data)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import shared_data_dir
+from spgeo.evaluation import completion_real as cr
+
+
+@pytest.fixture(scope="module")
+def root():
+    path = shared_data_dir()
+    if not (path / "tum_fr1_desk_9").is_dir():
+        pytest.skip(f"shared TUM sample not found under {path}")
+    return path
+
+
+def test_run_dataset_rows_metrics_and_gains(root):
+    res = cr.run_dataset("tum", root, frames="0:2", frontends=["classical", "depth"],
+                         methods=["graph"], shape_models=["scale", "plane"],
+                         baselines=["linear", "ip_basic"], progress=False)
+    assert len(res.frames) == 2
+    mean = res.mean()
+    assert set(mean) == {"spgeo classical graph/scale", "spgeo classical graph/plane",
+                         "spgeo ORACLE depth-normals graph/scale",
+                         "spgeo ORACLE depth-normals graph/plane", "linear", "ip_basic"}
+    for v in mean.values():
+        assert 0 < v["mae_mm"] < 1000 and 0 < v["imae_per_km"] < 1000 and v["seconds"] > 0
+    g = res.gains()
+    best = min(mean["linear"]["mae_mm"], mean["ip_basic"]["mae_mm"])
+    m = "spgeo classical graph/plane"
+    assert g[m]["mae_mm"] == pytest.approx(1 - mean[m]["mae_mm"] / best)
+    assert "| linear |" in res.table()
+    json.dumps(res.to_dict())
+
+
+def test_main_writes_markdown_and_json(root, tmp_path):
+    rc = cr.main(["--root", str(root), "--datasets", "tum", "--frames", "0:1",
+                  "--frontends", "classical", "--baselines", "linear", "--out", str(tmp_path)])
+    assert rc == 0
+    data = json.loads((tmp_path / "completion_real.json").read_text())
+    assert np.isfinite(data["tum"]["mean"]["linear"]["mae_mm"])
+    assert "spgeo classical median/scale" in (tmp_path / "completion_real.md").read_text()
+
+
+def test_unknown_dataset_and_missing_root(tmp_path):
+    with pytest.raises(ValueError, match="unknown data set"):
+        cr.run_dataset("kitti", tmp_path)
+    with pytest.raises(FileNotFoundError):
+        cr.run_dataset("tum", tmp_path)
+    assert cr.run_completion_real(tmp_path, ["tum"]) == {}
