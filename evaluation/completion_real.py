@@ -28,6 +28,7 @@ best of the three baselines on that data set (positive: better).
 Run::
 
     spgeo eval completion_real [--root DIR] [--datasets 7scenes,tum,icl] [--out DIR]
+        [--workers N | --address ADDR]      (one job per data set, on Ray)
 """
 from __future__ import annotations
 
@@ -45,6 +46,7 @@ from spgeo.completion import CompletionConfig, complete_depth, working_size_for
 
 from .baselines_depth import (colorization_completion, ip_basic_completion,
                               linear_interpolation_completion)
+from .jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
 from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
 
 __all__ = ["DATASETS", "BASELINES", "default_root", "sparse_frames", "RealCompletionResult", "run_dataset",
@@ -208,16 +210,31 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
     return RealCompletionResult(name, names, per, n_points, not_run)
 
 
+def _dataset_job(name: str, root: Optional[Path], kwargs: dict) -> dict:
+    """Job of :func:`run_completion_real`: ``{"result": RealCompletionResult}``."""
+    return {"result": run_dataset(name, root, **kwargs)}
+
+
 def run_completion_real(root: Optional[Path] = None, datasets: Sequence[str] = tuple(DATASETS),
+                        runner: Optional[RunnerConfig] = None,
                         **kwargs) -> Dict[str, RealCompletionResult]:
-    """:func:`run_dataset` for each data set present (missing ones are skipped
-    with a warning)."""
+    """:func:`run_dataset` for each data set, one job each
+    (:mod:`spgeo.evaluation.jobs`; ``runner`` default: sequentially here);
+    a missing data set is skipped with a warning, a data set whose job
+    fails is logged as an error and left out.  Raises ``ValueError`` for an
+    unknown data set name."""
+    unknown = [d for d in datasets if d not in DATASETS]
+    if unknown:
+        raise ValueError(f"unknown data set(s) {unknown}; choose from {sorted(DATASETS)}")
+    jobs = [Job(name, _dataset_job, (name, root, kwargs)) for name in datasets]
     out: Dict[str, RealCompletionResult] = {}
-    for name in datasets:
-        try:
-            out[name] = run_dataset(name, root, **kwargs)
-        except FileNotFoundError as exc:
-            log.warning("%s: skipped (%s)", name, exc)
+    for row in run_jobs(jobs, runner or RunnerConfig(progress=False, desc="completion_real")):
+        if row["error"] is None:
+            out[row["job"]] = row["result"]
+        elif row["error"].startswith("FileNotFoundError"):
+            log.warning("%s: skipped (%s)", row["job"], row["error"])
+        else:
+            log.error("%s: failed (%s)", row["job"], row["error"])
     return out
 
 
@@ -236,6 +253,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--baselines", default=",".join(BASELINES),
                     help="comma-separated baselines (default all)")
     ap.add_argument("--out", default=None, help="folder for completion_real.md / .json")
+    add_runner_arguments(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     root = Path(args.root) if args.root else default_root()
@@ -245,8 +263,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     names = [d for d in args.datasets.split(",") if d]
     fes = [f for f in args.frontends.split(",") if f] if args.frontends else None
     bls = [b for b in args.baselines.split(",") if b]
-    res = run_completion_real(root, names, frames=args.frames, n_points=args.points,
-                              seed=args.seed, frontends=fes, baselines=bls)
+    try:
+        runner = runner_config(args, desc="completion_real", progress=args.workers > 0
+                               or args.address is not None)
+    except ValueError as exc:
+        ap.error(str(exc))
+    res = run_completion_real(root, names, runner, frames=args.frames, n_points=args.points,
+                              seed=args.seed, frontends=fes, baselines=bls,
+                              progress=runner.backend == "local")
     text = "\n\n".join(r.table() for r in res.values())
     print(text)
     if args.out:

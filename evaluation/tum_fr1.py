@@ -24,7 +24,11 @@ mean ATE over the eight sequences is printed as a reference
 Command line::
 
     python -m spgeo.evaluation.tum_fr1 --root ROOT [--sequences desk xyz] \
-        [--methods spgeo-classical feature colmap] [--max-frames N] [--out DIR]
+        [--methods spgeo-classical feature colmap] [--max-frames N] [--out DIR] \
+        [--workers N | --address ADDR]
+
+Each present sequence is one job (:mod:`spgeo.evaluation.jobs`):
+sequentially here by default, on Ray with ``--workers`` / ``--address``.
 """
 from __future__ import annotations
 
@@ -46,12 +50,14 @@ from spgeo.cli.args import add_verbose_argument, setup_logging
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
+from .jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance, run_jobs,
+                   runner_config)
 from .vo_compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
                          write_results)
 
 __all__ = ["FR1_SEQUENCES", "PAPER_MEAN_ATE_M", "FR1_METHODS", "FR1Config", "FR1SequenceResult",
            "FR1Report", "sequence_folder", "crop_camera", "crop_frame", "protocol_frames",
-           "run_fr1_sequence", "run_fr1", "format_fr1_table", "main"]
+           "run_fr1_sequence", "run_fr1", "fr1_table", "format_fr1_table", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -258,9 +264,15 @@ def run_fr1_sequence(path: Union[str, Path], config: Optional[FR1Config] = None,
     return res
 
 
+def _fr1_job(path: str, config: FR1Config, name: str) -> Dict[str, object]:
+    """Job of :func:`run_fr1`: ``{"result": FR1SequenceResult}``."""
+    return {"result": run_fr1_sequence(path, config, name=name)}
+
+
 def run_fr1(root: Union[str, Path], sequences: Sequence[str] = FR1_SEQUENCES,
             config: Optional[FR1Config] = None,
-            out_dir: Optional[Union[str, Path]] = None) -> FR1Report:
+            out_dir: Optional[Union[str, Path]] = None,
+            runner: Optional[RunnerConfig] = None) -> FR1Report:
     """Run the protocol on every requested sequence under ``root``.
 
     Args:
@@ -268,8 +280,13 @@ def run_fr1(root: Union[str, Path], sequences: Sequence[str] = FR1_SEQUENCES,
         sequences: names from :data:`FR1_SEQUENCES` (default all eight).
         config: :class:`FR1Config`.
         out_dir: when given, each evaluated sequence's trajectories and
-            ``results.json`` go to ``out_dir/<name>/`` and the report to
-            ``out_dir/fr1_report.json``.
+            ``results.json`` go to ``out_dir/<name>/``, the report to
+            ``out_dir/fr1_report.json`` and the merged table (rows, means,
+            provenance) to ``out_dir/fr1_table.md/.json/.csv``.
+        runner: how the present sequences run (one job each,
+            :mod:`spgeo.evaluation.jobs`; default sequentially here, no
+            progress bar); missing ones are skipped without a job.  A
+            sequence whose job fails is skipped with ``"failed: <error>"``.
     Raises ``ValueError`` for an unknown sequence name.
     """
     config = config or FR1Config()
@@ -277,19 +294,60 @@ def run_fr1(root: Union[str, Path], sequences: Sequence[str] = FR1_SEQUENCES,
     if unknown:
         raise ValueError(f"run_fr1: unknown fr1 sequence(s) {unknown}; expected some of "
                          f"{list(FR1_SEQUENCES)}")
-    results = []
+    runner = runner or RunnerConfig(progress=False)
+    results: Dict[str, FR1SequenceResult] = {}
+    jobs = []
     for name in sequences:
-        r = run_fr1_sequence(sequence_folder(root, name), config, name=name)
+        path = sequence_folder(root, name)
+        if (path / "rgb.txt").is_file():
+            jobs.append(Job(name, _fr1_job, (str(path), config, name), meta={"path": str(path)}))
+        else:
+            results[name] = run_fr1_sequence(path, config, name=name)  # skipped, no job
+    for row in (run_jobs(jobs, dataclasses.replace(runner, desc="tum_fr1")) if jobs else []):
+        r = row.get("result")
+        if row["error"] or r is None:
+            r = FR1SequenceResult(name=row["job"], path=row["path"],
+                                  skipped=f"failed: {row['error']}")
+        results[row["job"]] = r
         if out_dir is not None and not r.skipped:
-            write_results(r.rows, Path(out_dir) / name,
-                          {"sequence": name, "path": r.path, "protocol": "tum_fr1"})
-        results.append(r)
-    report = FR1Report(sequences=results, methods=tuple(config.methods), config=config)
+            write_results(r.rows, Path(out_dir) / r.name,
+                          {"sequence": r.name, "path": r.path, "protocol": "tum_fr1"})
+    report = FR1Report(sequences=[results[n] for n in sequences], methods=tuple(config.methods),
+                       config=config)
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         with open(Path(out_dir) / "fr1_report.json", "w", encoding="utf-8") as fh:
             json.dump(report.to_dict(), fh, indent=2, default=json_default)
+        fr1_table(report, provenance(report.to_dict()["protocol"], runner)).write(
+            Path(out_dir), "fr1_table")
     return report
+
+
+def fr1_table(report: FR1Report, prov: Optional[dict] = None) -> EvalTable:
+    """The report as an :class:`~spgeo.evaluation.jobs.EvalTable`: one row per
+    sequence (``ate_<method>`` m and ``tracked_<method>`` fraction, None when
+    not run or failed; ``skipped``; ``error`` for a failed job), means over
+    the rows without error."""
+    rows = []
+    for s in report.sequences:
+        row: Dict[str, object] = {"sequence": s.name, "frames": s.n_frames or None,
+                                  "skipped": s.skipped, "wall_s": s.wall_s,
+                                  "error": s.skipped if (s.skipped or "").startswith("failed")
+                                  else None}
+        for m in report.methods:
+            r = next((r for r in s.rows if r.method == m), None)
+            ate = None if r is None or not math.isfinite(r.ate_rmse_m) else r.ate_rmse_m
+            row[f"ate_{m}"] = ate
+            row[f"tracked_{m}"] = None if r is None else r.tracked_fraction
+        rows.append(row)
+    cols = ([("sequence", "sequence", 0), ("frames", "frames", 0)]
+            + [c for m in report.methods for c in ((f"{m} ATE m", f"ate_{m}", 3),
+                                                   (f"{m} tracked", f"tracked_{m}", 2))]
+            + [("skipped", "skipped", 0), ("error", "error", 0)])
+    return EvalTable(rows, cols, id_keys=("frames",), provenance=dict(prov or {}),
+                     csv_columns=[k for _, k, _ in cols] + ["wall_s"],
+                     note="Per-frame ATE RMSE in metres after Sim(3) alignment (evo); "
+                          "tracked = fraction of frames posed.")
 
 
 def _fmt(v: float) -> str:
@@ -366,21 +424,28 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--out", default=None, help="write trajectories and JSON here")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_verbose_argument(parser)
+    add_runner_arguments(parser)
     args = parser.parse_args(argv)
     setup_logging(args.verbose)
     try:
+        runner = runner_config(args, desc="tum_fr1")
+        # one bar across the sequences when they run on Ray, else one per method
         config = FR1Config(methods=tuple(args.methods), max_frames=args.max_frames,
-                           compare=VOCompareConfig(progress=not args.no_progress))
+                           compare=VOCompareConfig(progress=runner.progress
+                                                   and runner.backend == "local"))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if not Path(args.root).is_dir():
         print(f"error: root folder not found: {args.root}", file=sys.stderr)
         return 2
-    report = run_fr1(args.root, args.sequences, config, out_dir=args.out)
+    report = run_fr1(args.root, args.sequences, config, out_dir=args.out,
+                     runner=dataclasses.replace(runner, progress=runner.progress
+                                                and runner.backend != "local"))
     print(format_fr1_table(report))
     if args.out:
-        print(f"wrote {Path(args.out) / 'fr1_report.json'}")
+        print(f"wrote {Path(args.out) / 'fr1_report.json'} and "
+              f"{Path(args.out) / 'fr1_table.md'} (.json, .csv)")
     return 0 if report.evaluated else 1
 
 

@@ -3,7 +3,7 @@
     spgeo eval vo_frontier [--datasets 7scenes synthetic] [--frames N]
         [--resolutions 160x120 320x240] [--frontends classical depth]
         [--set-grid "defaults" "map_level=0" "tracker.levels=4 map_chunk=1"]
-        [--seeds 0] [--sevenscenes PATH] [--out DIR]
+        [--seeds 0] [--sevenscenes PATH] [--out DIR] [--workers N | --address ADDR]
 
 The grid is every (data set, front-end, resolution, setting) and, for the
 synthetic data set, every seed.  A *setting* is one string of ``FIELD=VALUE``
@@ -25,23 +25,23 @@ and tracking FPS from the odometry's own report (frame loading, resizing and
 rendering excluded), mapping and front-end seconds per keyframe, keyframes,
 lost frames, the cell process's peak resident memory (``ru_maxrss``: imports,
 data loading and rendering included) and the cell's wall time.  A cell that
-fails is a row with its error.  With ``--out DIR``: ``frontier.json`` (every
-row, with seconds per stage and status counts), ``frontier.csv`` and
-``frontier.md``, rewritten atomically after each cell.  Exit status 1 when a
-cell failed.
+fails is a row with its error.  With ``--workers N`` / ``--address ADDR``
+the cells (each still in its own process) run on Ray
+(:mod:`spgeo.evaluation.jobs`).  With ``--out DIR``: ``frontier.json``
+(``rows``: every row, with seconds per stage and status counts; ``means``
+per data set, front-end, resolution and setting; ``provenance``),
+``frontier.csv`` (the rows) and ``frontier.md``, rewritten atomically after
+each cell.  Exit status 1 when a cell failed.
 """
 from __future__ import annotations
 
 import argparse
-import csv
-import io
+import dataclasses
 import json
-import os
 import re
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -49,9 +49,12 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from spgeo.cli.args import parse_resolution
 from spgeo.cli.config import apply_overrides, parse_assignments
+from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
+                                   run_table, runner_config)
 
 __all__ = ["Cell", "COLUMNS", "DEFAULT_SEVENSCENES", "parse_setting", "setting_config",
-           "make_grid", "run_cell", "run_cell_subprocess", "run_grid", "markdown_table", "main"]
+           "make_grid", "run_cell", "run_cell_subprocess", "make_jobs", "run_grid", "frontier_table",
+           "markdown_table", "write_outputs", "main"]
 
 #: The shared 7-Scenes sequence beside the checkout.
 DEFAULT_SEVENSCENES = "/work/shared/data/7scenes_redkitchen_dev"
@@ -227,47 +230,60 @@ def _error_row(cell: Cell, message: str, t0: Optional[float] = None) -> Dict[str
     return row
 
 
-def run_grid(cells: Sequence[Cell], in_process: bool = False, timeout: Optional[float] = None,
-             out: Optional[Path] = None, progress: bool = True) -> List[Dict[str, object]]:
-    """Run every cell (subprocesses unless ``in_process``); one row per cell,
-    failures as error rows.  A setting that :func:`setting_config` rejects is
-    an error row without a run.  ``out``: files rewritten after each cell."""
-    from tqdm import tqdm
+def _cell_in_process(cell: Cell) -> Dict[str, object]:
+    """:func:`run_cell` with a failure as an error row (its wall time kept)."""
+    t0 = time.perf_counter()
+    try:
+        return run_cell(cell)
+    except Exception as exc:  # a failed cell is a row, never a lost grid
+        return _error_row(cell, f"{type(exc).__name__}: {exc}", t0)
 
-    rows: List[Dict[str, object]] = []
+
+def _cell_label(cell: Cell) -> str:
+    seed = "" if cell.seed is None else f" seed{cell.seed}"
+    return (f"{cell.dataset}{seed} {cell.frontend} {_base_row(cell)['resolution']} "
+            f"{cell.setting.strip() or 'defaults'}")
+
+
+def make_jobs(cells: Sequence[Cell], in_process: bool = False,
+              timeout: Optional[float] = None) -> List[Job]:
+    """One :class:`~spgeo.evaluation.jobs.Job` per cell: its subprocess
+    (:func:`run_cell_subprocess`) unless ``in_process``; a setting that
+    :func:`setting_config` rejects is an error row without a run."""
     bad: Dict[str, str] = {}
     for st in {c.setting for c in cells}:
         try:
             setting_config(st)
         except (ValueError, TypeError, SyntaxError) as exc:
             bad[st] = f"setting {st!r}: {exc}"
-    bar = tqdm(cells, desc="vo_frontier", unit="cell", disable=not progress, dynamic_ncols=True)
-    for cell in bar:
-        bar.set_postfix_str(f"{cell.dataset} {cell.frontend} {_base_row(cell)['resolution']} "
-                            f"{cell.setting or 'defaults'}", refresh=True)
+    jobs = []
+    for i, cell in enumerate(cells):
+        name = f"{i}: {_cell_label(cell)}"
         if cell.setting in bad:
-            row = _error_row(cell, bad[cell.setting])
+            jobs.append(Job(name, _error_row, (cell, bad[cell.setting])))
         elif in_process:
-            t0 = time.perf_counter()
-            try:
-                row = run_cell(cell)
-            except Exception as exc:  # a failed cell is a row, never a lost grid
-                row = _error_row(cell, f"{type(exc).__name__}: {exc}", t0)
+            jobs.append(Job(name, _cell_in_process, (cell,)))
         else:
-            row = run_cell_subprocess(cell, timeout)
-        rows.append(row)
-        if out is not None:
-            write_outputs(rows, out)
-    bar.close()
-    return rows
+            jobs.append(Job(name, run_cell_subprocess, (cell, timeout)))
+    return jobs
 
 
-def _fmt(v: object, digits: int) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float):
-        return f"{v:.{digits}f}"
-    return str(v)
+def run_grid(cells: Sequence[Cell], in_process: bool = False, timeout: Optional[float] = None,
+             out: Optional[Path] = None, progress: bool = True,
+             runner: Optional[RunnerConfig] = None,
+             config: Optional[dict] = None) -> List[Dict[str, object]]:
+    """Run every cell (subprocesses unless ``in_process``, also on Ray
+    workers); one row per cell in grid order, failures as error rows.  A
+    setting that :func:`setting_config` rejects is an error row without a
+    run.  ``runner``: the backend (default sequential here; its ``progress``
+    is replaced by ``progress``); ``out``: files rewritten after each cell
+    (:func:`write_outputs`, ``config`` in their provenance)."""
+    runner = dataclasses.replace(runner or RunnerConfig(), progress=progress, desc="vo_frontier")
+    prov = provenance({"in_process": in_process, "timeout": timeout, "n_cells": len(cells),
+                       **(config or {})}, runner)
+    table = run_table(make_jobs(cells, in_process, timeout), runner,
+                      lambda rows: frontier_table(rows, prov), out, "frontier")
+    return table.rows
 
 
 _TABLE = (("data", "dataset", 0), ("seed", "seed", 0), ("front-end", "frontend", 0),
@@ -276,47 +292,32 @@ _TABLE = (("data", "dataset", 0), ("seed", "seed", 0), ("front-end", "frontend",
           ("FPS", "fps", 1), ("track FPS", "tracking_fps", 1), ("map s/KF", "mapping_s_per_kf", 2),
           ("fe s/KF", "frontend_s_per_kf", 2), ("KFs", "keyframes", 0), ("lost", "lost", 0),
           ("peak MB", "peak_rss_mb", 0), ("cell s", "cell_wall_s", 1), ("error", "error", 0))
+_NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres (evo), per-frame = every frame not lost, "
+         "% of the ground-truth path; FPS from the odometry's own timings (loading excluded); "
+         "peak MB = the cell process's maximum resident memory.")
+
+
+def frontier_table(rows: Sequence[Dict[str, object]],
+                   prov: Optional[dict] = None) -> EvalTable:
+    """The rows as an :class:`~spgeo.evaluation.jobs.EvalTable` (means per
+    data set, front-end, resolution and setting over the seeds; CSV columns
+    :data:`COLUMNS`)."""
+    return EvalTable(list(rows), _TABLE, group_by=("dataset", "frontend", "resolution", "setting"),
+                     id_keys=("seed", "frames"), provenance=dict(prov or {}),
+                     csv_columns=COLUMNS, note=_NOTE)
 
 
 def markdown_table(rows: Sequence[Dict[str, object]]) -> str:
     """The rows as one markdown table (``-`` for missing values; errors shortened)."""
-    lines = ["| " + " | ".join(h for h, _, _ in _TABLE) + " |",
-             "|" + "---|" * len(_TABLE)]
-    for r in rows:
-        cells = []
-        for _, key, digits in _TABLE:
-            s = _fmt(r.get(key), digits)
-            if key == "error" and len(s) > 120:
-                s = s[:117] + "..."
-            cells.append(s.replace("|", "/").replace("\n", " "))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return frontier_table(rows).markdown(rows_only=True)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_outputs(rows: Sequence[Dict[str, object]], out: Path) -> Dict[str, Path]:
-    """``out/frontier.json`` (every key), ``frontier.csv`` (:data:`COLUMNS`)
-    and ``frontier.md``, each written atomically; returns the paths."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=COLUMNS, extrasaction="ignore")
-    w.writeheader()
-    w.writerows(rows)
-    paths = {"json": out / "frontier.json", "csv": out / "frontier.csv", "md": out / "frontier.md"}
-    _write_atomic(paths["json"], json.dumps(list(rows), indent=1, default=float))
-    _write_atomic(paths["csv"], buf.getvalue())
-    _write_atomic(paths["md"], markdown_table(rows) + "\n")
-    return paths
+def write_outputs(rows: Sequence[Dict[str, object]], out: Path,
+                  prov: Optional[dict] = None) -> Dict[str, Path]:
+    """``out/frontier.json`` (``{"rows": every key, "means", "provenance"}``),
+    ``frontier.csv`` (:data:`COLUMNS`) and ``frontier.md``, each written
+    atomically; returns the paths."""
+    return frontier_table(rows, prov).write(Path(out), "frontier")
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -342,6 +343,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--timeout", type=float, default=None, help="seconds per cell")
     ap.add_argument("--out", default=None, help="write frontier.json/.csv/.md here")
     ap.add_argument("--no-progress", action="store_true")
+    add_runner_arguments(ap)
     args = ap.parse_args(argv)
     if args.frames is not None and args.frames < 3:
         ap.error("--frames must be >= 3")
@@ -351,12 +353,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         ap.error(str(exc))
     cells = make_grid(args.datasets, args.frontends, resolutions, args.set_grid, args.seeds,
                       args.frames, args.sevenscenes)
-    rows = run_grid(cells, args.in_process, args.timeout,
-                    Path(args.out) if args.out else None, not args.no_progress)
-    print(markdown_table(rows))
-    print("ATE: Sim(3)-aligned RMSE of camera centres (evo), per-frame = every frame not "
-          "lost, % of the ground-truth path; FPS from the odometry's own timings (loading "
-          "excluded); peak MB = the cell process's maximum resident memory.")
+    try:
+        runner = runner_config(args, desc="vo_frontier")
+    except ValueError as exc:
+        ap.error(str(exc))
+    config = {k: getattr(args, k) for k in ("datasets", "frames", "resolutions", "frontends",
+                                            "set_grid", "seeds", "sevenscenes")}
+    rows = run_grid(cells, args.in_process, args.timeout, Path(args.out) if args.out else None,
+                    not args.no_progress, runner, config)
+    print(frontier_table(rows, provenance(config, runner)).markdown())
     for r in rows:
         if r.get("error"):
             print(f"error: {r['dataset']} {r['frontend']} {r['resolution']} {r['setting']}: "

@@ -2,6 +2,7 @@
 
     python -m spgeo.evaluation.vo_synthetic [--frames 150] [--seeds 0 1 2]
         [--runs depth classical classical:planar ...] [--rotation 90:120] [--out DIR]
+        [--workers N | --address ADDR]
 
 Each seed renders a room (:class:`spgeo.synthetic.SyntheticScene`) and a
 hand-held trajectory (:func:`spgeo.synthetic.make_trajectory`) at 160x120
@@ -15,11 +16,18 @@ of the trajectory length (frames flagged ``lost`` excluded, their count
 shown), keyframes, FPS (tracking + mapping, rendering excluded) and seconds
 per stage.  The defaults of :class:`spgeo.vo.OdometryConfig` are what
 this script measures; nothing here is tuned to a real data set.
+
+Each (seed, run) is one job (:mod:`spgeo.evaluation.jobs`): sequential in
+this process by default, on Ray with ``--workers N`` / ``--address ADDR``;
+the table (rows, means per run over the seeds, provenance) is printed and,
+with ``--out``, written as ``results.md/.json/.csv``.  A run that fails is
+a row with its error (exit status 1).
 """
 from __future__ import annotations
 
 import argparse
-import json
+import functools
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,9 +41,12 @@ from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.cli.config import apply_overrides, nest, parse_assignments
+from spgeo.evaluation.jobs import (EvalTable, Job, add_runner_arguments, provenance,
+                                    run_table, runner_config)
 from spgeo.vo import Odometry, OdometryConfig
 
-__all__ = ["SyntheticVOConfig", "synthetic_sequence", "run_synthetic_vo", "main"]
+__all__ = ["SyntheticVOConfig", "synthetic_sequence", "run_synthetic_vo", "synthetic_run_row",
+           "make_jobs", "TABLE_COLUMNS", "main"]
 
 
 @dataclass(frozen=True)
@@ -116,8 +127,52 @@ def odometry_config(overrides: dict) -> OdometryConfig:
     return apply_overrides(OdometryConfig(), overrides)
 
 
-def _pct(entry) -> str:
-    return "-" if entry is None else f"{entry['percent']:.2f}"
+@functools.lru_cache(maxsize=1)
+def _cached_sequence(config: SyntheticVOConfig) -> Tuple[Frame, ...]:
+    """The last rendered sequence of this process (the runs of one seed share it)."""
+    return tuple(synthetic_sequence(config))
+
+
+def synthetic_run_row(config: SyntheticVOConfig, run: str, overrides: Optional[dict] = None,
+                      out: Optional[str] = None) -> Dict[str, object]:
+    """One job of the protocol: run ``run`` (``FRONTEND[:MODEL]``) on the
+    sequence of ``config`` with the :func:`parse_overrides` ``overrides``;
+    the JSON-ready summary of :func:`run_synthetic_vo` plus flat ``ate_m``,
+    ``ate_pct``, ``kf_ate_m``, ``kf_ate_pct``, ``length_m`` (None when not
+    computed).  ``out``: the odometry is saved to
+    ``out/seed<seed>_<run>`` (trajectories, no clouds)."""
+    fe, _, model = run.partition(":")
+    cfg = odometry_config({"primitive_model": model or "integrated", **(overrides or {})})
+    r = run_synthetic_vo(_cached_sequence(config), fe, cfg)
+    vo = r.pop("odometry")
+    if out:
+        vo.save(Path(out) / f"seed{config.seed}_{run.replace(':', '_')}", clouds=False)
+    for label, key in (("per-frame", "ate"), ("keyframe-only", "kf_ate")):
+        a = r[label]
+        r[f"{key}_m"] = None if a is None else a["rmse_m"]
+        r[f"{key}_pct"] = None if a is None else a["percent"]
+    r["length_m"] = None if r["per-frame"] is None else r["per-frame"]["length_m"]
+    return r
+
+
+#: Markdown columns of the table: (header, row key, decimals).
+TABLE_COLUMNS = (("run", "run", 0), ("seed", "seed", 0), ("per-frame ATE %", "ate_pct", 2),
+                 ("keyframe-only ATE %", "kf_ate_pct", 2), ("per-frame ATE m", "ate_m", 4),
+                 ("length m", "length_m", 2), ("KFs", "keyframes", 0), ("lost", "lost", 0),
+                 ("segments", "segments", 0), ("FPS", "fps", 2), ("track FPS", "tracking_fps", 1),
+                 ("mapping s/KF", "mapping_s_per_kf", 2), ("error", "error", 0))
+_NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres (evo), % of the ground-truth path length; "
+         "per-frame = every frame not lost, keyframe-only = keyframes.")
+
+
+def make_jobs(seeds: Sequence[int], runs: Sequence[str], n_frames: int = 150,
+              size: Tuple[int, int] = (160, 120), rotation: Optional[Tuple[int, int]] = (90, 120),
+              overrides: Optional[dict] = None, out: Optional[str] = None) -> List[Job]:
+    """One :class:`~spgeo.evaluation.jobs.Job` per (seed, run), seed-major."""
+    return [Job(f"seed{seed}/{run}", synthetic_run_row,
+                (SyntheticVOConfig(n_frames, seed, tuple(size), rotation), run, overrides, out),
+                meta={"run": run, "seed": seed})
+            for seed in seeds for run in runs]
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -134,7 +189,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
                     help="OdometryConfig overrides (Python literals), e.g. "
                          "kf_depth_link_sigma=None render_prior_weight=1e-5")
-    ap.add_argument("--out", default=None, help="write results.json and trajectories here")
+    ap.add_argument("--out", default=None,
+                    help="write results.md/.json/.csv (rewritten after each run) and the "
+                         "trajectories here")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_runner_arguments(ap)
     args = ap.parse_args(argv)
     try:
         overrides = parse_overrides(args.set)
@@ -148,36 +207,22 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             raise ValueError
     except ValueError:
         ap.error(f"--size: expected WxH, got {args.size!r}")
-    rows = []
-    print("| run | seed | per-frame ATE % | keyframe-only ATE % | length m | KFs | lost | "
-          "segments | FPS | track FPS | mapping s/KF |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for seed in args.seeds:
-        frames = synthetic_sequence(SyntheticVOConfig(args.frames, seed, size, rot))
-        for run in args.runs:
-            fe, _, model = run.partition(":")
-            cfg = odometry_config({"primitive_model": model or "integrated", **overrides})
-            r = run_synthetic_vo(frames, fe, cfg)
-            vo = r.pop("odometry")
-            if args.out:
-                vo.save(Path(args.out) / f"seed{seed}_{run.replace(':', '_')}", clouds=False)
-            r.update(seed=seed, run=run)
-            rows.append(r)
-            pf = r["per-frame"]
-            print(f"| {run} | {seed} | {_pct(pf)} | {_pct(r['keyframe-only'])} | "
-                  f"{pf['length_m'] if pf else float('nan'):.2f} | {r['keyframes']} | {r['lost']} | "
-                  f"{r['segments']} | {r['fps']:.2f} | {r['tracking_fps']:.1f} | "
-                  f"{r['mapping_s_per_kf'] or float('nan'):.2f} |", flush=True)
-    print("ATE: Sim(3)-aligned RMSE of camera centres (evo), % of the ground-truth path length; "
-          "per-frame = every frame not lost, keyframe-only = keyframes.")
-    for run in args.runs:
-        vals = [r["per-frame"]["percent"] for r in rows if r["run"] == run and r["per-frame"]]
-        if vals:
-            print(f"{run}: mean per-frame ATE {np.mean(vals):.2f}% over seeds {args.seeds}")
-    if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        (Path(args.out) / "results.json").write_text(json.dumps(rows, indent=1, default=str))
-    return 0
+    try:
+        runner = runner_config(args, desc="vo_synthetic")
+    except ValueError as exc:
+        ap.error(str(exc))
+    prov = provenance({"frames": args.frames, "seeds": args.seeds, "runs": args.runs,
+                       "size": list(size), "rotation": rot, "overrides": overrides}, runner)
+
+    def table(rows):
+        return EvalTable(rows, TABLE_COLUMNS, group_by=("run",), id_keys=("seed",), provenance=prov, note=_NOTE)
+
+    result = run_table(make_jobs(args.seeds, args.runs, args.frames, size, rot, overrides,
+                                 args.out), runner, table, Path(args.out) if args.out else None)
+    print(result.markdown())
+    for r in result.failed:
+        print(f"error: {r['job']}: {r['error']}", file=sys.stderr)
+    return 1 if result.failed else 0
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ def test_unknown_field_is_an_error_row_not_a_crash(tmp_path, capsys):
     rc = main(["--datasets", "synthetic", "--frames", "30", "--set-grid", "no_such_field=3",
                "--no-progress", "--out", str(tmp_path)])
     assert rc == 1
-    rows = json.loads((tmp_path / "frontier.json").read_text())
+    rows = json.loads((tmp_path / "frontier.json").read_text())["rows"]
     assert len(rows) == 1 and "unknown field 'no_such_field'" in rows[0]["error"]
     assert rows[0]["ate_m"] is None
     assert "no_such_field" in capsys.readouterr().err
@@ -53,8 +53,9 @@ def test_tiny_synthetic_grid(tmp_path, capsys):
                "--no-progress", "--out", str(tmp_path)])
     assert rc == 0
     out = capsys.readouterr().out
-    assert out.count("| synthetic |") == 2
-    rows = json.loads((tmp_path / "frontier.json").read_text())
+    rows_md, means_md = out.split("Means over the rows without error")
+    assert rows_md.count("| synthetic |") == 2 and means_md.count("| synthetic |") == 2
+    rows = json.loads((tmp_path / "frontier.json").read_text())["rows"]
     with open(tmp_path / "frontier.csv", newline="") as f:
         assert list(csv.DictReader(f).fieldnames) == list(COLUMNS)
     assert (tmp_path / "frontier.md").read_text().startswith("| data |")

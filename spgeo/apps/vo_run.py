@@ -31,9 +31,9 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -47,6 +47,9 @@ __all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "mak
            "blas_threads", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
+
+#: Per-frame hook of :func:`run_odometry`: ``(frame, frame_result, odometry) -> None``.
+FrameHook = Callable[[Frame, Any, Any], None]
 
 #: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
 ATE_LABELS = ("per-frame", "keyframe-only")
@@ -249,7 +252,9 @@ class VORun:
         ``"run"`` (resolution, front-end, wall time, FPS), ``"run_config"``
         (this :class:`VORunConfig` without ``odometry``) and, with
         ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
-        report.  ``ate``: a result of :meth:`ate` to reuse.  Returns the
+        report and the plots ``trajectory_topview.png`` and
+        ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
+        paths ``"plot_topview"`` / ``"plot_error"``).  ``ate``: a result of :meth:`ate` to reuse.  Returns the
         paths (``"clouds"``: a list).
         """
         out = Path(directory)
@@ -264,11 +269,26 @@ class VORun:
             "run_config": {k: v for k, v in config_to_dict(self.config).items()
                            if k != "odometry"}}
         if with_ate:
-            extra["ate"] = self.ate_report(ate)
+            ate = self.ate() if ate is None else ate
+            extra["ate"] = self.ate_report(ate) if ate is not None else None
         paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra))
         if "clouds" not in paths:
             paths["clouds"] = self._write_clouds(out / "clouds")
+        if with_ate and ate is not None and ate.get("per-frame") is not None:
+            paths.update(self._write_plots(out, ate["per-frame"]))
         return paths
+
+    def _write_plots(self, out: Path, ate) -> Dict[str, Path]:
+        """``trajectory_topview.png`` / ``trajectory_error.png`` of the per-frame
+        ATE (:mod:`spgeo.apps.trajectory_plots`); none without matplotlib (logged)."""
+        try:
+            from .trajectory_plots import write_trajectory_plots
+
+            plots = write_trajectory_plots(ate, out, title=out.name or str(out))
+        except ImportError as exc:
+            log.warning("no trajectory plots: %s", exc)
+            return {}
+        return {"plot_topview": plots.topview, "plot_error": plots.error}
 
     def _write_clouds(self, folder: Path) -> List[Path]:
         """One PLY per keyframe (world frame = keyframe 0's camera, VO units),
@@ -283,6 +303,18 @@ class VORun:
                 img = cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
             kfs.append((k, kf.pyramid.images[0] if img is None else img, kf))
         return write_keyframe_clouds(folder, kfs)
+
+    def export_colmap(self, directory: Union[str, Path], frames: Optional[Iterable[Frame]] = None,
+                      stride: int = 4, max_points: int = 200_000) -> Path:
+        """:func:`spgeo.io.colmap_export.export_odometry` of the run: the
+        keyframes, or with ``frames`` (the run's input frames again, e.g. the
+        data set re-opened without depth) every frame not lost.  Returns the
+        COLMAP model folder."""
+        from ..io.colmap_export import export_odometry
+
+        images = None if frames is None else ((str(f.name), f.image) for f in frames)
+        return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
+                               images, stride, max_points)
 
 
 def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
@@ -313,7 +345,8 @@ def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
 
 def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
-                 n_frames: Optional[int] = None) -> VORun:
+                 n_frames: Optional[int] = None,
+                 on_frame: Optional[FrameHook] = None) -> VORun:
     """Run the VO over ``frames`` (see the module docstring).
 
     Args:
@@ -326,6 +359,12 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             its working size should be ``config.resolution``).
         n_frames: total for the progress bar (default ``len(frames)`` when
             available).
+        on_frame: optional hook called after every tracked frame as
+            ``on_frame(frame, frame_result, odometry)``: ``frame`` is the frame
+            as the VO saw it (resized) with the ground-truth ``T_world_cam``
+            when known (never given to the VO), ``frame_result`` the
+            :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
+            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.viz.RerunLogger`).
 
     Raises:
         ValueError: no frame, frames of different camera sizes, timestamps not
@@ -333,7 +372,7 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             depth, or an image the VO rejects.
     """
     with blas_threads(config.blas_threads):
-        return _run_odometry(frames, config, frontend, n_frames)
+        return _run_odometry(frames, config, frontend, n_frames, on_frame)
 
 
 def blas_threads(n: Optional[int]):
@@ -348,7 +387,8 @@ def blas_threads(n: Optional[int]):
 
 
 def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
-                  frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int]) -> VORun:
+                  frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int],
+                  on_frame: Optional[FrameHook] = None) -> VORun:
     fe = frontend if frontend is not None else make_vo_frontend(config)
     use_depth = bool(fe.uses_depth)
     size = config.resolution
@@ -389,6 +429,8 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
             r = vo.track(small)  # type: ignore[union-attr]
             gt.append(None if f.T_world_cam is None
                       else np.asarray(f.T_world_cam, dtype=np.float64).copy())
+            if on_frame is not None:
+                on_frame(small if gt[-1] is None else replace(small, T_world_cam=gt[-1]), r, vo)
             stamps.append(ts)
             names.append(str(f.name))
             counts[r.status] += 1
@@ -413,14 +455,15 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
                 config: VORunConfig = VORunConfig(),
-                frontend: Optional[PrimitiveFrontEnd] = None, **reader_options) -> VORun:
+                frontend: Optional[PrimitiveFrontEnd] = None,
+                on_frame: Optional[FrameHook] = None, **reader_options) -> VORun:
     """Open a data set with :func:`spgeo.datasets.open_dataset` and run the VO.
 
     Args:
         kind: ``"tum"``, ``"7scenes"``, ``"icl"`` or ``"folder"``.
         path: the sequence folder.
         frames: ``"A:B[:S]"`` selection by frame number (default None: all).
-        config, frontend: as for :func:`run_odometry`.
+        config, frontend, on_frame: as for :func:`run_odometry`.
         reader_options: further reader-config fields (e.g. ``calibration="fr1"``).
 
     With a monocular front-end the data set is opened with ``load_depth=False``
@@ -438,7 +481,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     if len(seq) == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
     log.info("VO on %s (%s): %d frames, camera %r", seq.name, kind, len(seq), seq.camera)
-    return run_odometry(seq, config, fe, n_frames=len(seq))
+    return run_odometry(seq, config, fe, n_frames=len(seq), on_frame=on_frame)
 
 
 def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (320, 240),

@@ -4,6 +4,7 @@
     spgeo complete --rgb IMG --sparse SPARSE --intrinsics fx,fy,cx,cy --out DEPTH.png
                    [--frontend classical|manhattan|onnx|onnx-depth] [--method median|joint]
                    [--config FILE] [--set FIELD=VALUE ...]
+                   [--rerun spawn | save FILE.rrd | connect [ADDR]]
 
 ``SPARSE`` is a 16-bit PNG in millimetres (0 = missing) or a ``.npy`` array in
 metres (0 / NaN = missing); the output is a 16-bit PNG in millimetres.
@@ -21,6 +22,7 @@ from ..datasets.common import read_depth_png
 from ..frontend import MONOCULAR_FRONTENDS
 from .args import parse_intrinsics
 from .config import add_config_arguments, apply_overrides, resolve_config
+from .rerun_args import add_rerun_argument, open_rerun
 
 __all__ = ["add_complete_cli", "read_sparse_depth", "write_depth_png_mm"]
 
@@ -72,6 +74,9 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     cam = PinholeCamera(fx, fy, cx, cy, image.shape[1], image.shape[0])
     sparse = read_sparse_depth(args.sparse)
     res = complete_depth(image, sparse, cam, args.frontend, cfg)
+    with open_rerun(args) as viewer:
+        if viewer is not None:
+            viewer.log_completion(image, cam, res, sparse)
     write_depth_png_mm(args.out, res.depth)
     print(res.summary())
     print(f"wrote {args.out} (16-bit PNG, millimetres)")
@@ -94,6 +99,7 @@ def add_complete_cli(subparsers) -> argparse.ArgumentParser:
                         "'spgeo models fetch')")
     p.add_argument("--method", default=None, choices=("median", "joint"),
                    help="per-primitive scale: robust median (default) or joint GTSAM solve")
+    add_rerun_argument(p, "the image, sparse and completed depth, primitives and cloud")
     add_config_arguments(p, "CompletionConfig")
     p.set_defaults(func=_cmd_complete)
     return p

@@ -2,14 +2,17 @@
 
     spgeo sfm --ref IMG --views IMG [IMG ...] --intrinsics fx,fy,cx,cy --out DIR
               [--frontend classical|manhattan|onnx|onnx-depth] [--shape-model scaled|planar]
-              [--init twoview|identity] [--config FILE] [--set FIELD=VALUE ...]
+              [--init twoview|identity] [--export-colmap DIR]
+              [--config FILE] [--set FIELD=VALUE ...]
+              [--rerun spawn | save FILE.rrd | connect [ADDR]]
 
 Writes ``DIR/poses.txt`` (one line per image: ``name tx ty tz qx qy qz qw``,
 camera-to-reference, the reference at identity, translation in the
 reconstruction's unknown scale), ``DIR/depth.npy`` (float32 reference depth at
 the reference image's size), ``DIR/cloud.ply`` and ``DIR/report.json`` (the
-effective ``SfMConfig`` under ``"config"``).  Exit code 0 when the SfM status
-is ok, 3 otherwise.
+effective ``SfMConfig`` under ``"config"``); with ``--export-colmap DIR`` a
+COLMAP model (:func:`spgeo.io.colmap_export.export_sfm_result`).  Exit code 0
+when the SfM status is ok, 3 otherwise.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from ..jsonio import json_default
 from ..frontend import MONOCULAR_FRONTENDS
 from .args import parse_intrinsics
 from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
+from .rerun_args import add_rerun_argument, open_rerun
 
 __all__ = ["add_sfm_cli"]
 
@@ -47,6 +51,10 @@ def _run(args: argparse.Namespace) -> int:
     from ..sfm import few_view_sfm
 
     cfg = _sfm_config(args)
+    if args.export_colmap:      # fail before the run, not after it
+        from ..io.colmap_export import check_export_directory
+
+        check_export_directory(args.export_colmap, args.out)
     ref = load_image(args.ref)
     views = [load_image(p) for p in args.views]
     fx, fy, cx, cy = parse_intrinsics(args.intrinsics)
@@ -56,6 +64,9 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"{p} is {v.shape[1]}x{v.shape[0]}, the reference is "
                              f"{ref.shape[1]}x{ref.shape[0]}: all images must share one camera")
     res = few_view_sfm(ref, views, cam, args.frontend, cfg)
+    with open_rerun(args) as viewer:
+        if viewer is not None:
+            viewer.log_sfm(res, ref, views)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "poses.txt", "w") as fh:
@@ -79,6 +90,11 @@ def _run(args: argparse.Namespace) -> int:
         json.dump(report, fh, indent=2, default=json_default)
     print(f"status: {res.status}  ({', '.join(res.view_status)})")
     print(f"wrote {out / 'poses.txt'}, depth.npy, cloud.ply, report.json")
+    if args.export_colmap:
+        from ..io.colmap_export import export_sfm_result
+
+        model = export_sfm_result(args.export_colmap, res, [ref] + views, names)
+        print(f"wrote the COLMAP model {model} (images in {Path(args.export_colmap) / 'images'})")
     return 0 if res.ok else 3
 
 
@@ -96,6 +112,10 @@ def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
                    help="SfMConfig.shape_model (default scaled)")
     p.add_argument("--init", default=None, choices=["twoview", "identity"],
                    help="SfMConfig.init (default twoview)")
+    p.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="also write a COLMAP model: DIR/images/*.png (working resolution) and "
+                        "DIR/sparse/0/{cameras,images,points3D}.bin")
+    add_rerun_argument(p, "the reference camera, views, depth and cloud")
     add_config_arguments(p, "SfMConfig")
     p.set_defaults(func=_run)
     return p

@@ -3,6 +3,8 @@
     spgeo vo --dataset {tum,7scenes,icl,folder} PATH [--frames A:B[:STEP]]
              [--resolution 320x240] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
+             [--rerun spawn | save FILE.rrd | connect [ADDR]]
+             [--export-colmap DIR [--all-frames]]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -16,6 +18,7 @@ import argparse
 from ..frontend import FRONTENDS
 from .args import DATASET_KINDS, parse_resolution
 from .config import add_config_arguments, apply_overrides, resolve_config
+from .rerun_args import add_rerun_argument, open_rerun
 
 __all__ = ["add_vo_cli"]
 
@@ -61,7 +64,16 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
                          f"got {kind!r}")
     cfg = _run_config(args)
-    run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg)
+    if args.export_colmap:      # fail before the run, not after it
+        from ..io.colmap_export import check_export_directory
+
+        check_export_directory(args.export_colmap, args.out)
+    elif args.all_frames:
+        raise ValueError("--all-frames needs --export-colmap DIR")
+    with open_rerun(args) as viewer:
+        run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer)
+        if viewer is not None:
+            viewer.finish(run.odometry)
     ate = run.ate()
     paths = run.save(args.out, ate=ate)
     for line in run.summary_lines(ate):
@@ -69,6 +81,15 @@ def _run(args: argparse.Namespace) -> int:
     n_clouds = len(paths.get("clouds") or [])
     print(f"wrote {paths['trajectory']}, keyframes.txt, report.json"
           f"{f', {n_clouds} keyframe clouds' if n_clouds else ''} in {args.out}")
+    if args.export_colmap:
+        frames = None
+        if args.all_frames:     # re-read the frames: the run keeps only the keyframes' images
+            from ..datasets import open_dataset
+
+            frames = open_dataset(kind.lower(), path, frames=args.frames, load_depth=False)
+        model = run.export_colmap(args.export_colmap, frames)
+        what = "all frames not lost" if args.all_frames else "keyframes"
+        print(f"wrote the COLMAP model {model} ({what}, images in {args.export_colmap}/images)")
     return 0
 
 
@@ -94,6 +115,12 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                         "onnx-depth: depth model (default depth-anything-v2-small)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_rerun_argument(p, "the frames, keyframe clouds and trajectories live")
+    p.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="also write a COLMAP model of the keyframes: DIR/images/*.png (processing "
+                        "resolution), DIR/sparse/0/{cameras,images,points3D}.bin")
+    p.add_argument("--all-frames", action="store_true",
+                   help="--export-colmap: every frame not lost, not only the keyframes")
     add_config_arguments(p, "VORunConfig / OdometryConfig")
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")
