@@ -177,15 +177,16 @@ def test_bad_input_raises(frames):
 
 # ---------------------------------------------------------------- issue-4 system features
 def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
-    """Each mapping update links the previous keyframe to up to 4 supporting
-    non-keyframes whose poses are smoother variables; result() reports them at
+    """Each mapping update links the previous keyframe to up to ``n_support``
+    supporting non-keyframes whose poses are smoother variables; result() reports them at
     their smoothed poses."""
     from spgeo.vo import support_pose_key
 
     vo = run_frequent_kf
     rep = vo.report()
     sup = [m["support_frames"] for m in rep["mapping"]]
-    assert all(len(s) <= 4 for s in sup) and sum(len(s) for s in sup) >= 8
+    n = vo.config.n_support
+    assert n >= 2 and all(len(s) <= n for s in sup) and sum(len(s) for s in sup) >= 2 * n
     kf_frames = {i for i, r in enumerate(vo.frames) if r.keyframe_index is not None}
     flat = [f for s in sup for f in s]
     assert not kf_frames.intersection(flat)

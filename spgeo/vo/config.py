@@ -147,7 +147,8 @@ class OdometryConfig:
             keyframe exceeds this (default 15 degrees).
         window: keyframes kept in the smoother (default 5, >= 2); older ones
             are marginalised.
-        n_support: supporting non-keyframes linked to each keyframe (paper: 4).
+        n_support: supporting non-keyframes linked to each keyframe (paper: 4; default 2,
+            docs/results.md says why).
         covisible_links: besides the previous keyframe, a new keyframe is
             linked (photometric factors both ways) to up to this many older
             window keyframes, those sharing the largest view with it (default
@@ -254,7 +255,7 @@ class OdometryConfig:
     kf_max_relative_cost: float = 0.2
     kf_max_rotation_deg: float = 15.0
     window: int = 5
-    n_support: int = 4
+    n_support: int = 2
     covisible_links: int = 0
     covisible_min_overlap: float = 0.5
     levels: int = 3
