@@ -2,12 +2,14 @@
 
     python -m spgeo.evaluation.vo_synthetic [--frames 150] [--seeds 0 1 2]
         [--runs depth classical classical:planar ...] [--rotation 90:120] [--out DIR]
-        [--workers N | --address ADDR]
+        [--forward STEP] [--workers N | --address ADDR]
 
 Each seed renders a room (:class:`spgeo.synthetic.SyntheticScene`) and a
 hand-held trajectory (:func:`spgeo.synthetic.make_trajectory`) at 160x120
 whose translation is frozen on the ``--rotation`` frame range (a rotation-only
-part: the hard case for monocular keyframe selection).  A run is
+part: the hard case for monocular keyframe selection); with ``--forward STEP``
+a forward drive of STEP metres per frame through a long hall instead (large
+inter-frame motion, :func:`spgeo.synthetic.make_forward_trajectory`).  A run is
 ``FRONTEND[:MODEL]``: front-end ``depth`` (normals and initial scales from the
 rendered depth: oracle) or ``classical`` (monocular, never reads depth), and
 an :data:`spgeo.vo.PRIMITIVE_MODELS` ablation (default ``integrated``).
@@ -60,6 +62,11 @@ class SyntheticVOConfig:
         rotation: frame range ``(start, end)`` with frozen translation
             (default (90, 120)); None for none.
         supersample: anti-aliasing of the renderer (default 2).
+        forward_step: None (default) for the hand-held room sequence; metres per
+            frame for a forward drive instead (:func:`spgeo.synthetic.make_forward_trajectory`
+            in :func:`spgeo.synthetic.forward_scene_config`'s hall; ``rotation`` is
+            ignored and the drive is cut at :data:`FORWARD_DRIVE_M` so it stays in
+            the hall's free zone).
     """
 
     n_frames: int = 150
@@ -67,11 +74,25 @@ class SyntheticVOConfig:
     size: Tuple[int, int] = (160, 120)
     rotation: Optional[Tuple[int, int]] = (90, 120)
     supersample: int = 2
+    forward_step: Optional[float] = None
+
+
+#: Longest forward drive (m) of :class:`SyntheticVOConfig` inside the hall's free zone.
+FORWARD_DRIVE_M = 6.4
 
 
 def synthetic_sequence(config: SyntheticVOConfig = SyntheticVOConfig()) -> List[Frame]:
     """Rendered frames (with depth and ground-truth ``T_world_cam``)."""
     cam = synthetic.default_camera(*config.size)
+    if config.forward_step is not None:
+        step = float(config.forward_step)
+        if not step > 0:
+            raise ValueError(f"forward_step must be > 0 metres, got {config.forward_step!r}")
+        n = min(config.n_frames, 1 + int(FORWARD_DRIVE_M / step + 1e-9))
+        traj = synthetic.make_forward_trajectory(
+            n, config.seed, synthetic.ForwardTrajectoryConfig(step=step))
+        scene = synthetic.SyntheticScene.generate(config.seed, synthetic.forward_scene_config())
+        return synthetic.render_frames(scene, cam, traj, supersample=config.supersample)
     rot = config.rotation
     if rot is not None and not (0 <= rot[0] < rot[1] <= config.n_frames):
         rot = None
@@ -167,10 +188,12 @@ _NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres (evo), % of the ground-trut
 
 def make_jobs(seeds: Sequence[int], runs: Sequence[str], n_frames: int = 150,
               size: Tuple[int, int] = (160, 120), rotation: Optional[Tuple[int, int]] = (90, 120),
-              overrides: Optional[dict] = None, out: Optional[str] = None) -> List[Job]:
+              overrides: Optional[dict] = None, out: Optional[str] = None,
+              forward_step: Optional[float] = None) -> List[Job]:
     """One :class:`~spgeo.evaluation.jobs.Job` per (seed, run), seed-major."""
     return [Job(f"seed{seed}/{run}", synthetic_run_row,
-                (SyntheticVOConfig(n_frames, seed, tuple(size), rotation), run, overrides, out),
+                (SyntheticVOConfig(n_frames, seed, tuple(size), rotation,
+                                   forward_step=forward_step), run, overrides, out),
                 meta={"run": run, "seed": seed})
             for seed in seeds for run in runs]
 
@@ -186,6 +209,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--size", default="160x120", metavar="WxH",
                     help="rendered (and working) resolution, e.g. 320x240")
     ap.add_argument("--rotation", default="90:120", help="frozen-translation frames A:B or 'none'")
+    ap.add_argument("--forward", type=float, default=None, metavar="STEP",
+                    help="a forward drive of STEP metres per frame in a long hall instead of the "
+                         f"hand-held room (large inter-frame motion; at most {FORWARD_DRIVE_M} m)")
     ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
                     help="OdometryConfig overrides (Python literals), e.g. "
                          "kf_depth_link_sigma=None render_prior_weight=1e-5")
@@ -211,14 +237,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         runner = runner_config(args, desc="vo_synthetic")
     except ValueError as exc:
         ap.error(str(exc))
+    if args.forward is not None and not args.forward > 0:
+        ap.error(f"--forward: expected a step > 0 metres, got {args.forward}")
     prov = provenance({"frames": args.frames, "seeds": args.seeds, "runs": args.runs,
-                       "size": list(size), "rotation": rot, "overrides": overrides}, runner)
+                       "size": list(size), "rotation": rot, "forward": args.forward,
+                       "overrides": overrides}, runner)
 
     def table(rows):
         return EvalTable(rows, TABLE_COLUMNS, group_by=("run",), id_keys=("seed",), provenance=prov, note=_NOTE)
 
     result = run_table(make_jobs(args.seeds, args.runs, args.frames, size, rot, overrides,
-                                 args.out), runner, table, Path(args.out) if args.out else None)
+                                 args.out, args.forward), runner, table, Path(args.out) if args.out else None)
     print(result.markdown())
     for r in result.failed:
         print(f"error: {r['job']}: {r['error']}", file=sys.stderr)

@@ -93,3 +93,19 @@ def test_vo_holds_a_fast_forward_drive(frames, frontend, max_ate_pct):
     ate = ate_sim3((stamps[~lost], res.poses[~lost]), (stamps[~lost], gt[~lost]))
     length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
     assert ate.rmse < max_ate_pct / 100.0 * length
+
+
+def test_vo_synthetic_forward_sequence():
+    """``spgeo eval vo_synthetic --forward STEP``'s sequence: steps of STEP metres,
+    cut so the drive stays inside the hall (FORWARD_DRIVE_M)."""
+    from spgeo.evaluation.vo_synthetic import (FORWARD_DRIVE_M, SyntheticVOConfig,
+                                               synthetic_sequence)
+
+    seq = synthetic_sequence(SyntheticVOConfig(n_frames=100, size=(40, 30), forward_step=0.8,
+                                               supersample=1))
+    assert len(seq) == 1 + int(FORWARD_DRIVE_M / 0.8)
+    T = np.stack([f.T_world_cam for f in seq])
+    np.testing.assert_allclose(np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1), 0.8,
+                               rtol=0.05)
+    with pytest.raises(ValueError, match="forward_step"):
+        synthetic_sequence(SyntheticVOConfig(size=(40, 30), forward_step=-1.0))
