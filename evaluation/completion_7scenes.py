@@ -61,8 +61,11 @@ log = logging.getLogger(__name__)
 
 
 def default_path() -> Path:
-    """``../shared/data/7scenes_redkitchen_dev`` relative to the repository."""
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes_redkitchen_dev"
+    """``7scenes_redkitchen_dev`` in the shared sample data
+    (:func:`spgeo.evaluation.shared_data.shared_data_root`)."""
+    from .shared_data import shared_data_root
+
+    return shared_data_root() / "7scenes_redkitchen_dev"
 
 
 @dataclass

@@ -73,8 +73,10 @@ SCALE_METHODS = ("median", "graph")
 
 
 def default_root() -> Path:
-    """``../shared/data`` relative to the repository."""
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    """The shared sample data (:func:`spgeo.evaluation.shared_data.shared_data_root`)."""
+    from .shared_data import shared_data_root
+
+    return shared_data_root()
 
 
 @dataclass

@@ -29,6 +29,8 @@ from spgeo.frontend.classical import ClassicalSegmenter
 from spgeo.frontend.depth_normals import DepthNormalEstimator
 from spgeo.frontend.manhattan import ManhattanNormals
 
+log = logging.getLogger(__name__)
+
 _FRONTO = np.array([0.0, 0.0, -1.0])
 
 
@@ -65,26 +67,25 @@ class _Acc:
         return f"| {name} | {100 * cov:.1f} | {med} | {medf} | {within} |"
 
 
-def _data_root() -> Path:
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def _real_frames(step: int):
+def _real_frames(step: int, root: Optional[Path] = None):
     from spgeo.datasets import open_dataset
 
-    root = _data_root()
+    from .shared_data import shared_data_root
+
+    root = shared_data_root() if root is None else Path(root)
     sets = [("TUM fr1_desk", "tum", root / "tum_fr1_desk_9", None),
             ("ICL-NUIM", "icl", root / "icl_nuim_lr_5", None),
             ("7-Scenes", "7scenes", root / "7scenes_redkitchen_dev", f"0:300:{step}")]
     for name, kind, path, frames in sets:
         if not path.is_dir():
+            log.warning("%s: %s not found, skipped", name, path)
             continue
         ds = open_dataset(kind, path, **({"frames": frames} if frames else {}))
         yield name, [ds[i] for i in range(len(ds))]
 
 
-def evaluate(step: int = 30, width: int = 320, synthetic_seeds: Sequence[int] = (0, 1, 2)
-             ) -> Dict[str, object]:
+def evaluate(step: int = 30, width: int = 320, synthetic_seeds: Sequence[int] = (0, 1, 2),
+             root: Optional[Path] = None) -> Dict[str, object]:
     """Run the evaluation; returns the table rows and the timing ratio."""
     from spgeo.frame import resize_frame
     from spgeo.frontend.manhattan import SharedSegmenter
@@ -130,7 +131,7 @@ def evaluate(step: int = 30, width: int = 320, synthetic_seeds: Sequence[int] = 
                                      "synthetic: other")):
                 acc[key].add(est.normals, est.known, view.normals, st == k)
     rows += [a.row(k) for k, a in acc.items()]
-    for name, frames in _real_frames(step):
+    for name, frames in _real_frames(step, root):
         a = _Acc()
         for f in frames:
             f = resize_frame(f, (width, height), keep_depth=True)
@@ -149,9 +150,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=main.__doc__)
     ap.add_argument("--step", type=int, default=30, help="7-Scenes frame step (default 30)")
     ap.add_argument("--width", type=int, default=320, help="working width (default 320)")
+    ap.add_argument("--root", default=None,
+                    help="shared data folder (default $SPGEO_SHARED_DATA or ../shared/data)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    res = evaluate(args.step, args.width)
+    res = evaluate(args.step, args.width, root=args.root)
     print("| data | coverage [%] | median err VP [deg] | median err fronto-parallel, same "
           "pixels [deg] | VP err < 15 deg [%] |")
     print("|---|---:|---:|---:|---:|")

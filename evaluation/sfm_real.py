@@ -20,6 +20,7 @@ from typing import Callable, Dict, Optional, Sequence
 from spgeo.datasets import load_bundled_tum, open_dataset
 from spgeo.evaluation.colmap import colmap_estimator
 from spgeo.evaluation.colmap_compare import compare_on_dataset
+from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 
@@ -108,7 +109,7 @@ def _table(name: str, comp: dict) -> str:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shared", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"),
+    ap.add_argument("--shared", default=str(shared_data_root()),
                     help="folder with tum_fr1_desk_9/ and icl_nuim_lr_5/ (default ../shared/data)")
     ap.add_argument("--json", default=None, help="write all results as JSON here")
     args = ap.parse_args(argv)

@@ -51,13 +51,14 @@ from spgeo.cli.args import parse_resolution
 from spgeo.cli.config import apply_overrides, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_table, runner_config)
+from spgeo.evaluation.shared_data import shared_data_root
 
 __all__ = ["Cell", "COLUMNS", "DEFAULT_SEVENSCENES", "parse_setting", "setting_config",
            "make_grid", "run_cell", "run_cell_subprocess", "make_jobs", "run_grid", "frontier_table",
            "markdown_table", "write_outputs", "main"]
 
-#: The shared 7-Scenes sequence beside the checkout.
-DEFAULT_SEVENSCENES = "/work/shared/data/7scenes_redkitchen_dev"
+#: The shared 7-Scenes sequence (:func:`spgeo.evaluation.shared_data.shared_data_root`).
+DEFAULT_SEVENSCENES = str(shared_data_root() / "7scenes_redkitchen_dev")
 _RESULT_TAG = "VO_FRONTIER_RESULT "
 _DEFAULT_FRAMES = {"7scenes": 300, "synthetic": 150}
 _FIELD_START = re.compile(r"[\s,]+(?=[A-Za-z_][\w.]*\s*=)")
