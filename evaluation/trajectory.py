@@ -136,7 +136,11 @@ class AteResult:
             ``correct_scale`` was False).
         rotation, translation: the alignment ``x_gt ≈ scale * R x_est + t``.
         n_associated: poses matched by timestamp (and evaluated).
-        n_estimated, n_groundtruth: poses given (finite estimated poses only).
+        n_estimated, n_groundtruth: poses used (finite poses with finite timestamps).
+        n_estimated_dropped: estimated poses left out as non-finite (frames
+            without a pose, e.g. lost).
+        n_groundtruth_dropped: ground-truth poses left out as non-finite (a
+            warning is logged when there are any).
         trajectory_length: ground-truth path length over the associated poses (m).
         label: what was evaluated, e.g. ``"per-frame"`` or ``"keyframe-only"``.
         timestamps: (n_associated,) estimate timestamps of the evaluated poses.
@@ -161,6 +165,8 @@ class AteResult:
     errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     aligned_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     gt_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    n_estimated_dropped: int = 0
+    n_groundtruth_dropped: int = 0
 
     @property
     def rmse_percent_of_length(self) -> float:
@@ -176,6 +182,8 @@ class AteResult:
             "median_m": self.median, "max_m": self.max, "std_m": self.std,
             "scale": self.scale, "n_associated": self.n_associated,
             "n_estimated": self.n_estimated, "n_groundtruth": self.n_groundtruth,
+            "n_estimated_dropped": self.n_estimated_dropped,
+            "n_groundtruth_dropped": self.n_groundtruth_dropped,
             "trajectory_length_m": self.trajectory_length,
             "rmse_percent_of_length": self.rmse_percent_of_length,
         }
@@ -195,21 +203,33 @@ def _to_evo(traj: Trajectory):
                             timestamps=traj.timestamps[order].copy())
 
 
+def _finite_part(traj: Trajectory) -> Tuple[Trajectory, int]:
+    """The poses of ``traj`` that are finite with a finite timestamp, and how
+    many were left out."""
+    keep = np.all(np.isfinite(traj.poses.reshape(len(traj), -1)), axis=1) & np.isfinite(
+        traj.timestamps)
+    return traj.subset(keep), int(len(traj) - keep.sum())
+
+
 def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.02,
              correct_scale: bool = True, label: str = "per-frame",
-             min_poses: int = 3) -> AteResult:
+             min_poses: int = 3, warn_dropped: bool = True) -> AteResult:
     """Sim(3)-aligned ATE of ``est`` against ``gt`` with evo (``evo_ape -as``).
 
     Args:
         est, gt: ``(timestamps, poses)`` (camera-to-world 4x4) or
             :class:`~spgeo.trajectory.Trajectory` (or any object with ``timestamps`` and ``poses``).
             Estimated poses that are ``NaN`` (frames without a pose) are dropped;
-            so are ground-truth poses that are non-finite.
+            so are ground-truth poses that are non-finite, with a logged warning
+            naming how many (``warn_dropped``); both counts are in the result
+            (``n_estimated_dropped``, ``n_groundtruth_dropped``).
         max_time_diff: largest timestamp difference for a nearest-time match
             (default 0.02 s; use < 0.5 for frame-number timestamps).
         correct_scale: Sim(3) (default) or SE(3) alignment.
         label: recorded in the result (``"per-frame"`` / ``"keyframe-only"``).
         min_poses: fewest associated poses to evaluate (default 3).
+        warn_dropped: log the warning about dropped ground-truth poses (default
+            True; False when the caller already did for the same ground truth).
 
     To evaluate a subset (e.g. keyframes), pass only those poses: the alignment
     is then fitted on the subset too.  Raises ``ValueError`` when fewer than
@@ -219,12 +239,11 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
     from evo.core import metrics, sync
     from evo.core.geometry import GeometryException
 
-    e = _as_trajectory(est, "est")
-    g = _as_trajectory(gt, "gt")
-    e = e.subset(np.all(np.isfinite(e.poses.reshape(len(e), -1)), axis=1)
-                 & np.isfinite(e.timestamps))
-    g = g.subset(np.all(np.isfinite(g.poses.reshape(len(g), -1)), axis=1)
-                 & np.isfinite(g.timestamps))
+    e, n_e_drop = _finite_part(_as_trajectory(est, "est"))
+    g, n_g_drop = _finite_part(_as_trajectory(gt, "gt"))
+    if n_g_drop and warn_dropped:
+        logger.warning("ATE (%s): %d of %d ground-truth poses are not finite (NaN / inf pose or "
+                       "timestamp) and were left out", label, n_g_drop, n_g_drop + len(g))
     if len(e) < min_poses or len(g) < min_poses:
         raise ValueError(f"ate_sim3: need at least {min_poses} finite poses "
                          f"(estimate has {len(e)}, ground truth {len(g)})")
@@ -256,7 +275,8 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
         timestamps=np.asarray(est_sync.timestamps, float).copy(),
         errors=np.asarray(ape.error, float).copy(),
         aligned_positions=np.asarray(est_sync.positions_xyz, float).copy(),
-        gt_positions=np.asarray(ref_sync.positions_xyz, float).copy())
+        gt_positions=np.asarray(ref_sync.positions_xyz, float).copy(),
+        n_estimated_dropped=n_e_drop, n_groundtruth_dropped=n_g_drop)
 
 
 def ate_per_frame_and_keyframes(est: TrajectoryLike, gt: TrajectoryLike,
@@ -279,7 +299,7 @@ def ate_per_frame_and_keyframes(est: TrajectoryLike, gt: TrajectoryLike,
             raise ValueError(f"keyframe_mask has shape {mask.shape}, expected ({len(e)},)")
         try:
             out["keyframe-only"] = ate_sim3(e.subset(mask), gt, max_time_diff, correct_scale,
-                                            label="keyframe-only")
+                                            label="keyframe-only", warn_dropped=False)
         except ValueError as exc:
             logger.warning("keyframe-only ATE not available: %s", exc)
     return out

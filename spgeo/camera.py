@@ -15,19 +15,18 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from .validation import InputError, check_intrinsics
+
 __all__ = ["PinholeCamera"]
-
-
-def _finite_positive(name: str, value: float) -> float:
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"PinholeCamera: {name} must be finite and > 0, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
 class PinholeCamera:
     """Pinhole intrinsics of an image of ``width`` x ``height`` pixels.
+
+    Construction raises :class:`~spgeo.validation.InputError` (a ``ValueError``)
+    for implausible intrinsics (:func:`spgeo.validation.check_intrinsics`: field of
+    view, ``fx / fy`` ratio, principal point near the image).
 
     Attributes:
         fx, fy: focal lengths in pixels (must be > 0; data sets with a flipped
@@ -50,22 +49,16 @@ class PinholeCamera:
     distortion: Optional[Tuple[float, ...]] = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "fx", _finite_positive("fx", self.fx))
-        object.__setattr__(self, "fy", _finite_positive("fy", self.fy))
-        for name in ("cx", "cy"):
-            value = float(getattr(self, name))
-            if not np.isfinite(value):
-                raise ValueError(f"PinholeCamera: {name} must be finite, got {value!r}")
-            object.__setattr__(self, name, value)
+        check_intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height,
+                         "PinholeCamera")
+        for name in ("fx", "fy", "cx", "cy"):
+            object.__setattr__(self, name, float(getattr(self, name)))
         for name in ("width", "height"):
-            value = getattr(self, name)
-            if int(value) != value or int(value) <= 0:
-                raise ValueError(f"PinholeCamera: {name} must be a positive integer, got {value!r}")
-            object.__setattr__(self, name, int(value))
+            object.__setattr__(self, name, int(getattr(self, name)))
         if self.distortion is not None:
             dist = tuple(float(d) for d in np.asarray(self.distortion, dtype=float).ravel())
             if len(dist) not in (4, 5, 8) or not np.all(np.isfinite(dist)):
-                raise ValueError(
+                raise InputError(
                     "PinholeCamera: distortion must hold 4, 5 or 8 finite OpenCV coefficients, "
                     f"got {self.distortion!r}")
             object.__setattr__(self, "distortion", dist if any(dist) else None)
@@ -77,9 +70,9 @@ class PinholeCamera:
         """Build from a 3x3 intrinsic matrix."""
         K = np.asarray(K, dtype=float)
         if K.shape != (3, 3):
-            raise ValueError(f"PinholeCamera.from_K: K must be 3x3, got shape {K.shape}")
+            raise InputError(f"PinholeCamera.from_K: K must be 3x3, got shape {K.shape}")
         if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]):
-            raise ValueError("PinholeCamera.from_K: skewed intrinsics are not supported")
+            raise InputError("PinholeCamera.from_K: skewed intrinsics are not supported")
         return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, distortion)
 
     @property
@@ -104,10 +97,11 @@ class PinholeCamera:
         return (self.width, self.height)
 
     def check_image(self, image: np.ndarray, name: str = "image") -> np.ndarray:
-        """Raise ``ValueError`` unless ``image`` is (H, W) or (H, W, C) of this camera's size."""
+        """Raise :class:`~spgeo.validation.InputError` unless ``image`` is (H, W) or
+        (H, W, C) of this camera's size."""
         image = np.asarray(image)
         if image.ndim not in (2, 3) or image.shape[:2] != self.shape:
-            raise ValueError(
+            raise InputError(
                 f"{name} has shape {image.shape}, expected ({self.height}, {self.width}[, C]) "
                 f"for this camera")
         return image
@@ -249,6 +243,13 @@ class PinholeCamera:
 
     @classmethod
     def from_dict(cls, d: dict) -> "PinholeCamera":
+        """Inverse of :meth:`to_dict`; :class:`~spgeo.validation.InputError` for a
+        missing key or implausible intrinsics."""
+        if not isinstance(d, dict):
+            raise InputError(f"camera: expected a JSON object, got {type(d).__name__}")
+        missing = [k for k in ("fx", "fy", "cx", "cy", "width", "height") if k not in d]
+        if missing:
+            raise InputError(f"camera: missing key(s) {', '.join(missing)}")
         dist = d.get("distortion")
         return cls(d["fx"], d["fy"], d["cx"], d["cy"], int(d["width"]), int(d["height"]),
                    None if dist is None else tuple(dist))

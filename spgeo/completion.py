@@ -65,8 +65,7 @@ import numpy as np
 
 from .camera import PinholeCamera
 from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
-                              check_sparse_depth, fill_holes, linear_fill, nearest_fill,
-                              resample_sparse, upsample)
+                              fill_holes, linear_fill, nearest_fill, resample_sparse, upsample)
 from .completion_graph import solve_log_scales_graph, solve_planes_graph
 from .completion_planes import (MODE_NONE, MODE_SCALE, fit_primitive_planes,
                                 lend_across_weak_edges)
@@ -74,6 +73,7 @@ from .completion_scales import (grouped_median, solve_log_scales_joint, sparse_p
                                 working_pixels)
 from .images import to_float_image
 from .primitives import PrimitiveSet
+from .validation import check_camera, check_sparse_depth
 
 if TYPE_CHECKING:  # pragma: no cover
     from .frontend import PrimitiveFrontEnd
@@ -381,18 +381,22 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
     Returns:
         :class:`CompletionResult`.
     Raises:
-        ValueError: wrong shapes, NaN/inf in the image, inf / negative sparse
-            depths, an empty sparse set, a depth-reading front-end without
-            ``frontend_depth``, primitives of another camera.
+        TypeError: ``camera`` / ``config`` of another type.
+        InputError: (a ``ValueError``) an image whose size differs from the
+            camera's, of another dtype, with NaN / inf or values outside [0, 1];
+            sparse depth failing :func:`spgeo.validation.check_sparse_depth`
+            (shape other than the image's, integer / bool dtype, millimetres,
+            inf, negative, no point).
+        ValueError: a depth-reading front-end without ``frontend_depth``,
+            primitives of another camera.
     """
     t0 = time.perf_counter()
-    if not isinstance(camera, PinholeCamera):
-        raise TypeError(f"camera must be a PinholeCamera, got {type(camera).__name__}")
+    check_camera(camera, "complete_depth: camera")
     if not isinstance(config, CompletionConfig):
         raise TypeError(f"config must be a CompletionConfig, got {type(config).__name__}")
     image = camera.check_image(image)
     to_float_image(image)  # validates dtype, NaN / inf and range
-    sparse = check_sparse_depth(sparse_depth, camera.shape)
+    sparse = check_sparse_depth(sparse_depth, "complete_depth: sparse depth", camera.shape)
     sv, su = np.nonzero(sparse > 0)
     sd = sparse[sv, su]
     uv = np.stack([su, sv], 1).astype(np.float64)

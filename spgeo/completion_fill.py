@@ -17,7 +17,7 @@ from .camera import PinholeCamera
 from .completion_scales import working_pixels
 
 __all__ = [
-    "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST", "check_sparse_depth",
+    "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST",
     "nearest_fill", "linear_fill", "upsample", "resample_sparse", "fill_holes",
 ]
 
@@ -27,32 +27,6 @@ log = logging.getLogger(__name__)
 CONFIDENCE_PRIMITIVE = 2   #: depth of a primitive with sparse support
 CONFIDENCE_LINEAR = 1      #: filled by linear interpolation
 CONFIDENCE_NEAREST = 0     #: filled with the nearest value (outside the hull)
-
-
-def check_sparse_depth(sparse_depth: np.ndarray, shape: Optional[Tuple[int, int]] = None,
-                       name: str = "sparse depth") -> np.ndarray:
-    """Validate an (H, W) sparse depth map; return float64 with NaN -> 0.
-
-    Raises ``ValueError`` for a wrong shape (not 2-D, or not ``shape``), a
-    non-numeric dtype, infinite or negative values, or no valid (> 0) point.
-    """
-    d = np.asarray(sparse_depth)
-    if d.ndim != 2 or d.size == 0:
-        raise ValueError(f"{name} must be a non-empty (H, W) array, got shape {d.shape}")
-    if shape is not None and d.shape != tuple(shape):
-        raise ValueError(f"{name} has shape {d.shape}, expected {tuple(shape)} (the image size)")
-    if d.dtype == bool or not np.issubdtype(d.dtype, np.number) \
-            or np.issubdtype(d.dtype, np.complexfloating):
-        raise ValueError(f"{name} must be a real numeric array, got dtype {d.dtype}")
-    d = d.astype(np.float64)
-    if np.any(np.isinf(d)):
-        raise ValueError(f"{name} contains inf")
-    d = np.nan_to_num(d, nan=0.0)
-    if np.any(d < 0):
-        raise ValueError(f"{name} contains negative depths")
-    if not np.any(d > 0):
-        raise ValueError(f"{name} has no valid point (all zero / NaN): nothing to complete from")
-    return d
 
 
 def nearest_fill(values: np.ndarray, known: Optional[np.ndarray] = None) -> np.ndarray:

@@ -2,6 +2,7 @@
 gradients and vectorised bilinear sampling with a validity mask."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import List, Optional, Tuple
 
@@ -9,6 +10,7 @@ import cv2
 import numpy as np
 
 from .camera import PinholeCamera
+from .validation import InputError, read_image_bytes
 
 __all__ = [
     "to_float_image", "to_gray", "read_raw_image", "load_image", "blur121", "gaussian_pyramid", "Pyramid",
@@ -21,14 +23,16 @@ _GREY_WEIGHTS = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 def to_float_image(image: np.ndarray) -> np.ndarray:
     """Convert uint8 / uint16 / float images to float32 in [0, 1].
 
-    Float input must already lie in [0, 1] (a small tolerance is clipped);
-    NaN or inf raise ``ValueError``.
+    Float input must already lie in [0, 1] (a small tolerance is clipped).
+    Raises :class:`~spgeo.validation.InputError` for another shape or dtype
+    (bool, signed integers, ...), an empty image, NaN / inf, or float values
+    outside [0, 1].
     """
     image = np.asarray(image)
     if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3, 4)):
-        raise ValueError(f"image must be (H, W) or (H, W, 1|3|4), got shape {image.shape}")
+        raise InputError(f"image must be (H, W) or (H, W, 1|3|4), got shape {image.shape}")
     if image.size == 0:
-        raise ValueError("image is empty")
+        raise InputError(f"image is empty (shape {image.shape})")
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]
     if image.ndim == 3 and image.shape[2] == 1:
@@ -39,13 +43,15 @@ def to_float_image(image: np.ndarray) -> np.ndarray:
         return image.astype(np.float32) / 65535.0
     if np.issubdtype(image.dtype, np.floating):
         out = image.astype(np.float32)
-        if not np.all(np.isfinite(out)):
-            raise ValueError("image contains NaN or inf")
+        bad = int(np.count_nonzero(~np.isfinite(out)))
+        if bad:
+            raise InputError(f"image contains {bad} NaN or inf values")
         lo, hi = float(out.min()), float(out.max())
         if lo < -1e-3 or hi > 1 + 1e-3:
-            raise ValueError(f"float image values must lie in [0, 1], got [{lo:.4g}, {hi:.4g}]")
+            raise InputError(f"float image values must lie in [0, 1], got [{lo:.4g}, {hi:.4g}]")
         return np.clip(out, 0.0, 1.0)
-    raise ValueError(f"unsupported image dtype {image.dtype}")
+    raise InputError(f"unsupported image dtype {image.dtype}: expected uint8, uint16 or float "
+                     "in [0, 1]")
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -59,23 +65,25 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 def read_raw_image(path, what: str = "image") -> np.ndarray:
     """The file's pixels as stored (``cv2.IMREAD_UNCHANGED``: BGR order, any dtype).
 
-    Raises ``FileNotFoundError`` / ``ValueError`` naming the ``what`` file.
+    Raises ``FileNotFoundError`` for a missing file and
+    :class:`~spgeo.validation.InputError` for a folder, an unreadable or empty
+    file, a truncated PNG / JPEG (:func:`spgeo.validation.read_image_bytes`) or
+    content OpenCV cannot decode; messages name the ``what`` file.
     """
-    import os
-
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"{what} file not found: {path}")
-    raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot decode {what} file: {path}")
+    data = read_image_bytes(path, what)
+    raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.size == 0:
+        raise InputError(f"cannot decode {what} file {path}: not an image in a format OpenCV "
+                         "reads (PNG, JPEG, TIFF, ...), or corrupt")
     return raw
 
 
 def load_image(path, grey: bool = False) -> np.ndarray:
     """Read an image file as float32 RGB (H, W, 3) or grey (H, W) in [0, 1].
 
-    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
+    Raises ``FileNotFoundError`` / :class:`~spgeo.validation.InputError` naming
+    the file (:func:`read_raw_image`).
     """
     raw = read_raw_image(path)
     if raw.ndim == 3:

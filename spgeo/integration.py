@@ -29,8 +29,7 @@ log depth-scale).  We fix it as documented in :class:`IntegrationConfig`:
 ``"anchor"`` sets the anchor pixel's log-depth to 0 (docs/design.md §2), ``"mean"``
 sets the mean over the mask to 0.  Parts of one mask that no 4/8-neighbour
 chain links carry no relative information; they are aligned at equal mean
-log-depth and counted in :attr:`IntegrationResult.n_components`.
-"""
+log-depth and counted in :attr:`IntegrationResult.n_components`."""
 from __future__ import annotations
 
 import logging
@@ -45,6 +44,7 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
 from .camera import PinholeCamera
+from .validation import InputError, check_camera, check_mask_stack, check_normals
 
 __all__ = ["IntegrationConfig", "IntegrationResult", "integrate_normals",
            "integrate_normals_regions"]
@@ -79,6 +79,11 @@ class IntegrationConfig:
             ``"mean"`` (zero mean over each mask).
         min_abs_m: lower bound on ``|n . r|`` (near-grazing or back-facing
             normals are clamped to ``-min_abs_m`` to keep gradients bounded).
+        unknown_normals: pixels whose normal is unknown (NaN, shorter than
+            :data:`spgeo.validation.MIN_NORMAL_LENGTH`) get NaN log-depth with
+            ``"nan"`` (default); ``"fill"`` (front-ends) borrows a neighbour's
+            coefficients on each edge to a known normal and makes parts without
+            a known normal flat (see :attr:`IntegrationResult.known`).
     """
 
     solver: str = "cholesky"
@@ -88,8 +93,12 @@ class IntegrationConfig:
     natural_order_max_band: int = 96
     constant: str = "anchor"
     min_abs_m: float = 0.05
+    unknown_normals: str = "nan"
 
     def __post_init__(self) -> None:
+        if self.unknown_normals not in ("nan", "fill"):
+            raise ValueError("IntegrationConfig.unknown_normals must be 'nan' or 'fill', "
+                             f"got {self.unknown_normals!r}")
         if self.solver not in ("cholesky", "direct", "cg"):
             raise ValueError("IntegrationConfig.solver must be 'cholesky', 'direct' or 'cg', "
                              f"got {self.solver!r}")
@@ -109,6 +118,7 @@ class IntegrationResult:
         n_components: (N,) number of unlinked parts per region (1 = fully linked).
         n_edges: number of difference equations.
         solver_info: iterations / residual / timings (seconds).
+        known: (M,) bool, True where the entry's normal was known.
     """
 
     log_depth: np.ndarray
@@ -116,6 +126,7 @@ class IntegrationResult:
     n_components: np.ndarray
     n_edges: int
     solver_info: dict = field(default_factory=dict)
+    known: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def region(self, i: int) -> np.ndarray:
         return self.log_depth[self.offsets[i]:self.offsets[i + 1]]
@@ -293,38 +304,41 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     """Integrate normals over many (possibly overlapping) regions at once.
 
     Args:
-        normals: (H, W, 3) unit normals in the camera frame, pointing towards
-            the camera (``n . r < 0``).  NaN marks unknown normals: edges whose
-            two normals are both unknown are dropped.
+        normals: (H, W, 3) normals in the camera frame, pointing towards the
+            camera (``n . r < 0``); normalised here; unknown ones (NaN, zero
+            length) as ``config.unknown_normals`` says.
         regions: N sorted, unique int arrays of flat pixel indices ``v * W + u``.
-        camera: intrinsics of the normal map's grid.
+        camera: :class:`PinholeCamera` of the normal map's grid.
         anchors: (N,) flat anchor pixel per region (required for
-            ``constant="anchor"``; defaults to each region's first pixel).
+            ``constant="anchor"``; defaults to each region's first pixel); an
+            anchor with unknown normal ("nan"): zero mean over the known pixels.
         config: :class:`IntegrationConfig`.
     Returns:
         :class:`IntegrationResult`.
+    Raises:
+        TypeError (``camera`` not a :class:`PinholeCamera`) / InputError (bad
+        normals, empty or unsorted regions, pixels or anchors outside them).
     """
     t0 = time.perf_counter()
-    normals = np.asarray(camera.check_image(normals, "normals"), dtype=np.float64)
-    if normals.ndim != 3 or normals.shape[2] != 3:
-        raise ValueError(f"normals must be (H, W, 3), got {normals.shape}")
+    check_camera(camera, "integrate_normals: camera")
+    normals = check_normals(normals, "normals", camera.shape + (3,))
     h, w = camera.shape
     npix = h * w
     n = len(regions)
     sizes = np.array([len(r) for r in regions], dtype=np.int64)
     if np.any(sizes == 0):
-        raise ValueError(f"integrate_normals: region(s) {np.flatnonzero(sizes == 0)[:5].tolist()} "
+        raise InputError(f"integrate_normals: region(s) {np.flatnonzero(sizes == 0)[:5].tolist()} "
                          "are empty")
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     if n == 0:
         return IntegrationResult(np.zeros(0), offsets, np.zeros(0, np.int64), 0, {})
     pix = np.concatenate([np.asarray(r, dtype=np.int64) for r in regions])
     if pix.min() < 0 or pix.max() >= npix:
-        raise ValueError("integrate_normals: region pixel index outside the image")
+        raise InputError("integrate_normals: region pixel index outside the image")
     rid = np.repeat(np.arange(n, dtype=np.int64), sizes)
     key = rid * npix + pix
     if np.any(np.diff(key) <= 0):
-        raise ValueError("integrate_normals: each region's pixels must be sorted and unique")
+        raise InputError("integrate_normals: each region's pixels must be sorted and unique")
     m_tot = pix.size
     entries = np.arange(m_tot)
     lookup = np.full(npix, -1, dtype=np.int64)
@@ -334,7 +348,7 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
 
     # Per-entry coefficients: m = n . r, a_u = nx / fx, a_v = ny / fy.
     nrm = np.take(normals.reshape(-1, 3), pix, axis=0)
-    known = np.isfinite(nrm).all(axis=1)
+    known = np.isfinite(nrm[:, 0])
     all_known = bool(known.all())
     if not all_known:
         nrm = np.where(known[:, None], nrm, 0.0)
@@ -370,9 +384,9 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
         c = 0.5 * (m[P] + m[Q])
         t = 0.5 * tsum
     else:
-        # an unknown normal borrows its partner's coefficients on that edge
+        # "fill": an unknown normal borrows its partner's coefficients on that edge
         cnt = known[P].astype(np.float64) + known[Q]
-        sel = cnt > 0
+        sel = cnt > 0 if config.unknown_normals == "fill" else cnt == 2
         mk = np.where(known, m, 0.0)
         P, Q, cnt, tsum = P[sel], Q[sel], cnt[sel], tsum[sel]
         c = (mk[P] + mk[Q]) / cnt
@@ -395,13 +409,13 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     else:
         anchor_pix = np.asarray(anchors, dtype=np.int64).reshape(-1)
         if anchor_pix.shape != (n,):
-            raise ValueError(f"integrate_normals: {anchor_pix.size} anchors for {n} regions")
+            raise InputError(f"integrate_normals: {anchor_pix.size} anchors for {n} regions")
     akey = np.arange(n) * npix + anchor_pix
     apos = np.searchsorted(key, akey)
     apos_c = np.minimum(apos, m_tot - 1)
     if not np.all((apos < m_tot) & (key[apos_c] == akey)):
         bad = np.flatnonzero(~((apos < m_tot) & (key[apos_c] == akey)))[:5]
-        raise ValueError(f"integrate_normals: anchor outside its region for regions {bad.tolist()}")
+        raise InputError(f"integrate_normals: anchor outside its region for regions {bad.tolist()}")
     # pin: the anchor in its component, the first entry of every other component
     first_of_comp = np.full(n_comp, -1, dtype=np.int64)
     order = entries[::-1]
@@ -435,25 +449,27 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
             info["iterations"] = 0
     t_solve = time.perf_counter()
 
-    # Fix constants: per component mean or anchor; unlinked parts at equal mean.
+    # Fix constants: per component mean or anchor; unlinked parts at equal mean;
+    # values for the "valid" entries only (the known ones with "nan", else all)
+    valid = known if config.unknown_normals == "nan" else np.ones(m_tot, bool)
     comp_sum = np.bincount(comp, weights=x, minlength=n_comp)
     comp_cnt = np.bincount(comp, minlength=n_comp)
     comp_mean = comp_sum / comp_cnt
     x = x - comp_mean[comp]  # every component now has zero mean
-    comp_region = rid[first_of_comp]
+    comp_region = rid[first_of_comp[np.flatnonzero(valid[first_of_comp])]]
     n_components = np.bincount(comp_region, minlength=n).astype(np.int64)
-    if config.constant == "anchor":
-        x = x - x[apos_c][rid]
-    else:
-        rmean = np.bincount(rid, weights=x, minlength=n) / sizes
-        x = x - rmean[rid]
+    with np.errstate(invalid="ignore", divide="ignore"):   # regions with no valid entry
+        rmean = (np.bincount(rid, weights=np.where(valid, x, 0.0), minlength=n)
+                 / np.bincount(rid, weights=valid, minlength=n))
+    ref = np.where(valid[apos_c], x[apos_c], rmean) if config.constant == "anchor" else rmean
+    x = np.where(valid, x - ref[rid], np.nan)
     t_end = time.perf_counter()
     info.update(t_build=t_build - t0, t_assemble=t_assemble - t_build, t_solve=t_solve - t_assemble,
-                t_finish=t_end - t_solve, t_total=t_end - t0)
+                t_finish=t_end - t_solve, t_total=t_end - t0, n_unknown=int((~known).sum()))
     if np.any(n_components > 1):
         log.debug("integrate_normals: %d regions have unlinked parts",
                   int(np.sum(n_components > 1)))
-    return IntegrationResult(x, offsets, n_components, n_edges, info)
+    return IntegrationResult(x, offsets, n_components, n_edges, info, known)
 
 
 def integrate_normals(normals: np.ndarray, masks: np.ndarray, camera: PinholeCamera,
@@ -462,21 +478,20 @@ def integrate_normals(normals: np.ndarray, masks: np.ndarray, camera: PinholeCam
     """Integrate normals over dense masks (stable entry point).
 
     Args:
-        normals: (H, W, 3) float unit normals in spgeo's camera convention
-            (x right, y down, z forward; a wall facing the camera has n = (0, 0, -1)).
-        masks: (N, H, W) bool; masks may overlap; each must be non-empty.
+        normals: (H, W, 3) float normals in spgeo's camera convention (x right,
+            y down, z forward; a wall facing the camera has n = (0, 0, -1)).
+        masks: (N, H, W) or (H, W) bool (or 0/1); may overlap; non-empty.
         camera: :class:`PinholeCamera` of the (H, W) grid.
         config: solver options; ``anchors`` optional flat anchor pixels.
     Returns:
-        (N, H, W) float64 log-depth, NaN outside each mask; each mask's
-        additive constant is arbitrary (see :class:`IntegrationConfig`).
+        (N, H, W) float64 log-depth, NaN outside each mask and where the normal
+        is unknown (``IntegrationConfig.unknown_normals``); each mask's additive
+        constant is arbitrary (see :class:`IntegrationConfig`).
+    Raises:
+        as :func:`integrate_normals_regions`; InputError for bad masks too.
     """
-    masks = np.asarray(masks)
-    if masks.ndim == 2:
-        masks = masks[None]
-    if masks.ndim != 3 or masks.shape[1:] != camera.shape:
-        raise ValueError(f"masks must be (N, {camera.height}, {camera.width}), got {masks.shape}")
-    masks = masks.astype(bool)
+    check_camera(camera, "integrate_normals: camera")  # before camera.shape below
+    masks = check_mask_stack(masks, camera.shape)
     regions: List[np.ndarray] = [np.flatnonzero(mk) for mk in masks]
     res = integrate_normals_regions(normals, regions, camera, anchors, config)
     out = np.full((masks.shape[0], camera.height * camera.width), np.nan)

@@ -33,9 +33,10 @@ from .frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from .geometry import invert_pose, rotation_angle_deg
 from .images import gaussian_pyramid, to_float_image, to_gray
 from .primitives import PointCloud, PrimitiveSet
-from .sfm_graph import (brightness_key, build_graph, hold_translation_and_shape, pose_key,
-                        scale_key)
+from .sfm_graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
+                        hold_translation_and_shape, pose_key, scale_key)
 from .sfm_init import twoview_initialisation
+from .validation import InputError, check_camera
 
 __all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
 
@@ -145,17 +146,26 @@ class SfMResult:
             (camera-to-reference), translation in the map's (unknown) scale.
         primitives: the reference primitives with solved log-scales (planar
             model: the planes' depths are baked into ``log_depth``).
-        depth: (H, W) reference depth (metres up to the global scale), NaN uncovered.
+        depth: (H, W) reference depth (metres up to the global scale), NaN where
+            no reported primitive covers the pixel (see ``unconstrained``).
         camera: the reference camera at the working resolution.
         log_scale_std: (N,) gauge-free marginal std of each primitive's
             log-scale: conditioned on the mean log-scale, since the global scale
             is fixed only by the weak prior and its (large) variance is shared by
             every primitive (scaled model; NaN otherwise or when marginals are
             off/failed).
-        unconstrained: indices of primitives whose log-scale only the prior
-            constrains (marginal std over half the prior's: no view sees them
-            usefully) or whose ``log_scale_std`` exceeds
-            ``config.max_log_scale_std``; they are not in ``depth``.
+        unconstrained: indices of primitives whose depth the views do not
+            support; they are in neither ``depth`` nor :meth:`point_cloud`.
+            These are: every primitive when no view has parallax (each
+            ``view_status`` is ``"low_parallax"`` or ``"diverged"``: the
+            structure is not observable), or when the status is not ``"ok"``
+            and the marginals failed (an indeterminate system:
+            ``report["marginals_error"]``); otherwise those whose log-scale
+            only the prior constrains (marginal std over half the prior's: no
+            view sees them usefully) or whose ``log_scale_std`` exceeds
+            ``config.max_log_scale_std`` (needs ``config.marginals``).
+            ``primitives`` keeps every primitive at its solved (for these:
+            unsupported) log-scale.
         pose_covariances: 6x6 marginal covariance per view (rotation first,
             gtsam tangent at the estimate), conditioned on the gauge priors.
             Marginals use a per-pixel noise model whose sigma is the robust
@@ -181,14 +191,68 @@ class SfMResult:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    @property
+    def supported_primitives(self) -> PrimitiveSet:
+        """The primitives that ``depth`` reports (all but ``unconstrained``, in
+        order): what a point cloud or a model export of this result may show."""
+        keep = np.setdiff1d(np.arange(len(self.primitives)), self.unconstrained)
+        return self.primitives.subset(keep)
+
     def point_cloud(self, image: Optional[np.ndarray] = None) -> PointCloud:
-        """Reference-frame point cloud of the solved primitives."""
-        return self.primitives.point_cloud(image)
+        """Reference-frame point cloud of the solved primitives that ``depth``
+        reports: those in ``unconstrained`` and non-finite points are left out
+        (an empty cloud when nothing is supported).  ``image``: colours, at
+        ``camera``'s size."""
+        cloud = self.primitives.point_cloud(image)
+        keep = np.all(np.isfinite(cloud.points), axis=1)
+        if self.unconstrained.size:
+            keep &= ~np.isin(cloud.primitive_ids, self.unconstrained)
+        return PointCloud(cloud.points[keep], None if cloud.colors is None else cloud.colors[keep],
+                          cloud.primitive_ids[keep], cloud.pixels[keep])
+
+
+def _checked_image(image: np.ndarray, camera: PinholeCamera, name: str) -> np.ndarray:
+    """``image`` as float [0, 1]; :class:`InputError` naming ``name`` unless it is a
+    finite image of ``camera``'s size (:func:`~spgeo.images.to_float_image`)."""
+    if image is None:
+        raise InputError(f"{name} is None, expected an image of {camera.width}x{camera.height}")
+    try:
+        return to_float_image(camera.check_image(image, name))
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if msg.startswith(name) else f"{name}: {msg}") from None
+
+
+def _check_inputs(ref_image, view_images, camera, init_T_ref_view) -> List[np.ndarray]:
+    """The supporting images as a list, after checking every input of
+    :func:`few_view_sfm` (its *Raises*)."""
+    check_camera(camera, "few_view_sfm camera")
+    if isinstance(view_images, np.ndarray) and (view_images.ndim == 2 or (
+            view_images.ndim == 3 and view_images.shape[:2] == camera.shape)):
+        raise InputError(f"few_view_sfm: view_images is one image array of shape "
+                         f"{view_images.shape}; expected a sequence of images, e.g. [image]")
+    views = list(view_images)
+    if not views:
+        raise InputError("few_view_sfm needs at least one supporting view (view_images is empty)")
+    _checked_image(ref_image, camera, "reference image")
+    for j, im in enumerate(views):
+        _checked_image(im, camera, f"view {j + 1}")
+    if init_T_ref_view is not None:
+        if len(init_T_ref_view) != len(views):
+            raise InputError(f"few_view_sfm: init_T_ref_view has {len(init_T_ref_view)} poses "
+                             f"for {len(views)} views")
+        for j, T in enumerate(init_T_ref_view):
+            T = np.asarray(T)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise InputError(f"few_view_sfm: init_T_ref_view[{j}] must be a finite 4x4 "
+                                 f"pose, got shape {T.shape}"
+                                 + ("" if T.shape != (4, 4) else " with NaN or inf"))
+    return views
 
 
 def _prepare_image(image: np.ndarray, camera: PinholeCamera, work_cam: PinholeCamera,
                    name: str) -> np.ndarray:
-    img = to_float_image(camera.check_image(image, name))
+    img = _checked_image(image, camera, name)
     grey = to_gray(img)
     if work_cam.shape != camera.shape:
         grey = cv2.resize(grey, work_cam.size, interpolation=cv2.INTER_AREA)
@@ -213,17 +277,21 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
             RGB-D) front-ends; its scales are discarded unless
             ``config.reset_scales`` is False.
         init_T_ref_view: optional initial poses (e.g. from
-            :func:`spgeo.twoview.estimate_relative_pose`); identity by default.
+            :func:`spgeo.twoview.estimate_relative_pose`), one finite 4x4 per
+            view; identity by default.
     Returns:
-        :class:`SfMResult` (check ``status``).
+        :class:`SfMResult` (check ``status``; a flagged result reports no depth
+        the views do not support: ``SfMResult.unconstrained``).
+    Raises:
+        InputError: (a ``ValueError``) naming the input: no supporting view,
+            one image array passed as ``view_images``, an image (``"reference
+            image"``, ``"view j"``) of another size than ``camera``, with NaN /
+            inf, out-of-range values or an unsupported dtype, or
+            ``init_T_ref_view`` of the wrong length, shape or with NaN.
+        TypeError: ``camera`` is not a :class:`PinholeCamera`.
     """
     t_start = time.perf_counter()
-    views = list(view_images)
-    if not views:
-        raise ValueError("few_view_sfm needs at least one supporting view")
-    camera.check_image(ref_image, "reference image")
-    for j, im in enumerate(views):
-        camera.check_image(im, f"view {j + 1}")
+    views = _check_inputs(ref_image, view_images, camera, init_T_ref_view)
     # ---- primitives of the reference
     if isinstance(frontend, PrimitiveSet):
         prims = frontend
@@ -346,17 +414,21 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
             for j in range(len(views)):
                 covs[j] = marg.marginalCovariance(pose_key(j + 1))
             if config.shape_model == "scaled":
-                log_std, prior_only = _gauge_free_scale_std(marg, len(prims),
+                log_std, prior_only = gauge_free_scale_std(marg, len(prims),
                                                             1.0 / np.sqrt(prior_w))
         except RuntimeError as exc:  # indeterminant system: report, do not crash
-            log.warning("marginals failed: %s", exc)
-            report["marginals_error"] = str(exc)
+            report["marginals_error"] = gtsam_error_line(exc)
+            log.warning("marginals failed: %s", report["marginals_error"])
     unconstrained = np.flatnonzero(prior_only | (log_std > config.max_log_scale_std))
+    no_parallax = all(v in ("low_parallax", "diverged") for v in view_status)
+    if no_parallax or (status != "ok" and "marginals_error" in report):
+        unconstrained = np.arange(len(solved))    # the views support no depth
     if unconstrained.size:
         keep = np.setdiff1d(np.arange(len(solved)), unconstrained)
         depth = solved.subset(keep).depth_map() if keep.size else np.full(cam.shape, np.nan)
-        log.info("%d primitives unconstrained by the views (log-scale std > %.2f): not in "
-                 "the depth map", unconstrained.size, config.max_log_scale_std)
+        log.info("%d of %d primitives unconstrained by the views (%s): not in the depth map",
+                 unconstrained.size, len(solved), "status " + status if keep.size == 0
+                 else f"log-scale std > {config.max_log_scale_std:.2f}")
     report["n_unconstrained"] = int(unconstrained.size)
     report.update({"valid_fraction": valid_frac, "seconds_frontend": t_front - t_start,
                    "seconds_optimise": t_opt - t_front,
@@ -364,29 +436,6 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
                    "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
     return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
                      brightness, report, unconstrained)
-
-
-def _gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
-    """Std of each log-scale with the global-scale gauge removed, and a mask of
-    the scales constrained by nothing but their prior.
-
-    The joint marginal ``C`` of all log-scales carries the global scale (fixed
-    only by the weak prior) as one large shared mode.  Scales whose own std is
-    over half the prior's are constrained by the prior alone (returned in the
-    mask, raw std kept).  The others are conditioned on their mean log-scale:
-    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
-    """
-    keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
-    C = marg.jointMarginalCovariance(keys).fullMatrix()
-    std = np.sqrt(np.maximum(np.diag(C), 0.0))
-    con = np.flatnonzero(std <= 0.5 * prior_sigma)
-    if con.size >= 2:
-        Cc = C[np.ix_(con, con)]
-        c1 = Cc.sum(axis=1)
-        std[con] = np.sqrt(np.maximum(np.diag(Cc) - c1 ** 2 / c1.sum(), 0.0))
-    prior_only = np.ones(n, dtype=bool)
-    prior_only[con] = False
-    return std, prior_only
 
 
 def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: SfMConfig,

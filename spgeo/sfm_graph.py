@@ -1,4 +1,5 @@
-"""The few-view SfM factor graph: variable keys, one pyramid level's factors, gauge priors.
+"""The few-view SfM factor graph: variable keys, one pyramid level's factors, gauge priors,
+the gauge-free scale marginals and gtsam error messages in one line.
 
 Variables (docs/design.md §4): ``pose_key(j)`` the pose of image ``j`` (0 = reference),
 ``scale_key(i)`` primitive ``i``'s shape variable, ``brightness_key(j)`` view ``j``'s affine
@@ -23,7 +24,16 @@ if TYPE_CHECKING:
     from .sfm import SfMConfig
 
 __all__ = ["pose_key", "scale_key", "brightness_key", "level_pixels", "build_graph",
-           "hold_translation_and_shape"]
+           "hold_translation_and_shape", "gtsam_error_line", "gauge_free_scale_std"]
+
+
+def gtsam_error_line(exc: BaseException) -> str:
+    """The first paragraph of a gtsam exception's message joined into one line
+    (``IndeterminantLinearSystemException``'s names the variable there, then
+    adds a many-line explanation that must not reach the user's terminal), for
+    one logged line or a report entry."""
+    para = str(exc).strip().split("\n\n")[0]
+    return " ".join(para.split()) or type(exc).__name__
 
 
 def pose_key(j: int) -> int:
@@ -108,3 +118,26 @@ def build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, l
             graph.add(f)
         builders.append(g)
     return graph, builders
+
+
+def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
+    """Std of each log-scale with the global-scale gauge removed, and a mask of
+    the scales constrained by nothing but their prior.
+
+    The joint marginal ``C`` of all log-scales carries the global scale (fixed
+    only by the weak prior) as one large shared mode.  Scales whose own std is
+    over half the prior's are constrained by the prior alone (returned in the
+    mask, raw std kept).  The others are conditioned on their mean log-scale:
+    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
+    """
+    keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
+    C = marg.jointMarginalCovariance(keys).fullMatrix()
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    con = np.flatnonzero(std <= 0.5 * prior_sigma)
+    if con.size >= 2:
+        Cc = C[np.ix_(con, con)]
+        c1 = Cc.sum(axis=1)
+        std[con] = np.sqrt(np.maximum(np.diag(Cc) - c1 ** 2 / c1.sum(), 0.0))
+    prior_only = np.ones(n, dtype=bool)
+    prior_only[con] = False
+    return std, prior_only

@@ -33,9 +33,10 @@ def triangulate_depths(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np
     P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P2 = T_tr[:3]
     Xh = cv2.triangulatePoints(P1, P2, x1.astype(np.float64), x2.astype(np.float64))
-    X = (Xh[:3] / Xh[3]).T
-    z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
-    return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):   # points at infinity: NaN
+        X = (Xh[:3] / Xh[3]).T
+        z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
+        return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
 
 
 def twoview_initialisation(ref_image: np.ndarray, views: Sequence[np.ndarray],

@@ -1,8 +1,10 @@
 """Files of the data sets: colour images, uint16 depth PNGs, camera JSON,
 whitespace matrices, 4x4 pose files, timestamps, numbered frame files.
 
-Every reader raises ``FileNotFoundError`` / ``ValueError`` with a message naming
-the file (and line, for text files).
+Every reader raises ``FileNotFoundError`` / :class:`~spgeo.validation.InputError`
+(a ``ValueError``) with a message naming the file (and line, for text files);
+folders, unreadable, empty and truncated files are refused
+(:func:`spgeo.validation.check_input_file`, :func:`spgeo.images.read_raw_image`).
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..images import load_image, read_raw_image
+from ..validation import InputError, check_input_file
 
 __all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
            "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
@@ -28,16 +31,15 @@ PathLike = Union[str, os.PathLike]
 
 
 def read_matrix_file(path: PathLike, shape) -> np.ndarray:
-    """Read a whitespace-separated matrix file, raising ``ValueError`` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"file not found: {path}")
+    """Read a whitespace-separated matrix file, raising ``FileNotFoundError`` /
+    :class:`~spgeo.validation.InputError` naming the file."""
+    path = Path(check_input_file(path, "matrix"))
     try:
         values = np.array([float(x) for x in path.read_text(encoding="utf-8").split()])
-    except ValueError as exc:
-        raise ValueError(f"malformed matrix file {path}: {exc}") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"malformed matrix file {path}: {exc}") from None
     if values.size != int(np.prod(shape)):
-        raise ValueError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
+        raise InputError(f"malformed matrix file {path}: expected {int(np.prod(shape))} numbers "
                          f"({shape[0]}x{shape[1]}), got {values.size}")
     return values.reshape(shape)
 
@@ -52,7 +54,7 @@ def index_frame_files(folder: Path, pattern: "re.Pattern", what: str) -> Dict[in
         if m:
             n = int(m.group(1))
             if n in found:
-                raise ValueError(f"{folder}: frame {n} has two {what} "
+                raise InputError(f"{folder}: frame {n} has two {what} "
                                  f"({found[n].name}, {p.name})")
             found[n] = p
     return found
@@ -63,9 +65,9 @@ def parse_stamp(tok: str, path: Path, lineno: int) -> float:
     try:
         t = float(tok)
     except ValueError:
-        raise ValueError(f"{path}:{lineno}: malformed timestamp {tok!r}") from None
+        raise InputError(f"{path}:{lineno}: malformed timestamp {tok!r}") from None
     if not np.isfinite(t):
-        raise ValueError(f"{path}:{lineno}: timestamp {tok!r} is not finite")
+        raise InputError(f"{path}:{lineno}: timestamp {tok!r} is not finite")
     return t
 
 
@@ -74,7 +76,7 @@ def check_increasing(stamps: Sequence[float], linenos: Sequence[int], path: Path
     than its predecessor."""
     for k in range(1, len(stamps)):
         if not stamps[k] > stamps[k - 1]:
-            raise ValueError(f"{path}:{linenos[k]}: timestamps are not strictly increasing "
+            raise InputError(f"{path}:{linenos[k]}: timestamps are not strictly increasing "
                              f"({stamps[k]:.6f} after {stamps[k - 1]:.6f})")
 
 
@@ -82,14 +84,15 @@ def read_rgb(path: PathLike, camera: Optional[PinholeCamera] = None) -> np.ndarr
     """Read a colour image as float32 RGB (H, W, 3) in [0, 1].
 
     Grey files are replicated to three channels.  Raises ``FileNotFoundError``
-    for a missing file, ``ValueError`` for an undecodable one or (with
-    ``camera``) a size that does not match the camera; messages name the file.
+    for a missing file, :class:`~spgeo.validation.InputError` for a folder, an
+    unreadable, empty, truncated or undecodable file or (with ``camera``) a
+    size that does not match the camera; messages name the file.
     """
     image = load_image(path)
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=2)
     if camera is not None and image.shape[:2] != camera.shape:
-        raise ValueError(f"image {os.fspath(path)} has shape {image.shape}, expected "
+        raise InputError(f"image {os.fspath(path)} has shape {image.shape}, expected "
                          f"({camera.height}, {camera.width}, 3) for {camera!r}")
     return np.ascontiguousarray(image, dtype=np.float32)
 
@@ -99,15 +102,16 @@ def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera]
     """Read a uint16 depth PNG as metres (``raw / scale``, in ``dtype``), NaN where invalid.
 
     ``invalid_values`` are raw values meaning "no measurement" (0 by default).
-    Raises ``FileNotFoundError`` / ``ValueError`` naming the file.
+    Raises ``FileNotFoundError`` / :class:`~spgeo.validation.InputError` naming
+    the file (as :func:`read_rgb`; also for an 8-bit or colour image).
     """
     path = os.fspath(path)
     raw = read_raw_image(path, "depth")
     if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise ValueError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
+        raise InputError(f"depth file {path} must be a single-channel 16-bit (uint16) image, "
                          f"got shape {raw.shape} dtype {raw.dtype}")
     if camera is not None and raw.shape != camera.shape:
-        raise ValueError(f"depth file {path} has shape {raw.shape}, expected "
+        raise InputError(f"depth file {path} has shape {raw.shape}, expected "
                          f"({camera.height}, {camera.width}) for {camera!r}")
     depth = raw.astype(dtype) / np.asarray(scale, dtype=dtype)
     invalid = np.isin(raw, np.asarray(invalid_values, dtype=raw.dtype))
@@ -116,14 +120,20 @@ def read_depth_png(path: PathLike, scale: float, camera: Optional[PinholeCamera]
 
 
 def read_camera_json(path: PathLike) -> PinholeCamera:
-    """Read a ``camera.json`` written with :meth:`PinholeCamera.to_dict`."""
-    path = os.fspath(path)
+    """Read a ``camera.json`` written with :meth:`PinholeCamera.to_dict`.
+
+    Raises ``FileNotFoundError`` / :class:`~spgeo.validation.InputError` naming
+    the file: unreadable or malformed JSON, missing keys, or intrinsics that
+    fail :func:`spgeo.validation.check_intrinsics`.
+    """
+    path = check_input_file(path, "camera")
     try:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
         return PinholeCamera.from_dict(data)
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"invalid camera file {path}: {exc}") from exc
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError,
+            ValueError) as exc:
+        raise InputError(f"invalid camera file {path}: {exc}") from None
 
 
 def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.ndarray:
@@ -135,11 +145,11 @@ def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.nd
     """
     T = np.asarray(T, dtype=np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{name}: expected a finite 4x4 matrix, got shape {T.shape}")
+        raise InputError(f"{name}: expected a finite 4x4 matrix, got shape {T.shape}")
     R = T[:3, :3]
     if (np.abs(R @ R.T - np.eye(3)).max() > tol or abs(np.linalg.det(R) - 1.0) > tol
             or np.abs(T[3] - [0, 0, 0, 1]).max() > tol):
-        raise ValueError(f"{name}: not a rigid transform (rotation not orthonormal or last row "
+        raise InputError(f"{name}: not a rigid transform (rotation not orthonormal or last row "
                          "not [0 0 0 1])")
     U, _, Vt = np.linalg.svd(R)
     out = np.eye(4)
@@ -166,11 +176,14 @@ def read_pose_file(path: PathLike, dataset: str, read_matrix) -> Optional[np.nda
     try:
         return nearest_rigid(T, str(path))
     except ValueError as exc:
-        raise ValueError(f"invalid pose file {path}: {exc}") from None
+        raise InputError(f"invalid pose file {path}: {exc}") from None
 
 
 def check_selection_files(paths: Sequence[Path], what: str) -> None:
-    """Raise ``FileNotFoundError`` naming the first listed file that does not exist."""
+    """Raise ``FileNotFoundError`` naming the first listed file that does not
+    exist, :class:`~spgeo.validation.InputError` for one that is a folder."""
     for p in paths:
+        if os.path.isdir(p):
+            raise InputError(f"{what} path listed is a folder, not a file: {p}")
         if not p.is_file():
             raise FileNotFoundError(f"{what} file listed but missing: {p}")

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
+from ..images import read_raw_image
 from .common import FileRecord, FrameSelection, FrameSequence, numbered_frames
 from .files import PathLike, read_depth_png, read_matrix_file, read_pose_file, read_rgb
 
@@ -72,9 +73,7 @@ def _camera_from_4x4(path: Path, width: int, height: int) -> PinholeCamera:
 
 
 def _image_size(path: Path) -> Tuple[int, int]:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"cannot decode image file: {path}")
+    img = read_raw_image(path)
     return int(img.shape[1]), int(img.shape[0])
 
 

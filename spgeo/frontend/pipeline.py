@@ -48,14 +48,17 @@ class FrontEndConfig:
             log-depth: inside a mask both measure the same gradient, and the
             kernel would reach outside the mask at its border.  Front-ends
             that read depth also cut where the measured depth jumps by as much.
-        integration: options of the batched integration.
+        integration: options of the batched integration; front-ends fill pixels
+            whose normal is unknown (``unknown_normals="fill"``) because a
+            :class:`~spgeo.primitives.PrimitiveSet` holds finite log-depth only.
     """
 
     working_size: Optional[Tuple[int, int]] = None
     min_area_frac: float = 1e-3
     split_depth_jumps: bool = True
     jump_threshold: float = 5.7
-    integration: IntegrationConfig = field(default_factory=IntegrationConfig)
+    integration: IntegrationConfig = field(
+        default_factory=lambda: IntegrationConfig(unknown_normals="fill"))
 
     def __post_init__(self) -> None:
         if not 0 <= self.min_area_frac < 1:
@@ -259,7 +262,8 @@ class PrimitiveFrontEnd:
         anchors = self._anchors(parts, parent, seg.anchors, cam)
         # normals with no image-plane component (fronto-parallel) integrate to
         # log-depth 0 exactly and imply no jump: no solve, no log-depth cut
-        flat = bool(np.all(normals[..., :2] == 0.0)) and bool(np.all(np.isfinite(normals)))
+        flat = (bool(np.all(normals[..., :2] == 0.0)) and bool(np.all(normals[..., 2] < 0))
+                and bool(np.all(np.isfinite(normals))))
 
         def integrate(parts: List[np.ndarray], anchors: np.ndarray) -> List[np.ndarray]:
             if flat:

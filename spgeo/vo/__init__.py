@@ -1,7 +1,7 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives.
 
-:class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`),
-its options (:mod:`spgeo.vo.config`), frame-to-keyframe tracking
+:class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`;
+its map initialisation, :mod:`spgeo.vo.initialisation`), its options (:mod:`spgeo.vo.config`), frame-to-keyframe tracking
 (:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
 (:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
 (:mod:`spgeo.vo.mapping`) and the results (:mod:`spgeo.vo.result`).

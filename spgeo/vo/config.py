@@ -9,6 +9,7 @@ from typing import Optional, Tuple
 
 from ..factors.photometric import PhotometricConfig
 from ..sfm import SfMConfig
+from ..validation import InputError
 from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
 
@@ -105,24 +106,24 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         if self.levels < 1:
-            raise ValueError(f"TrackerConfig.levels must be >= 1, got {self.levels}")
+            raise InputError(f"TrackerConfig.levels must be >= 1, got {self.levels}")
         if not self.iterations or any(int(i) < 0 for i in self.iterations):
-            raise ValueError("TrackerConfig.iterations must be a non-empty tuple of counts >= 0")
+            raise InputError("TrackerConfig.iterations must be a non-empty tuple of counts >= 0")
         if not self.subsample or any(int(s) < 1 for s in self.subsample):
-            raise ValueError("TrackerConfig.subsample must be a non-empty tuple of strides >= 1")
+            raise InputError("TrackerConfig.subsample must be a non-empty tuple of strides >= 1")
         if self.brightness_prior_sigma is not None and (
                 len(self.brightness_prior_sigma) != 2
                 or not all(s > 0 for s in self.brightness_prior_sigma)):
-            raise ValueError("TrackerConfig.brightness_prior_sigma must be None or two sigmas > 0")
+            raise InputError("TrackerConfig.brightness_prior_sigma must be None or two sigmas > 0")
         if not (self.lm_lambda_initial > 0 and self.lm_lambda_factor > 1 and self.lm_lambda_max > 0):
-            raise ValueError("TrackerConfig: LM damping parameters must be positive "
+            raise InputError("TrackerConfig: LM damping parameters must be positive "
                              "(lambda_factor > 1)")
         if not 0 <= self.min_valid_fraction <= 1:
-            raise ValueError("TrackerConfig.min_valid_fraction must be in [0, 1]")
+            raise InputError("TrackerConfig.min_valid_fraction must be in [0, 1]")
         if not self.max_relative_cost > 0 or not self.max_cost_increase > 0:
-            raise ValueError("TrackerConfig.max_relative_cost and max_cost_increase must be > 0")
+            raise InputError("TrackerConfig.max_relative_cost and max_cost_increase must be > 0")
         if self.decision_width < 1 or self.decision_iterations < 0:
-            raise ValueError("TrackerConfig: decision_width >= 1 and decision_iterations >= 0 "
+            raise InputError("TrackerConfig: decision_width >= 1 and decision_iterations >= 0 "
                              "required")
 
 
@@ -232,7 +233,11 @@ class OdometryConfig:
             (default 30: 1 s at 30 Hz), or the first frame whose tracking
             against keyframe 0 fails (large motion; its initialisation is
             kept only when the SfM's status is ``"ok"`` and its own baseline
-            reaches ``init_min_parallax``).
+            reaches ``init_min_parallax``).  A keyframe pair without parallax
+            (the SfM flags keyframe 1's view ``"low_parallax"``) never
+            initialises a map: the frames stay ``init`` / ``lost``, the SfM
+            is retried at gaps growing by half (:attr:`Odometry.init_failure`
+            says why; :func:`spgeo.vo.initialisation.init_rejection`).
         init_min_gap: keyframe 1 is at least this many frames after keyframe
             0 (default 3; ``1 <= init_min_gap <= init_max_gap``).
         init_extra_views: frames between keyframes 0 and 1 (evenly spaced)
@@ -293,43 +298,62 @@ class OdometryConfig:
 
     def __post_init__(self) -> None:
         if self.window < 2:
-            raise ValueError(f"OdometryConfig.window must be >= 2, got {self.window}")
+            raise InputError(f"OdometryConfig.window must be >= 2, got {self.window}")
         if not 0 <= self.map_level < self.levels:
-            raise ValueError("OdometryConfig.map_level must be in [0, levels)")
+            raise InputError("OdometryConfig.map_level must be in [0, levels)")
         if (self.map_stride < 1 or self.map_iterations < 1 or self.init_max_gap < 1
                 or self.max_lost_frames < 1):
-            raise ValueError("OdometryConfig: map_stride, map_iterations, init_max_gap and "
+            raise InputError("OdometryConfig: map_stride, map_iterations, init_max_gap and "
                              "max_lost_frames must be >= 1")
         if self.map_chunk < 1:
-            raise ValueError("OdometryConfig.map_chunk must be >= 1")
+            raise InputError("OdometryConfig.map_chunk must be >= 1")
         if not 0 < self.map_pixel_fraction <= 1:
-            raise ValueError("OdometryConfig.map_pixel_fraction must be in (0, 1]")
+            raise InputError("OdometryConfig.map_pixel_fraction must be in (0, 1]")
         if any(b is not None and b < 1 for b in (self.pixel_budget, self.map_pixel_budget)):
-            raise ValueError("OdometryConfig: pixel_budget and map_pixel_budget must be None "
+            raise InputError("OdometryConfig: pixel_budget and map_pixel_budget must be None "
                              "or >= 1")
         if not self.map_lambda_initial > 0:
-            raise ValueError("OdometryConfig.map_lambda_initial must be > 0")
+            raise InputError("OdometryConfig.map_lambda_initial must be > 0")
         if self.init_extra_views < 0:
-            raise ValueError("OdometryConfig.init_extra_views must be >= 0")
+            raise InputError("OdometryConfig.init_extra_views must be >= 0")
         if not 1 <= self.init_min_gap <= self.init_max_gap:
-            raise ValueError("OdometryConfig: 1 <= init_min_gap <= init_max_gap required")
+            raise InputError("OdometryConfig: 1 <= init_min_gap <= init_max_gap required")
         if self.n_support < 0:
-            raise ValueError("OdometryConfig.n_support must be >= 0")
+            raise InputError("OdometryConfig.n_support must be >= 0")
         if not self.scale_prior_weight > 0:
-            raise ValueError("OdometryConfig.scale_prior_weight must be > 0")
+            raise InputError("OdometryConfig.scale_prior_weight must be > 0")
         if not self.render_prior_weight > 0:
-            raise ValueError("OdometryConfig.render_prior_weight must be > 0")
+            raise InputError("OdometryConfig.render_prior_weight must be > 0")
         if self.kf_depth_link_sigma is not None and not self.kf_depth_link_sigma > 0:
-            raise ValueError("OdometryConfig.kf_depth_link_sigma must be > 0 or None")
+            raise InputError("OdometryConfig.kf_depth_link_sigma must be > 0 or None")
         if not self.kf_depth_link_tolerance > 0 or self.kf_depth_link_primitives < 1:
-            raise ValueError("OdometryConfig: kf_depth_link_tolerance > 0 and "
+            raise InputError("OdometryConfig: kf_depth_link_tolerance > 0 and "
                              "kf_depth_link_primitives >= 1 required")
         if not 0 <= self.kf_min_valid_fraction <= 1 or not self.kf_max_translation > 0:
-            raise ValueError("OdometryConfig: kf_min_valid_fraction in [0, 1] and "
+            raise InputError("OdometryConfig: kf_min_valid_fraction in [0, 1] and "
                              "kf_max_translation > 0 required")
         if self.primitive_model not in PRIMITIVE_MODELS:
-            raise ValueError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
+            raise InputError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")
+        for name, ok, expected in (
+                ("init_min_parallax", self.init_min_parallax >= 0, ">= 0"),
+                ("kf_max_rotation_deg", self.kf_max_rotation_deg > 0, "> 0"),
+                ("kf_max_relative_cost", self.kf_max_relative_cost > 0, "> 0"),
+                ("render_tolerance", self.render_tolerance >= 0, ">= 0"),
+                ("gauge_sigma", self.gauge_sigma > 0, "> 0"),
+                ("planar_slope_sigma", self.planar_slope_sigma > 0, "> 0"),
+                ("map_lambda_max", self.map_lambda_max > 0, "> 0"),
+                ("map_relative_tol", self.map_relative_tol >= 0, ">= 0"),
+                ("covisible_min_overlap", 0 <= self.covisible_min_overlap <= 1, "in [0, 1]")):
+            if not ok:    # NaN fails every comparison
+                raise InputError(f"OdometryConfig.{name} must be {expected}, "
+                                 f"got {getattr(self, name)!r}")
+        for name in ("levels", "render_splat", "min_level_pixels"):
+            if getattr(self, name) < 1:
+                raise InputError(f"OdometryConfig.{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.covisible_links < 0:
+            raise InputError(f"OdometryConfig.covisible_links must be >= 0, "
+                             f"got {self.covisible_links!r}")
 
     @property
     def selection(self) -> Optional[PixelSelectionConfig]:

@@ -56,6 +56,7 @@ from ..factors.photometric import PhotometricFactorGroup, PlanarShape, ScaledSha
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
+from ..sfm_graph import gtsam_error_line
 from .config import PRIMITIVE_MODELS, OdometryConfig
 from .tracking import Keyframe, decision_stride, valid_fraction
 
@@ -453,7 +454,7 @@ class WindowMapper:
         try:
             self.smoother.update(graph, values, stamps)
         except RuntimeError as exc:       # e.g. gtsam.IndeterminantLinearSystemException
-            raise _UpdateFailed(str(exc).strip().splitlines()[0]) from exc
+            raise _UpdateFailed(gtsam_error_line(exc)) from exc
         est = self.smoother.calculateEstimate()
         secs = time.perf_counter() - t
         self._refresh(est, kfs)
@@ -494,4 +495,4 @@ class WindowMapper:
 
 
 class _UpdateFailed(RuntimeError):
-    """A smoother update raised (message: gtsam's first line)."""
+    """A smoother update raised (message: :func:`~spgeo.sfm_graph.gtsam_error_line`)."""

@@ -5,7 +5,9 @@ One thread, one call per frame (:meth:`Odometry.track`).  The states and
 their rules (initialisation, tracking with its retries, relocalisation,
 re-initialisation, keyframe decisions, the trajectory that
 :meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
-are :class:`~spgeo.vo.config.OdometryConfig`'s.  Mapping is
+are :class:`~spgeo.vo.config.OdometryConfig`'s.  The initialisation stage is
+:class:`spgeo.vo.initialisation.InitialisationStage` (a base class): a keyframe
+pair without parallax never initialises a map (:attr:`Odometry.init_failure`).  Mapping is
 :class:`spgeo.vo.mapping.WindowMapper`'s (fixed-lag smoother over the last
 ``window`` keyframes and their supporting frames).
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple, Union
@@ -29,9 +32,10 @@ from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
-from ..sfm import few_view_sfm
+from ..validation import InputError
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
+from .initialisation import InitialisationStage
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
@@ -42,7 +46,7 @@ __all__ = ["Odometry"]
 log = logging.getLogger(__name__)
 
 
-class Odometry:
+class Odometry(InitialisationStage):
     """Streaming monocular VO (module docstring).
 
     Args:
@@ -67,6 +71,9 @@ class Odometry:
         self._candidates: List[SupportCandidate] = []
         self._init_buffer: List[tuple] = []   # (frame index, image) before keyframe 1
         self._init_retry_gap = 0    # a lost frame may end the wait from this gap on
+        self._init_wait_until = 0   # past init_max_gap, after a pair without parallax
+        self._init_failure: Optional[str] = None   # why the last keyframe-1 SfM was refused
+        self._init_wait_note: Optional[str] = None  # why the current wait goes on
         self._segment = 0
         self._seg_kfs: List[int] = []          # keyframes of the current segment
         self._last_good: Optional[np.ndarray] = None
@@ -80,15 +87,39 @@ class Odometry:
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
         """Process the next frame (a :class:`~spgeo.frame.Frame`; its depth is
-        read only by a depth-using front-end)."""
+        read only by a depth-using front-end).
+
+        Raises:
+            TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
+            InputError: (a ``ValueError``) the image's (H, W) is not the
+                camera's, it holds NaN / inf, or the timestamp is not finite or
+                not strictly after the previous frame's (seconds, or frame
+                numbers for data without time); the frame is not processed.
+        """
         t0 = time.perf_counter()
+        idx = len(self._frames)
+        if not isinstance(frame, Frame):
+            raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
+                            f"{type(frame).__name__}")
         image = np.asarray(frame.image)
         if image.ndim not in (2, 3) or tuple(image.shape[:2]) != self.camera.shape:
-            raise ValueError(f"Odometry.track: image of shape {image.shape} does not match the "
-                             f"camera {self.camera.shape}")
+            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image of shape "
+                             f"{image.shape} does not match the camera's (H, W) "
+                             f"{self.camera.shape}")
         if not np.all(np.isfinite(image)):
-            raise ValueError("Odometry.track: image contains NaN or inf")
-        idx = len(self._frames)
+            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image contains "
+                             "NaN or inf")
+        try:
+            stamp = float(frame.timestamp)
+        except (TypeError, ValueError):
+            stamp = math.nan
+        if not math.isfinite(stamp):
+            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp "
+                             f"{frame.timestamp!r} is not a finite number")
+        if self._frames and not stamp > self._frames[-1].timestamp:
+            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp {stamp!r} "
+                             f"is not after the previous frame's {self._frames[-1].timestamp!r}: "
+                             "timestamps must be strictly increasing")
         timings: Dict[str, float] = {}
         if idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
@@ -163,9 +194,35 @@ class Odometry:
         """The :class:`FrameResult` of every frame so far."""
         return list(self._frames)
 
+    @property
+    def initialised(self) -> bool:
+        """Whether the current map segment has its keyframe pair (keyframes 0
+        and 1): until then no frame is tracked against a map and, with a
+        monocular front-end, keyframe 0 has no depth."""
+        return len(self._seg_kfs) >= 2
+
+    @property
+    def init_failure(self) -> Optional[str]:
+        """Why the current segment is not initialised (None when it is, or
+        before its second frame)."""
+        return None if self.initialised else (self._init_failure or self._init_wait_note)
+
+    def keyframes_with_depth(self) -> List[int]:
+        """Indices (as in :attr:`keyframes`) of the keyframes whose primitives
+        carry depth: all with a depth-using front-end; monocular, those of map
+        segments that were initialised (a segment's lone keyframe 0 has only
+        its unscaled shapes: its cloud would be a surface at an arbitrary depth)."""
+        if self.frontend.uses_depth:
+            return list(self._kf_order)
+        per_segment: Dict[int, int] = {}
+        for k in self._kf_order:
+            per_segment[self._kfs[k].segment] = per_segment.get(self._kfs[k].segment, 0) + 1
+        return [k for k in self._kf_order if per_segment[self._kfs[k].segment] >= 2]
+
     def report(self) -> dict:
         """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
-        initialisation reports, configuration."""
+        initialisation reports (``initialised``: :attr:`initialised`;
+        ``init_failure``: :attr:`init_failure`), configuration."""
         res = self.result()
         tot = [f.timings.get("total", 0.0) for f in self._frames]
         n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
@@ -173,6 +230,7 @@ class Odometry:
         return {
             "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
             "n_segments": self._segment + 1,
+            "initialised": self.initialised, "init_failure": self.init_failure,
             "status_counts": res.status_counts(),
             "seconds_total": float(np.sum(tot)),
             "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
@@ -192,8 +250,9 @@ class Odometry:
     def save(self, directory: Union[str, Path], clouds: bool = True,
              extra_report: Optional[dict] = None) -> Dict[str, object]:
         """:func:`spgeo.vo.result.save_run` of :meth:`result`, :meth:`report`
-        updated with ``extra_report`` and, with ``clouds``, the keyframes."""
-        kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self._kf_order]
+        updated with ``extra_report`` and, with ``clouds``, the keyframes that
+        carry depth (:meth:`keyframes_with_depth`)."""
+        kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self.keyframes_with_depth()]
         return save_run(directory, self.result(), {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
 
@@ -222,7 +281,8 @@ class Odometry:
         self._seg_kfs = [k]
         self._candidates.clear()
         self._init_buffer.clear()
-        self._init_retry_gap = 0
+        self._init_retry_gap = self._init_wait_until = 0
+        self._init_failure = self._init_wait_note = None
         self._last_good, self._prev_good = np.array(T_world, dtype=float), None
         self._brightness = np.zeros(2)
         self._n_lost = 0
@@ -254,123 +314,6 @@ class Odometry:
     def _accept(self, tr: TrackResult) -> None:
         self._prev_good, self._last_good = self._last_good, tr.T_world_frame.copy()
         self._brightness = np.asarray(tr.brightness, dtype=float).copy()
-
-    def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        kf0 = self._kfs[self._seg_kfs[0]]
-        t = time.perf_counter()
-        tr = self._track_against(kf0.keyframe, frame.image)
-        timings["track"] = time.perf_counter() - t
-        T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
-        if tr.ok:
-            self._accept(tr)
-            self._n_lost = 0
-        else:
-            self._n_lost += 1
-        parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
-                    if tr.ok else 0.0)
-        gap = idx - kf0.frame
-        cfg = self.config
-        # keyframe 1 must still overlap keyframe 0: the overlap criteria of
-        # keyframes (valid fraction, rotation) end the wait too
-        rot = rotation_angle_deg(T_kf0_f[:3, :3])
-        overlap_ending = tr.ok and (tr.valid_fraction < cfg.kf_min_valid_fraction
-                                    or rot > cfg.kf_max_rotation_deg)
-        # a frame lost against keyframe 0's unscaled shapes (large motion) ends
-        # the wait too (retries spaced out); its SfM must then pass its own checks
-        early = not tr.ok and gap < cfg.init_max_gap
-        wait = gap < cfg.init_max_gap and not overlap_ending and (
-            (tr.ok and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
-            or (early and gap < self._init_retry_gap))
-        if wait:
-            self._init_buffer.append((idx, np.asarray(frame.image)))
-            if tr.ok:
-                self._rel[idx] = (kf0.index, T_kf0_f, kf0.keyframe.median_depth)
-            pose = tr.T_world_frame if tr.ok else self._last_good
-            return FrameResult(idx, float(frame.timestamp), pose.copy(),
-                               FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
-        # ---- SfM: keyframe 0 of the segment (reference), this frame and extra views
-        t = time.perf_counter()
-        sfm_cfg = dataclasses.replace(self.config.sfm, reset_scales=not self.frontend.uses_depth)
-        views, init = self._init_views(frame.image, idx, kf0.frame, T_kf0_f if tr.ok else None)
-        prims0 = kf0.keyframe.primitives
-        sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
-        timings["init"] = time.perf_counter() - t
-        finite = bool(np.all(np.isfinite(sfm.T_ref_view[0])))
-        if not tr.ok and finite:  # the SfM's own baseline over its median depth
-            parallax = float(np.linalg.norm(sfm.T_ref_view[0][:3, 3]) / np.median(
-                np.exp(sfm.primitives.scaled_log_depth())))
-        self._sfm_reports.append({
-            "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
-            "n_views": len(views),
-            **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
-        failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
-                                                         or parallax < cfg.init_min_parallax))
-        if failed or not finite:
-            self._init_retry_gap = gap + max(1, gap // 2)
-            log.warning("two-view initialisation failed (%s) at frame %d; retrying later",
-                        sfm.status, idx)
-            self._init_buffer.append((idx, np.asarray(frame.image)))
-            self._n_lost += 1
-            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST,
-                               track=tr)
-        new_prims = sfm.primitives
-        if self.config.primitive_model != "integrated":
-            new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
-        T_w0 = kf0.keyframe.T_world_kf
-        if not self.frontend.uses_depth and self._segment > 0:
-            # a re-initialised monocular segment keeps the previous map's depth scale
-            med = np.median(np.exp(prims0.scaled_log_depth()))
-            med_new = np.median(np.exp(new_prims.scaled_log_depth()))
-            c = float(np.log(med / med_new))
-            new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
-            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float).copy()
-            T_01[:3, 3] *= np.exp(c)
-        else:
-            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
-        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels,
-                                      self.config.selection)
-        T1 = T_w0 @ T_01
-        # re-track the buffered frames against the solved keyframe 0
-        prev = None
-        last = T_w0.copy()
-        for j, img in self._init_buffer:
-            tj = track_frame(kf0.keyframe, img, constant_velocity_guess(last, prev),
-                             self._brightness, self.config.tracker)
-            if tj.ok:
-                prev, last = last, tj.T_world_frame
-                self._frames[j].T_world_cam = tj.T_world_frame.copy()
-                self._frames[j].status = FrameStatus.INIT
-                self._rel[j] = (kf0.index, invert_pose(T_w0) @ tj.T_world_frame,
-                                kf0.keyframe.median_depth)
-                self._candidates.append(SupportCandidate(j, img, self._rel[j][1],
-                                                   np.asarray(tj.brightness, float)))
-            else:
-                self._frames[j].status = FrameStatus.LOST
-                self._frames[j].T_world_cam = last.copy()
-                self._rel.pop(j, None)
-        self._init_buffer.clear()
-        self._last_good, self._prev_good = T1.copy(), last.copy()
-        self._n_lost = 0
-        return self._new_keyframe(frame, idx, T1, timings, track=tr)
-
-    def _init_views(self, image: np.ndarray, idx: int, frame0: int,
-                    T_kf0_f: Optional[np.ndarray]):
-        """Supporting views of the initialisation: keyframe 1's image first,
-        then ``init_extra_views`` buffered frames evenly spaced between keyframes
-        0 and 1, with initial poses from keyframe 1's tracked pose (the extra
-        views at its motion interpolated in time), or None (the SfM's own
-        two-view initialisation) when keyframe 1 was not tracked."""
-        buf = self._init_buffer
-        n = min(self.config.init_extra_views, len(buf))
-        picks = sorted({int(round(q * len(buf) / (n + 1))) - 1 for q in range(1, n + 1)}) if n else []
-        picks = [p for p in picks if 0 <= p < len(buf)]
-        views = [image] + [buf[p][1] for p in picks]
-        if T_kf0_f is None:
-            return views, None
-        xi = gtsam.Pose3.Logmap(gtsam.Pose3(T_kf0_f))
-        init = [T_kf0_f] + [gtsam.Pose3.Expmap((buf[p][0] - frame0) / max(idx - frame0, 1) * xi)
-                            .matrix() for p in picks]
-        return views, init
 
     def _relocalise(self, image: np.ndarray) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:
         """Track against the window's older keyframes, newest first."""

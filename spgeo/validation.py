@@ -1,0 +1,299 @@
+"""Input validation at the library's boundaries (readers, public functions, the CLI).
+
+Every check raises :class:`InputError` (a ``ValueError``) whose message names the
+file or value and says what was expected; a missing file raises
+``FileNotFoundError``, a wrong Python type ``TypeError``.  The checks take plain
+values / arrays plus ``what`` (how the message names the input: a path, an
+argument name), so every boundary can call them without building objects first.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["InputError", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
+           "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
+           "check_intrinsics", "check_camera", "check_real_array", "check_sparse_depth",
+           "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes"]
+
+log = logging.getLogger(__name__)
+
+#: plausible field of view of a pinhole (rectilinear) camera, degrees: each axis at most
+#: the upper bound (wider needs a fisheye model), the wider axis at least the lower one
+FOV_RANGE_DEG: Tuple[float, float] = (10.0, 160.0)
+#: plausible ``fx / fy`` (square pixels give 1)
+FOCAL_RATIO_RANGE: Tuple[float, float] = (0.5, 2.0)
+#: the principal point may lie outside the image by at most this fraction of its size
+PRINCIPAL_POINT_MARGIN = 0.25
+#: a sparse depth whose median valid value exceeds this (metres) is taken for millimetres
+MAX_MEDIAN_DEPTH_M = 100.0
+#: normals shorter than this are unknown (NaN); longer ones are normalised
+MIN_NORMAL_LENGTH = 1e-3
+#: normal lengths outside this range are normalised with a logged warning
+NORMAL_LENGTH_WARN: Tuple[float, float] = (0.5, 2.0)
+
+
+class InputError(ValueError):
+    """Bad input: the message names the file or value and says what was expected."""
+
+
+# ------------------------------------------------------------------ cameras
+def _fov_deg(focal: float, size: int) -> float:
+    return math.degrees(2.0 * math.atan(size / (2.0 * focal)))
+
+
+def check_intrinsics(fx, fy, cx, cy, width, height, what: str = "intrinsics") -> None:
+    """Raise :class:`InputError` unless pinhole intrinsics (pixels) are plausible.
+
+    Plausible means: ``fx``, ``fy`` finite and > 0; ``cx``, ``cy`` finite;
+    ``width``, ``height`` positive integers; the field of view
+    ``2 atan(size / (2 f))`` of each axis at most ``FOV_RANGE_DEG[1]`` and that of
+    the wider axis at least ``FOV_RANGE_DEG[0]`` (strips and crops may be narrow
+    along their short side); ``fx / fy`` within ``FOCAL_RATIO_RANGE``; the
+    principal point inside the image or outside it by at most
+    ``PRINCIPAL_POINT_MARGIN`` of the width / height.  All of these are
+    invariant under :meth:`~spgeo.camera.PinholeCamera.resized` (the principal
+    point scales with the image).  Intrinsics of order 1 (normalised by the image
+    size) are named as such in the message.
+    """
+    vals = {}
+    for name, value in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)):
+        try:
+            vals[name] = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"{what}: {name} must be a number, got {value!r}") from None
+        if not math.isfinite(vals[name]) or (name in ("fx", "fy") and vals[name] <= 0):
+            kind = "finite and > 0" if name in ("fx", "fy") else "finite"
+            raise InputError(f"{what}: {name} must be {kind}, got {value!r}")
+    for name, value in (("width", width), ("height", height)):
+        try:
+            ok = int(value) == value and int(value) > 0
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise InputError(f"{what}: {name} must be a positive integer, got {value!r}")
+    fx, fy, cx, cy = vals["fx"], vals["fy"], vals["cx"], vals["cy"]
+    w, h = int(width), int(height)
+    desc = f"{what} fx={fx:g}, fy={fy:g}, cx={cx:g}, cy={cy:g} for a {w}x{h} image"
+    hint = ""
+    if max(fx, fy, abs(cx), abs(cy)) <= 2.0 and max(w, h) >= 16:
+        hint = (f"; looks normalised: multiply by the image size (fx, cx by the width {w}, "
+                f"fy, cy by the height {h})")
+    lo, hi = FOV_RANGE_DEG
+    fov_u, fov_v = _fov_deg(fx, w), _fov_deg(fy, h)
+    for axis, fov in (("horizontal", fov_u), ("vertical", fov_v)):
+        if fov > hi:
+            raise InputError(f"{desc}: {axis} field of view {fov:.1f} deg is wider than a "
+                             f"pinhole camera's {hi:g} deg (focal length too small){hint}")
+    if max(fov_u, fov_v) < lo:
+        raise InputError(f"{desc}: field of view {max(fov_u, fov_v):.2f} deg is narrower than "
+                         f"{lo:g} deg (focal length too large: intrinsics of a larger image?)")
+    rlo, rhi = FOCAL_RATIO_RANGE
+    if not rlo <= fx / fy <= rhi:
+        raise InputError(f"{desc}: fx / fy = {fx / fy:.3g} is outside [{rlo:g}, {rhi:g}] "
+                         f"(pixels that far from square are implausible){hint}")
+    m = PRINCIPAL_POINT_MARGIN
+    for name, c, size in (("cx", cx, w), ("cy", cy, h)):
+        if not -m * size - 0.5 <= c <= (1 + m) * size - 0.5:
+            raise InputError(f"{desc}: principal point {name}={c:g} is outside the image by "
+                             f"more than {100 * m:g} % of its size (expected about "
+                             f"{(size - 1) / 2:g}){hint}")
+
+
+def check_camera(camera, what: str = "camera"):
+    """Return ``camera`` if it is a :class:`~spgeo.camera.PinholeCamera`, else
+    raise ``TypeError`` naming the type it got."""
+    from .camera import PinholeCamera
+
+    if not isinstance(camera, PinholeCamera):
+        raise TypeError(f"{what} must be a spgeo.PinholeCamera, got {type(camera).__name__} "
+                        f"({camera!r:.60})")
+    return camera
+
+
+# ------------------------------------------------------------------ arrays
+def check_real_array(array, what: str) -> np.ndarray:
+    """``np.asarray(array)``; :class:`InputError` unless its dtype is real numeric
+    (bool, complex, object and string arrays are refused before any cast)."""
+    a = np.asarray(array)
+    if a.dtype == bool or not np.issubdtype(a.dtype, np.number) \
+            or np.issubdtype(a.dtype, np.complexfloating):
+        raise InputError(f"{what}: expected a real numeric array, got dtype {a.dtype}")
+    return a
+
+
+def check_sparse_depth(depth, what: str = "sparse depth",
+                       expected_shape: Optional[Sequence[int]] = None) -> np.ndarray:
+    """Validate an (H, W) metric sparse depth map; return it as float64 with missing = 0.
+
+    0 and NaN mean "no measurement".  Raises :class:`InputError` for: a dtype that
+    is not real floating point (bool, object, complex; integer arrays hold raw
+    sensor units such as millimetres), not 2-D or not ``expected_shape`` (H, W),
+    inf, negative values, no valid (> 0) point, or a median valid value above
+    ``MAX_MEDIAN_DEPTH_M`` (millimetres given for metres).
+    """
+    d = check_real_array(depth, what)
+    if np.issubdtype(d.dtype, np.integer):
+        raise InputError(f"{what}: integer dtype {d.dtype} looks like raw sensor units "
+                         "(millimetres); give metres as a float array (e.g. raw / 1000)")
+    if d.ndim != 2 or d.size == 0:
+        raise InputError(f"{what}: expected a non-empty (H, W) array, got shape {d.shape}")
+    if expected_shape is not None and d.shape != tuple(expected_shape):
+        raise InputError(f"{what}: shape {d.shape} differs from the image's "
+                         f"{tuple(expected_shape)}")
+    d = d.astype(np.float64)
+    n_inf = int(np.isinf(d).sum())
+    if n_inf:
+        raise InputError(f"{what}: {n_inf} values are inf (use 0 or NaN for missing)")
+    d = np.nan_to_num(d, nan=0.0)
+    n_neg = int((d < 0).sum())
+    if n_neg:
+        raise InputError(f"{what}: {n_neg} values are negative (min {d.min():g}); depths are "
+                         "metres > 0, with 0 or NaN for missing")
+    valid = d[d > 0]
+    if valid.size == 0:
+        raise InputError(f"{what}: no valid point (all zero / NaN): nothing to complete from")
+    med = float(np.median(valid))
+    if med > MAX_MEDIAN_DEPTH_M:
+        raise InputError(f"{what}: median depth {med:g} looks like millimetres; the values "
+                         f"must be metres (median above {MAX_MEDIAN_DEPTH_M:g} m)")
+    return d
+
+
+def check_normals(normals, what: str = "normals",
+                  expected_shape: Optional[Sequence[int]] = None) -> np.ndarray:
+    """Camera-frame normals (..., 3) -> float64 unit normals, NaN rows where unknown.
+
+    A normal is unknown when a component is NaN / inf or its length is below
+    ``MIN_NORMAL_LENGTH`` (a zero vector has no direction: it becomes NaN, not a
+    fronto-parallel guess).  Other normals are divided by their length; when some
+    lengths lie outside ``NORMAL_LENGTH_WARN`` a warning with their count is
+    logged.  Raises :class:`InputError` for a non-real dtype, a last axis that
+    is not 3, or a shape other than ``expected_shape``.
+    """
+    n = check_real_array(normals, what)
+    if n.ndim < 1 or n.shape[-1] != 3:
+        raise InputError(f"{what}: expected shape (..., 3), got {n.shape}")
+    if expected_shape is not None and n.shape != tuple(expected_shape):
+        raise InputError(f"{what}: shape {n.shape} differs from the expected "
+                         f"{tuple(expected_shape)} (the camera's (H, W, 3))")
+    n = n.astype(np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        length = np.sqrt(np.einsum("...i,...i->...", n, n))
+        known = np.isfinite(length) & (length >= MIN_NORMAL_LENGTH)
+    lo, hi = NORMAL_LENGTH_WARN
+    off = known & ((length < lo) | (length > hi))
+    if np.any(off):
+        log.warning("%s: %d normals of length outside [%g, %g] were normalised", what,
+                    int(off.sum()), lo, hi)
+    return np.where(known[..., None], n / np.where(known, length, 1.0)[..., None], np.nan)
+
+
+def check_mask_stack(masks, shape: Tuple[int, int], what: str = "masks") -> np.ndarray:
+    """(N, H, W) or (H, W) masks of image ``shape`` -> (N, H, W) bool.
+
+    Accepts bool arrays and real arrays holding only 0 and 1; raises
+    :class:`InputError` for another shape, dtype or values.
+    """
+    m = np.asarray(masks)
+    if m.ndim == 2:
+        m = m[None]
+    if m.ndim != 3 or m.shape[1:] != tuple(shape):
+        raise InputError(f"{what} must be (N, {shape[0]}, {shape[1]}), got {np.shape(masks)}")
+    if m.dtype == bool:
+        return m
+    check_real_array(m, what)
+    if not np.all((m == 0) | (m == 1)):
+        raise InputError(f"{what}: dtype {m.dtype} with values other than 0 and 1; "
+                         "expected a boolean mask")
+    return m.astype(bool)
+
+
+# ------------------------------------------------------------------ files
+def check_input_file(path, what: str = "input") -> str:
+    """Return ``os.fspath(path)`` if it names a readable, non-empty regular file.
+
+    Raises ``FileNotFoundError`` when nothing is there, :class:`InputError` for a
+    folder, something that is not a regular file, a file this process may not
+    read (permission denied) or an empty file; messages name ``what`` and the path.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{what} file not found: {path}")
+    if os.path.isdir(path):
+        raise InputError(f"{what} path {path} is a folder, not a file")
+    if not os.path.isfile(path):
+        raise InputError(f"{what} path {path} is not a regular file")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"cannot read {what} file {path} (permission denied)")
+    if os.path.getsize(path) == 0:
+        raise InputError(f"{what} file {path} is empty (0 bytes)")
+    return path
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_JPEG_STANDALONE = frozenset([0x01] + list(range(0xD0, 0xD8)))
+
+
+def _png_complete(data: bytes) -> bool:
+    """True when the chunks of a PNG reach an IEND chunk inside ``data``."""
+    pos = len(_PNG_SIGNATURE)
+    while pos + 12 <= len(data):
+        end = pos + 12 + int.from_bytes(data[pos:pos + 4], "big")
+        if end > len(data):
+            return False
+        if data[pos + 4:pos + 8] == b"IEND":
+            return True
+        pos = end
+    return False
+
+
+def _jpeg_complete(data: bytes) -> bool:
+    """True when a JPEG's header segments lead to a scan followed by an EOI marker."""
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            return False
+        marker = data[pos + 1]
+        if marker == 0xFF:            # fill byte
+            pos += 1
+        elif marker == 0xDA:          # start of scan: entropy-coded data up to EOI
+            return data.find(b"\xff\xd9", pos + 2) != -1
+        elif marker in _JPEG_STANDALONE:
+            pos += 2
+        else:
+            pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    return False
+
+
+def read_image_bytes(path, what: str = "image") -> bytes:
+    """The bytes of an image file, after :func:`check_input_file`.
+
+    PNG and JPEG files (recognised by their signature) must be complete: a PNG
+    must reach its IEND chunk, a JPEG its end-of-image marker after the first
+    scan; otherwise :class:`InputError` says the file is truncated or corrupt
+    (decoders would otherwise return a partly grey image with a warning that
+    names no file).  Bytes after the end marker are allowed.
+    """
+    path = check_input_file(path, what)
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except PermissionError:
+        raise InputError(f"cannot read {what} file {path} (permission denied)") from None
+    except OSError as exc:
+        raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
+    if data.startswith(_PNG_SIGNATURE):
+        fmt, complete = "PNG", _png_complete(data)
+    elif data.startswith(b"\xff\xd8\xff"):
+        fmt, complete = "JPEG", _jpeg_complete(data)
+    else:
+        return data
+    if not complete:
+        raise InputError(f"{what} file {path} is a truncated or corrupt {fmt} "
+                         f"({len(data)} bytes, no end marker)")
+    return data
