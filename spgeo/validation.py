@@ -15,7 +15,7 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["InputError", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
+__all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
            "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
            "check_intrinsics", "check_camera", "check_real_array", "check_sparse_depth",
            "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes"]
@@ -25,6 +25,8 @@ log = logging.getLogger(__name__)
 #: plausible field of view of a pinhole (rectilinear) camera, degrees: each axis at most
 #: the upper bound (wider needs a fisheye model), the wider axis at least the lower one
 FOV_RANGE_DEG: Tuple[float, float] = (10.0, 160.0)
+#: the largest image / processing width or height (pixels) the commands accept
+MAX_IMAGE_SIDE = 8192
 #: plausible ``fx / fy`` (square pixels give 1)
 FOCAL_RATIO_RANGE: Tuple[float, float] = (0.5, 2.0)
 #: the principal point may lie outside the image by at most this fraction of its size

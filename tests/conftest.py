@@ -84,3 +84,34 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if is_slow(item):
             item.add_marker(pytest.mark.slow)
+
+
+# ------------------------------------------------------------------ small input files
+def write_synthetic_views(folder: Path, seed: int, n: int = 3, size=(64, 48)):
+    """``n`` views of synthetic room ``seed`` as PNGs ``folder/f{i}.png`` (every 4th
+    pose of its hand-held trajectory), ``folder/sparse.npy`` (metres, every 5th
+    pixel of view 0's depth, 0 = missing) and ``folder/camera.json``; returns the
+    camera and the image paths (command-line inputs for the bad-input tests)."""
+    import json
+
+    import cv2
+    import numpy as np
+
+    from spgeo import synthetic
+
+    cam = synthetic.default_camera(*size)
+    scene = synthetic.SyntheticScene.generate(seed)
+    paths = []
+    for i, T in enumerate(synthetic.make_trajectory(4 * n - 3, seed)[::4]):
+        view = scene.render(cam, T)
+        paths.append(folder / f"f{i}.png")
+        cv2.imwrite(str(paths[-1]), cv2.cvtColor(np.round(view.rgb * 255).astype(np.uint8),
+                                                 cv2.COLOR_RGB2BGR))
+        if i == 0:
+            sparse = np.zeros_like(view.depth)
+            sparse[::5, ::5] = np.nan_to_num(view.depth[::5, ::5])
+            np.save(folder / "sparse.npy", sparse)
+    (folder / "camera.json").write_text(json.dumps(
+        {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
+         "height": cam.height}))
+    return cam, paths

@@ -128,7 +128,7 @@ def test_sfm_result_export(tmp_path):
     fe = make_frontend("depth", FrontEndConfig(working_size=CAM.size))
     prims = fe.primify(views[0].rgb, big, views[0].depth)
     assert prims.camera.shape == CAM.shape
-    result = SimpleNamespace(camera=prims.camera, primitives=prims,
+    result = SimpleNamespace(camera=prims.camera, primitives=prims, supported_primitives=prims,
                              T_ref_view=[relative_pose(T_ref, T) for T in T_views])
     names = ["ref.jpg", "a.png", "b"]
     model = export_sfm_result(tmp_path / "m", result, [v.rgb for v in views], names)

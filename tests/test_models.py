@@ -157,7 +157,7 @@ def test_cli_list_and_path(cache, capsys):
     assert str(cache) in out and "sam-vit-h-encoder" in out and "efficientsam-vitt-decoder" in out
 
     args = parser.parse_args(["models", "path", "efficientsam-vitt-encoder"])
-    assert args.func(args) == 1
+    assert args.func(args) == 3       # finished, flagged: not in the cache
     assert "(missing)" in capsys.readouterr().out
     cache.mkdir(parents=True)
     (cache / "efficient_sam_vitt_encoder.onnx").write_bytes(b"x")
@@ -165,7 +165,7 @@ def test_cli_list_and_path(cache, capsys):
     assert capsys.readouterr().out.strip() == str(cache / "efficient_sam_vitt_encoder.onnx")
 
     args = parser.parse_args(["models", "path", "nope"])
-    assert args.func(args) == 1 and "unknown model" in capsys.readouterr().out
+    assert args.func(args) == 2 and "unknown model" in capsys.readouterr().err
 
 
 def test_cli_fetch_arguments(cache, capsys):
@@ -173,8 +173,8 @@ def test_cli_fetch_arguments(cache, capsys):
     args = parser.parse_args(["models", "fetch", "metric3d-vit-small", "--force",
                               "--no-progress"])
     assert args.force and not args.allow_unverified and args.name == "metric3d-vit-small"
-    assert args.func(args) == 1  # no published sha256 and no --allow-unverified: no download
-    assert "--allow-unverified" in capsys.readouterr().out
+    assert args.func(args) == 2  # no published sha256 and no --allow-unverified: no download
+    assert "--allow-unverified" in capsys.readouterr().err
     args = parser.parse_args(["models", "fetch", "x", "--allow-unverified"])
     assert args.allow_unverified
     with pytest.raises(SystemExit):

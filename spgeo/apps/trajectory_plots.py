@@ -14,13 +14,14 @@ they raise ``ImportError`` naming it.
 """
 from __future__ import annotations
 
-import os
-import tempfile
+import io
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
+
+from ..io.outputs import write_bytes_atomic
 
 __all__ = ["TrajectoryPlots", "write_trajectory_plots", "write_reconstruction_topview",
            "TOPVIEW_NAME", "ERROR_NAME"]
@@ -65,19 +66,12 @@ def _figure(size_px: Tuple[int, int], dpi: int):
 
 
 def _save_atomic(fig, path: Path) -> Path:
-    """``fig`` as PNG at ``path`` (folder created), via a temporary file and ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=fig.dpi)
-        os.chmod(tmp, 0o644)    # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """``fig`` as PNG at ``path`` (folder created), atomically
+    (:func:`spgeo.io.outputs.write_bytes_atomic`)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    write_bytes_atomic(path, buf.getvalue(), "plot")
+    return Path(path)
 
 
 def _top_plane(positions: np.ndarray) -> Tuple[int, int]:

@@ -13,7 +13,8 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth
   monocular front-end (the depth files are not even opened).
 * :func:`run_vo`: :func:`run_odometry` returning ``(odometry, ground truth,
   FPS)`` (the former ``spgeo.evaluation.vo_run.run_vo``).
-* :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
+* :class:`VORun` (:mod:`spgeo.apps.vo_outcome`, re-exported here) holds the result:
+  :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
   ``evo_ape -as`` equivalent) over the frames not flagged ``"lost"``.
 * :meth:`VORun.save`: ``trajectory.txt`` (every processed frame, TUM format,
   camera-to-world ``T_world_cam``), ``keyframes.txt``,
@@ -37,11 +38,11 @@ from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
-from ..cli.config import config_to_dict
 from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
-from ..vo import Odometry, OdometryConfig, OdometryResult
-from ..vo.result import write_keyframe_clouds
+from ..vo import Odometry, OdometryConfig
+from ..validation import MAX_IMAGE_SIDE, InputError
+from .vo_outcome import ATE_LABELS, VORun
 
 __all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
            "blas_threads", "ATE_LABELS"]
@@ -51,8 +52,6 @@ log = logging.getLogger(__name__)
 #: Per-frame hook of :func:`run_odometry`: ``(frame, frame_result, odometry) -> None``.
 FrameHook = Callable[[Frame, Any, Any], None]
 
-#: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
-ATE_LABELS = ("per-frame", "keyframe-only")
 
 
 @dataclass(frozen=True)
@@ -95,9 +94,10 @@ class VORunConfig:
 
     def __post_init__(self) -> None:
         res = tuple(self.resolution)
-        if len(res) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in res):
-            raise ValueError(f"VORunConfig.resolution must be (width, height) positive integers, "
-                             f"got {self.resolution!r}")
+        if len(res) != 2 or not all(isinstance(v, (int, np.integer))
+                                    and 0 < v <= MAX_IMAGE_SIDE for v in res):
+            raise InputError(f"VORunConfig.resolution must be (width, height) integers in "
+                             f"[1, {MAX_IMAGE_SIDE}] pixels, got {self.resolution!r}")
         object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
         if self.frontend not in FRONTENDS:
             raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
@@ -121,200 +121,6 @@ def make_vo_frontend(config: VORunConfig = VORunConfig()) -> PrimitiveFrontEnd:
         normals = {"name_or_path": config.normal_model} if config.normal_model else None
     return make_frontend(config.frontend, FrontEndConfig(working_size=config.resolution),
                          sam=sam, normals=normals)
-
-
-@dataclass
-class VORun:
-    """Outcome of :func:`run_odometry`.
-
-    Attributes:
-        odometry: the :class:`~spgeo.vo.Odometry` after the last frame
-            (trajectory, keyframes, :meth:`Odometry.save`).
-        gt_poses: per processed frame, the ground-truth camera-to-world 4x4
-            ``T_world_cam`` (data-set world, metres) or None where absent.
-        timestamps: (n,) frame timestamps (seconds; frame numbers for data
-            sets without timestamps, e.g. 7-Scenes).
-        names: per-frame names (file stems).
-        wall_seconds: wall time of the whole loop (frame loading, resizing and
-            VO), seconds.
-        fps: processed frames per wall-clock second (``n / wall_seconds``).
-        config: the :class:`VORunConfig` used.
-        keyframe_images: keyframe index -> the resized RGB image (float32
-            [0, 1]) the keyframe was made from (colours of the point clouds
-            when :meth:`Odometry.save` writes none).
-    """
-
-    odometry: Odometry
-    gt_poses: List[Optional[np.ndarray]]
-    timestamps: np.ndarray
-    names: List[str]
-    wall_seconds: float
-    fps: float
-    config: VORunConfig
-    keyframe_images: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.timestamps)
-
-    @property
-    def has_ground_truth(self) -> bool:
-        """True when at least one frame has a ground-truth pose."""
-        return any(T is not None for T in self.gt_poses)
-
-    def result(self) -> OdometryResult:
-        """The VO trajectory (:meth:`Odometry.result`)."""
-        return self.odometry.result()
-
-    def status_counts(self) -> Dict[str, int]:
-        """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``, ...)."""
-        return dict(Counter(self.result().statuses))
-
-    def ate(self) -> Optional[Dict[str, object]]:
-        """Sim(3)-aligned ATE of the frames not flagged ``"lost"``.
-
-        Returns ``{"per-frame": AteResult, "keyframe-only": AteResult or None}``
-        (:class:`spgeo.evaluation.trajectory.AteResult`; errors in ground-truth
-        metres; keyframe-only aligns on the keyframes alone and is None with
-        fewer than 3 keyframes), or None when no frame has ground truth or
-        fewer than 3 poses can be evaluated (logged).
-        """
-        from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
-
-        if not self.has_ground_truth:
-            return None
-        res = self.result()
-        keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
-        has_gt = [i for i, T in enumerate(self.gt_poses) if T is not None]
-        gt = (self.timestamps[has_gt], np.array([self.gt_poses[i] for i in has_gt]))
-        try:
-            return ate_per_frame_and_keyframes(
-                (res.timestamps[keep], res.poses[keep]), gt, res.is_keyframe[keep],
-                max_time_diff=self.config.ate_max_time_diff)
-        except ValueError as exc:
-            log.warning("ATE not available: %s", exc)
-            return None
-
-    def ate_report(self, ate: Optional[Dict[str, object]] = None) -> Optional[Dict[str, object]]:
-        """JSON-friendly :meth:`ate`: per label the summary (``rmse_m``,
-        ``rmse_percent_of_length``, ``trajectory_length_m``, ``scale``, ...) or
-        None, plus ``n_lost_excluded``; None without ground truth.  ``ate``: a
-        result of :meth:`ate` to reuse (default: computed here)."""
-        if ate is None:
-            ate = self.ate()
-        if ate is None:
-            return None
-        out: Dict[str, object] = {lab: (None if ate.get(lab) is None else ate[lab].summary())
-                                  for lab in ATE_LABELS}
-        out["n_lost_excluded"] = int(sum(s == "lost" for s in self.result().statuses))
-        out["alignment"] = "Sim(3) (Umeyama, evo_ape -as), translation RMSE"
-        return out
-
-    def summary_lines(self, ate: Optional[Dict[str, object]] = None) -> List[str]:
-        """Short human-readable summary (frames, lost, keyframes, FPS, ATE lines).
-
-        ``ate``: a result of :meth:`ate` to reuse (default: computed here).
-        """
-        res = self.result()
-        n_lost = int(sum(s == "lost" for s in res.statuses))
-        w, h = self.config.resolution
-        lines = [f"{self.n_frames} frames, {n_lost} lost, {int(res.is_keyframe.sum())} "
-                 f"keyframes, {self.fps:.1f} FPS (front-end {self.frontend_name}, {w}x{h})"]
-        if ate is None:
-            ate = self.ate()
-        if ate is None:
-            lines.append("ATE: no ground truth" if not self.has_ground_truth
-                         else "ATE: not available (too few poses)")
-            return lines
-        for lab in ATE_LABELS:
-            a = ate.get(lab)
-            if a is None:
-                lines.append(f"Sim(3) ATE {lab}: not available (fewer than 3 keyframes)")
-            else:
-                lines.append(f"Sim(3) ATE {lab}: {a.rmse:.4f} m = "
-                             f"{a.rmse_percent_of_length:.2f}% of {a.trajectory_length:.3f} m "
-                             f"({a.n_associated} poses, scale {a.scale:.4g})")
-        return lines
-
-    @property
-    def frontend_name(self) -> str:
-        fe = self.odometry.frontend
-        return str(getattr(fe, "name", "") or type(fe).__name__)
-
-    def save(self, directory: Union[str, Path], with_ate: bool = True,
-             ate: Optional[Dict[str, object]] = None) -> Dict[str, object]:
-        """Write the run to ``directory`` (created).
-
-        Files: :meth:`Odometry.save`'s ``trajectory.txt`` (every processed
-        frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
-        ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
-        keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
-        ``"run"`` (resolution, front-end, wall time, FPS), ``"run_config"``
-        (this :class:`VORunConfig` without ``odometry``) and, with
-        ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
-        report and the plots ``trajectory_topview.png`` and
-        ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
-        paths ``"plot_topview"`` / ``"plot_error"``).  ``ate``: a result of :meth:`ate` to reuse.  Returns the
-        paths (``"clouds"``: a list).
-        """
-        out = Path(directory)
-        w, h = self.config.resolution
-        extra: Dict[str, object] = {
-            "run": {"resolution": [w, h], "frontend": self.frontend_name,
-                    "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
-                    "n_frames": self.n_frames,
-                    "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
-                    "frame_names": list(self.names)},
-            # the odometry's own configuration is the report's "config"
-            "run_config": {k: v for k, v in config_to_dict(self.config).items()
-                           if k != "odometry"}}
-        if with_ate:
-            ate = self.ate() if ate is None else ate
-            extra["ate"] = self.ate_report(ate) if ate is not None else None
-        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra))
-        if "clouds" not in paths:
-            paths["clouds"] = self._write_clouds(out / "clouds")
-        if with_ate and ate is not None and ate.get("per-frame") is not None:
-            paths.update(self._write_plots(out, ate["per-frame"]))
-        return paths
-
-    def _write_plots(self, out: Path, ate) -> Dict[str, Path]:
-        """``trajectory_topview.png`` / ``trajectory_error.png`` of the per-frame
-        ATE (:mod:`spgeo.apps.trajectory_plots`); none without matplotlib (logged)."""
-        try:
-            from .trajectory_plots import write_trajectory_plots
-
-            plots = write_trajectory_plots(ate, out, title=out.name or str(out))
-        except ImportError as exc:
-            log.warning("no trajectory plots: %s", exc)
-            return {}
-        return {"plot_topview": plots.topview, "plot_error": plots.error}
-
-    def _write_clouds(self, folder: Path) -> List[Path]:
-        """One PLY per keyframe (world frame = keyframe 0's camera, VO units),
-        coloured by :attr:`keyframe_images` (or the keyframe's grey image)."""
-        import cv2
-
-        kfs = []
-        for k, kf in enumerate(self.odometry.keyframes):
-            cam = kf.primitives.camera
-            img = self.keyframe_images.get(k)
-            if img is not None and img.shape[:2] != cam.shape:
-                img = cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
-            kfs.append((k, kf.pyramid.images[0] if img is None else img, kf))
-        return write_keyframe_clouds(folder, kfs)
-
-    def export_colmap(self, directory: Union[str, Path], frames: Optional[Iterable[Frame]] = None,
-                      stride: int = 4, max_points: int = 200_000) -> Path:
-        """:func:`spgeo.io.colmap_export.export_odometry` of the run: the
-        keyframes, or with ``frames`` (the run's input frames again, e.g. the
-        data set re-opened without depth) every frame not lost.  Returns the
-        COLMAP model folder."""
-        from ..io.colmap_export import export_odometry
-
-        images = None if frames is None else ((str(f.name), f.image) for f in frames)
-        return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
-                               images, stride, max_points)
 
 
 def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
@@ -366,6 +172,9 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
             :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.viz.RerunLogger`).
 
+    Ctrl-C (``KeyboardInterrupt``) after the first frame ends the run early: the
+    frames processed so far are returned with ``VORun.interrupted`` set.
+
     Raises:
         ValueError: no frame, frames of different camera sizes, timestamps not
             strictly increasing, a depth-using front-end and a frame without
@@ -403,6 +212,7 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
     names: List[str] = []
     kf_images: Dict[int, np.ndarray] = {}
     counts: Counter = Counter()
+    interrupted = False
     t0 = time.perf_counter()
     bar = tqdm(frames, total=n_frames, disable=not config.progress, desc="vo", unit="frame",
                dynamic_ncols=True)
@@ -429,18 +239,23 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
             r = vo.track(small)  # type: ignore[union-attr]
             gt.append(None if f.T_world_cam is None
                       else np.asarray(f.T_world_cam, dtype=np.float64).copy())
-            if on_frame is not None:
-                on_frame(small if gt[-1] is None else replace(small, T_world_cam=gt[-1]), r, vo)
             stamps.append(ts)
             names.append(str(f.name))
             counts[r.status] += 1
             if r.keyframe_index is not None:
                 kf_images[r.keyframe_index] = small.image
+            if on_frame is not None:
+                on_frame(small if gt[-1] is None else replace(small, T_world_cam=gt[-1]), r, vo)
             if config.progress:
                 dt = time.perf_counter() - t0
                 bar.set_postfix({"fps": f"{(i + 1) / max(dt, 1e-9):.1f}",
                                  "kf": len(kf_images), "lost": counts["lost"],
                                  "status": r.status}, refresh=False)
+    except KeyboardInterrupt:
+        if not stamps:
+            raise
+        interrupted = True
+        log.warning("VO interrupted after %d frames", len(stamps))
     finally:
         bar.close()
     if vo is None:
@@ -450,7 +265,7 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost", n, wall,
              n / max(wall, 1e-9), len(kf_images), counts["lost"])
     return VORun(vo, gt, np.array(stamps, dtype=np.float64), names, wall,
-                 n / max(wall, 1e-9), config, kf_images)
+                 n / max(wall, 1e-9), config, kf_images, interrupted)
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,

@@ -3,8 +3,16 @@ the work is in the library and in :mod:`spgeo.apps`.
 
 Sub-commands: ``demo``, ``vo``, ``sfm``, ``complete`` (each with ``--config
 FILE`` / ``--set FIELD=VALUE``, :mod:`spgeo.cli.config`), ``models`` and
-``eval PROTOCOL [ARGS...]``.  Errors print one ``spgeo CMD: error: ...`` line
-on stderr and return exit code 2.
+``eval PROTOCOL [ARGS...]``.
+
+Exit codes (one convention for every command, :mod:`spgeo.cli.exit_codes`): :data:`EXIT_OK` 0 (done, result
+ok), :data:`EXIT_FAILED` 1 (an unexpected error: one line on stderr, the
+traceback with ``-v``), :data:`EXIT_BAD_INPUT` 2 (bad arguments or input files:
+one ``spgeo CMD: error: ...`` line on stderr naming the value or file, before any
+output is written), :data:`EXIT_FLAGGED` 3 (finished, outputs written, but the
+result is flagged: SfM status not ok, VO without a map, a model not cached) and
+:data:`EXIT_INTERRUPTED` 130 (Ctrl-C; VO writes the frames processed so far,
+marked interrupted).
 """
 from __future__ import annotations
 
@@ -13,9 +21,16 @@ import logging
 import sys
 from typing import List, Optional, Sequence
 
-__all__ = ["main", "build_parser"]
+from .exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FLAGGED, EXIT_INTERRUPTED, EXIT_OK
 
-_ERRORS = (ValueError, FileNotFoundError, OSError)
+__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_FAILED", "EXIT_BAD_INPUT", "EXIT_FLAGGED",
+           "EXIT_INTERRUPTED"]
+
+#: exceptions that mean bad input (InputError is a ValueError; PermissionError,
+#: IsADirectoryError and FileNotFoundError are OSErrors)
+_ERRORS = (ValueError, OSError, TypeError)
+
+log = logging.getLogger("spgeo.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,12 +68,39 @@ def _split_eval(argv: Sequence[str]):
 
 
 def _setup_logging(verbose: int) -> None:
+    """Root logging at WARNING (INFO with -v, DEBUG with -v -v), one line per
+    record; Python warnings (e.g. numpy's) become log records of ``py.warnings``."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.captureWarnings(True)
+
+
+def _guarded(name: str, run) -> int:
+    """``run()``'s exit code, every exception mapped to one stderr line and the
+    module docstring's exit codes (tracebacks only at DEBUG, ``-v -v``)."""
+    try:
+        return int(run() or 0)
+    except KeyboardInterrupt:
+        print(f"spgeo {name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except MemoryError as exc:
+        print(f"spgeo {name}: error: out of memory{f' ({exc})' if str(exc) else ''}: "
+              "reduce the resolution or the number of frames", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except _ERRORS as exc:
+        log.debug("traceback", exc_info=True)
+        print(f"spgeo {name}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # noqa: BLE001 - the CLI never shows a bare traceback
+        log.debug("traceback", exc_info=True)
+        print(f"spgeo {name}: error: unexpected {type(exc).__name__}: {exc} "
+              "(run with -v -v for the traceback)", file=sys.stderr)
+        return EXIT_FAILED
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    """Run ``spgeo`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
+    """Run ``spgeo`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code
+    (module docstring)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     head, rest = _split_eval(argv)
     args = build_parser().parse_args(head)
@@ -67,14 +109,6 @@ def main(argv: Optional[List[str]] = None) -> int:
 
         if args.verbose:        # else the protocol's own -v decides
             _setup_logging(args.verbose)
-        try:
-            return run_protocol(args.protocol, rest)
-        except _ERRORS as exc:
-            print(f"spgeo eval {args.protocol}: error: {exc}", file=sys.stderr)
-            return 2
+        return _guarded(f"eval {args.protocol}", lambda: run_protocol(args.protocol, rest))
     _setup_logging(args.verbose)
-    try:
-        return int(args.func(args) or 0)
-    except _ERRORS as exc:
-        print(f"spgeo {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    return _guarded(args.command, lambda: args.func(args))

@@ -9,6 +9,7 @@ import logging
 from typing import Optional, Tuple
 
 from ..datasets import DATASET_KINDS
+from ..validation import MAX_IMAGE_SIDE, InputError
 
 __all__ = ["DATASET_KINDS", "add_dataset_arguments", "add_verbose_argument", "setup_logging",
            "parse_resolution", "parse_intrinsics"]
@@ -37,14 +38,14 @@ def setup_logging(verbose: bool) -> None:
                         format="%(levelname)s %(name)s: %(message)s")
 
 
-def parse_resolution(text: str, allow_native: bool = False,
-                     min_size: int = 16) -> Optional[Tuple[int, int]]:
+def parse_resolution(text: str, allow_native: bool = False, min_size: int = 16,
+                     max_size: int = MAX_IMAGE_SIDE) -> Optional[Tuple[int, int]]:
     """``"WxH"`` (e.g. ``"160x120"``, case-insensitive) -> ``(width, height)``
     in pixels; with ``allow_native``, ``"native"`` (or ``"none"``, ``"full"``)
     -> None (keep the frames' size).
 
-    Raises ``ValueError`` for anything but two integers >= ``min_size``
-    separated by ``x``.
+    Raises :class:`~spgeo.validation.InputError` for anything but two integers in
+    ``[min_size, max_size]`` separated by ``x``.
     """
     s = str(text).strip().lower()
     if allow_native and s in _NATIVE:
@@ -52,11 +53,14 @@ def parse_resolution(text: str, allow_native: bool = False,
     parts = s.split("x")
     if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
         alt = " or 'native'" if allow_native else ""
-        raise ValueError(f"invalid resolution {text!r}: expected WIDTHxHEIGHT{alt}, e.g. 160x120")
+        raise InputError(f"invalid resolution {text!r}: expected WIDTHxHEIGHT{alt}, e.g. 160x120")
     w, h = (int(p) for p in parts)
     if w < min_size or h < min_size:
-        raise ValueError(f"invalid resolution {text!r}: width and height must be >= "
+        raise InputError(f"invalid resolution {text!r}: width and height must be >= "
                          f"{min_size} pixels")
+    if w > max_size or h > max_size:
+        raise InputError(f"invalid resolution {text!r}: width and height must be <= "
+                         f"{max_size} pixels")
     return w, h
 
 
@@ -64,8 +68,8 @@ def parse_intrinsics(text: str) -> Tuple[float, float, float, float]:
     """``"fx,fy,cx,cy"`` (pixels) -> four floats; ``ValueError`` otherwise."""
     parts = [p for p in str(text).replace(" ", "").split(",") if p]
     if len(parts) != 4:
-        raise ValueError(f"--intrinsics must be fx,fy,cx,cy, got {text!r}")
+        raise InputError(f"--intrinsics must be fx,fy,cx,cy, got {text!r}")
     try:
         return tuple(float(p) for p in parts)  # type: ignore[return-value]
     except ValueError:
-        raise ValueError(f"--intrinsics must be four numbers fx,fy,cx,cy, got {text!r}") from None
+        raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy, got {text!r}") from None

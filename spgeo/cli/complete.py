@@ -14,41 +14,14 @@ overrides ``--config``; ``--set`` overrides both).
 from __future__ import annotations
 
 import argparse
-import os
 
-import numpy as np
-
-from ..datasets.common import read_depth_png
 from ..frontend import MONOCULAR_FRONTENDS
+from ..validation import InputError
 from .args import parse_intrinsics
 from .config import add_config_arguments, apply_overrides, resolve_config
 from .rerun_args import add_rerun_argument, open_rerun
 
-__all__ = ["add_complete_cli", "read_sparse_depth", "write_depth_png_mm"]
-
-
-def read_sparse_depth(path: str) -> np.ndarray:
-    """Sparse depth in metres from a 16-bit PNG in mm (0 = missing) or a ``.npy`` in metres."""
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"sparse depth file not found: {path}")
-    if path.lower().endswith(".npy"):
-        try:
-            d = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise ValueError(f"cannot read {path}: {exc}") from None
-        return np.asarray(d, dtype=np.float64)
-    return np.nan_to_num(read_depth_png(path, 1000.0, dtype=np.float64), nan=0.0)
-
-
-def write_depth_png_mm(path: str, depth: np.ndarray) -> None:
-    """Write metres as a 16-bit PNG in millimetres (clipped to 65535 mm)."""
-    import cv2
-
-    mm = np.clip(np.rint(np.nan_to_num(depth, nan=0.0) * 1000.0), 0, 65535).astype(np.uint16)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    if not cv2.imwrite(path, mm):
-        raise OSError(f"could not write {path}")
+__all__ = ["add_complete_cli"]
 
 
 def _completion_config(args: argparse.Namespace):
@@ -65,9 +38,12 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     from ..camera import PinholeCamera
     from ..completion import complete_depth
     from ..images import load_image
+    from ..io.depth_files import read_sparse_depth, write_depth_png_mm
+    from ..io.outputs import prepare_output_file
 
     if not args.out.lower().endswith(".png"):
-        raise ValueError(f"--out must be a .png file, got {args.out!r}")
+        raise InputError(f"--out must be a .png file, got {args.out!r}")
+    prepare_output_file(args.out, "--out")      # before the work, not after it
     cfg = _completion_config(args)
     image = load_image(args.rgb)
     fx, fy, cx, cy = parse_intrinsics(args.intrinsics)

@@ -39,10 +39,19 @@ def _demo_config(args: argparse.Namespace):
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from ..apps.demo import run_demo
+    from ..io.outputs import StagedFolder
 
     cfg = _demo_config(args)
-    res = run_demo(cfg)
+    staged = StagedFolder(cfg.out_dir, "--out", "spgeo demo")   # checked before the run
+    with staged:
+        res = run_demo(dataclasses.replace(cfg, out_dir=str(staged.path)))
+        (staged.path / "report.json").write_text(
+            json.dumps({"config": config_to_dict(cfg)}, indent=1), encoding="utf-8")
+        staged.commit()
+    staged_prefix, target = str(staged.path), str(Path(cfg.out_dir))
     print("== SuperPrimitives: shape accuracy")
     print(res.table())
     print("median rel. error: depth after fitting one scale per primitive to ground truth "
@@ -55,10 +64,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     for title, table in res.extra_tables.items():
         print(f"\n== {title}")
         print(table)
-    report = Path(cfg.out_dir) / "report.json"
-    report.write_text(json.dumps({"config": config_to_dict(cfg)}, indent=1), encoding="utf-8")
-    for name, path in {**res.files, "report": str(report)}.items():
-        print(f"wrote {name}: {path}")
+    for name, path in {**res.files, "report": str(staged.path / "report.json")}.items():
+        print(f"wrote {name}: {str(path).replace(staged_prefix, target, 1)}")
     return 0
 
 

@@ -1,10 +1,14 @@
 """``spgeo models list|fetch|path``: the model cache of :mod:`spgeo.models`
-from the command line."""
+from the command line.  Errors go to stderr with the exit codes of
+:mod:`spgeo.cli.exit_codes` (2: unknown name, failed or unverified download;
+3: ``path`` of a model that is not in the cache)."""
 from __future__ import annotations
 
 import argparse
+import sys
 
 from .. import models
+from .exit_codes import EXIT_BAD_INPUT, EXIT_FLAGGED, EXIT_OK
 
 __all__ = ["add_cli"]
 
@@ -26,20 +30,20 @@ def _cli_fetch(args: argparse.Namespace) -> int:
                                   allow_unverified=args.allow_unverified,
                                   progress=not args.no_progress)
     except (KeyError, ValueError, models.ModelDownloadError) as exc:
-        print(f"error: {exc.args[0] if exc.args else exc}")
-        return 1
+        print(f"spgeo models fetch: error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     print(path)
-    return 0
+    return EXIT_OK
 
 
 def _cli_path(args: argparse.Namespace) -> int:
     try:
         path, present = models.model_path(args.name)
     except KeyError as exc:
-        print(f"error: {exc.args[0]}")
-        return 1
+        print(f"spgeo models path: error: {exc.args[0]}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     print(path if present else f"{path} (missing)")
-    return 0 if present else 1
+    return EXIT_OK if present else EXIT_FLAGGED
 
 
 def add_cli(subparsers) -> argparse.ArgumentParser:
@@ -63,7 +67,7 @@ def add_cli(subparsers) -> argparse.ArgumentParser:
                          help="accept a model without a published sha256")
     p_fetch.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_fetch.set_defaults(func=_cli_fetch)
-    p_path = sub.add_parser("path", help="print where a model is (exit 1 if missing)")
+    p_path = sub.add_parser("path", help="print where a model is (exit 3 if not cached)")
     p_path.add_argument("name")
     p_path.set_defaults(func=_cli_path)
     return parser

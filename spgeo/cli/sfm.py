@@ -11,20 +11,26 @@ camera-to-reference, the reference at identity, translation in the
 reconstruction's unknown scale), ``DIR/depth.npy`` (float32 reference depth at
 the reference image's size), ``DIR/cloud.ply`` and ``DIR/report.json`` (the
 effective ``SfMConfig`` under ``"config"``); with ``--export-colmap DIR`` a
-COLMAP model (:func:`spgeo.io.colmap_export.export_sfm_result`).  Exit code 0
-when the SfM status is ok, 3 otherwise.
+COLMAP model (:func:`spgeo.io.colmap_export.export_sfm_result`).  The folder is
+staged (:class:`spgeo.io.outputs.StagedFolder`): checked before the run, replaced
+as a whole.  A flagged run (status not ok) writes NaN depth for unsupported
+primitives and no ``cloud.ply`` when no point is supported.  Exit code 0 when
+the SfM status is ok, 3 otherwise (:mod:`spgeo.cli.exit_codes`).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..jsonio import json_default
 from ..frontend import MONOCULAR_FRONTENDS
+from ..validation import InputError
 from .args import parse_intrinsics
+from .exit_codes import EXIT_FLAGGED, EXIT_OK
 from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
 from .rerun_args import add_rerun_argument, open_rerun
 
@@ -43,15 +49,46 @@ def _sfm_config(args: argparse.Namespace):
     return resolve_config(cfg, sets=args.set)
 
 
-def _run(args: argparse.Namespace) -> int:
-    from ..camera import PinholeCamera
+def _write_outputs(out: Path, res, ref: np.ndarray, cam, names, cfg) -> int:
+    """``poses.txt``, ``depth.npy``, ``cloud.ply`` (the supported primitives'
+    finite points; no file when there are none) and ``report.json`` (last) into
+    ``out``; returns the number of cloud points."""
+    import cv2
+
     from ..frame import Frame, resize_frame
     from ..geometry import pose_to_tum
+
+    with open(out / "poses.txt", "w") as fh:
+        for name, T in zip(names, [np.eye(4)] + res.T_ref_view):
+            fh.write(name + " " + " ".join(f"{x:.9f}" for x in pose_to_tum(T)) + "\n")
+    depth = res.depth
+    if depth.shape != ref.shape[:2]:    # back to the reference size, nearest neighbour
+        depth = cv2.resize(depth.astype(np.float32), cam.size, interpolation=cv2.INTER_NEAREST)
+    np.save(out / "depth.npy", depth.astype(np.float32))
+    colours = resize_frame(Frame(ref, cam, 0.0), res.camera.size).image
+    cloud = res.point_cloud(colours)
+    if len(cloud.points):
+        cloud.save_ply(out / "cloud.ply")
+    report = {"status": res.status, "view_status": res.view_status,
+              "log_scale_std_median": float(np.nanmedian(res.log_scale_std))
+              if np.any(np.isfinite(res.log_scale_std)) else None,
+              "pose_covariances": [None if c is None else c.tolist() for c in res.pose_covariances],
+              "cloud_points": int(len(cloud.points)),
+              **{k: v for k, v in res.report.items()}, "config": config_to_dict(cfg)}
+    with open(out / "report.json", "w") as fh:
+        json.dump(report, fh, indent=2, default=json_default)
+    return int(len(cloud.points))
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..camera import PinholeCamera
     from ..images import load_image
+    from ..io.outputs import StagedFolder
     from ..sfm import few_view_sfm
 
     cfg = _sfm_config(args)
-    if args.export_colmap:      # fail before the run, not after it
+    staged = StagedFolder(args.out, "--out", "spgeo sfm")   # checked before the run
+    if args.export_colmap:
         from ..io.colmap_export import check_export_directory
 
         check_export_directory(args.export_colmap, args.out)
@@ -61,41 +98,28 @@ def _run(args: argparse.Namespace) -> int:
     cam = PinholeCamera(fx, fy, cx, cy, ref.shape[1], ref.shape[0])
     for p, v in zip(args.views, views):
         if v.shape[:2] != ref.shape[:2]:
-            raise ValueError(f"{p} is {v.shape[1]}x{v.shape[0]}, the reference is "
+            raise InputError(f"{p} is {v.shape[1]}x{v.shape[0]}, the reference is "
                              f"{ref.shape[1]}x{ref.shape[0]}: all images must share one camera")
     res = few_view_sfm(ref, views, cam, args.frontend, cfg)
     with open_rerun(args) as viewer:
         if viewer is not None:
             viewer.log_sfm(res, ref, views)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "poses.txt", "w") as fh:
-        names = [Path(args.ref).name] + [Path(p).name for p in args.views]
-        for name, T in zip(names, [np.eye(4)] + res.T_ref_view):
-            fh.write(name + " " + " ".join(f"{x:.9f}" for x in pose_to_tum(T)) + "\n")
-    depth = res.depth
-    if depth.shape != ref.shape[:2]:    # back to the reference size, nearest neighbour
-        import cv2
-
-        depth = cv2.resize(depth.astype(np.float32), cam.size, interpolation=cv2.INTER_NEAREST)
-    np.save(out / "depth.npy", depth.astype(np.float32))
-    colours = resize_frame(Frame(ref, cam, 0.0), res.camera.size).image
-    res.point_cloud(colours).save_ply(out / "cloud.ply")
-    report = {"status": res.status, "view_status": res.view_status,
-              "log_scale_std_median": float(np.nanmedian(res.log_scale_std))
-              if np.any(np.isfinite(res.log_scale_std)) else None,
-              "pose_covariances": [None if c is None else c.tolist() for c in res.pose_covariances],
-              **{k: v for k, v in res.report.items()}, "config": config_to_dict(cfg)}
-    with open(out / "report.json", "w") as fh:
-        json.dump(report, fh, indent=2, default=json_default)
+    names = [Path(args.ref).name] + [Path(p).name for p in args.views]
+    with staged:
+        n_points = _write_outputs(staged.path, res, ref, cam, names, cfg)
+        staged.commit("complete" if res.ok else "flagged", sfm_status=res.status)
     print(f"status: {res.status}  ({', '.join(res.view_status)})")
-    print(f"wrote {out / 'poses.txt'}, depth.npy, cloud.ply, report.json")
+    cloud = f"cloud.ply ({n_points} points)" if n_points else "no cloud.ply (no supported depth)"
+    print(f"wrote poses.txt, depth.npy, {cloud}, report.json in {args.out}")
     if args.export_colmap:
         from ..io.colmap_export import export_sfm_result
-
         model = export_sfm_result(args.export_colmap, res, [ref] + views, names)
         print(f"wrote the COLMAP model {model} (images in {Path(args.export_colmap) / 'images'})")
-    return 0 if res.ok else 3
+    if not res.ok:
+        print(f"flagged: SfM status {res.status} (views: {', '.join(res.view_status)}); the "
+              "depth of unsupported primitives is NaN", file=sys.stderr)
+        return EXIT_FLAGGED
+    return EXIT_OK
 
 
 def add_sfm_cli(subparsers) -> argparse.ArgumentParser:

@@ -14,11 +14,14 @@ explicit options (``--resolution``, ``--frontend``, ...) override
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..frontend import FRONTENDS
+from ..validation import InputError
 from .args import DATASET_KINDS, parse_resolution
 from .config import add_config_arguments, apply_overrides, resolve_config
 from .rerun_args import add_rerun_argument, open_rerun
+from .exit_codes import EXIT_FLAGGED, EXIT_INTERRUPTED
 
 __all__ = ["add_vo_cli"]
 
@@ -58,29 +61,41 @@ def _run_config(args: argparse.Namespace):
 
 def _run(args: argparse.Namespace) -> int:
     from ..apps.vo_run import run_dataset
+    from ..io.outputs import StagedFolder
 
     kind, path = args.dataset
     if kind.lower() not in DATASET_KINDS:
-        raise ValueError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
+        raise InputError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
                          f"got {kind!r}")
     cfg = _run_config(args)
-    if args.export_colmap:      # fail before the run, not after it
+    staged = StagedFolder(args.out, "--out", "spgeo vo")   # checked before the run
+    if args.export_colmap:
         from ..io.colmap_export import check_export_directory
 
         check_export_directory(args.export_colmap, args.out)
     elif args.all_frames:
-        raise ValueError("--all-frames needs --export-colmap DIR")
+        raise InputError("--all-frames needs --export-colmap DIR")
     with open_rerun(args) as viewer:
         run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer)
         if viewer is not None:
             viewer.finish(run.odometry)
     ate = run.ate()
-    paths = run.save(args.out, ate=ate)
+    with staged:
+        paths = run.save(staged.path, ate=ate, title=staged.target.name)
+        staged.commit(run.status, frames=run.n_frames)
     for line in run.summary_lines(ate):
         print(line)
     n_clouds = len(paths.get("clouds") or [])
-    print(f"wrote {paths['trajectory']}, keyframes.txt, report.json"
+    print(f"wrote trajectory.txt, keyframes.txt, report.json"
           f"{f', {n_clouds} keyframe clouds' if n_clouds else ''} in {args.out}")
+    if run.interrupted:
+        print(f"interrupted after {run.n_frames} frames: {args.out} holds them, marked "
+              "interrupted in report.json", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if run.status != "ok":
+        print(f"no map was initialised: {run.odometry.init_failure or 'no keyframe pair'}; "
+              "the poses are provisional", file=sys.stderr)
+        return EXIT_FLAGGED
     if args.export_colmap:
         frames = None
         if args.all_frames:     # re-read the frames: the run keeps only the keyframes' images

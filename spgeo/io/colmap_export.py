@@ -39,6 +39,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
+from ..validation import InputError
+from .outputs import replace_dir
 
 __all__ = ["ColmapPoints", "primitive_points", "keyframe_points", "export_colmap",
            "export_sfm_result", "export_odometry", "check_export_directory", "image_file_name",
@@ -184,17 +186,17 @@ def check_export_directory(directory: Union[str, os.PathLike],
                            output: Union[None, str, os.PathLike] = None) -> Path:
     """``directory`` as a Path, after checking that an export may replace it:
     absent, empty, or a previous export (only ``images/`` and ``sparse/``),
-    and not the run's ``output`` folder.  Raises ``ValueError`` otherwise."""
+    and not the run's ``output`` folder.  Raises :class:`~spgeo.validation.InputError` otherwise."""
     d = Path(directory)
     if output is not None and d.resolve() == Path(output).resolve():
-        raise ValueError(f"the COLMAP export directory {d} is the output folder: give its own "
+        raise InputError(f"the COLMAP export directory {d} is the output folder: give its own "
                          "folder (e.g. a sub-folder)")
     if d.exists():
         if not d.is_dir():
-            raise ValueError(f"COLMAP export directory {d} exists and is not a folder")
+            raise InputError(f"COLMAP export directory {d} exists and is not a folder")
         other = sorted(set(os.listdir(d)) - _EXPORT_ENTRIES)
         if other:
-            raise ValueError(f"COLMAP export directory {d} holds other files "
+            raise InputError(f"COLMAP export directory {d} holds other files "
                              f"({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}): "
                              "give an empty or new folder")
     return d
@@ -310,30 +312,12 @@ def export_colmap(directory: Union[str, os.PathLike], camera: PinholeCamera,
         (tmp / IMAGES_SUBDIR).mkdir()
         n_img, n_pts = _write_model(tmp / MODEL_SUBDIR, camera, images, T, pts,
                                     tmp / IMAGES_SUBDIR)
-        _replace_dir(tmp, target)
+        replace_dir(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     log.info("COLMAP export: %d images, %d points in %s", n_img, n_pts, d)
     return d / MODEL_SUBDIR
-
-
-def _replace_dir(new: Path, target: Path) -> None:
-    """Rename ``new`` onto ``target``, moving an existing ``target`` aside first."""
-    old: Optional[Path] = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old",
-                                    dir=target.parent))
-        os.rename(target, old / "x")
-    try:
-        os.rename(new, target)
-    except BaseException:
-        if old is not None:
-            os.rename(old / "x", target)
-        raise
-    finally:
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
 
 
 def keyframe_points(keyframes: Sequence[Tuple[int, np.ndarray, object]],
@@ -352,9 +336,10 @@ def export_sfm_result(directory: Union[str, os.PathLike], result, images: Sequen
 
     ``images``: the reference then the supporting images (any common size:
     resized with ``INTER_AREA`` to ``result.camera``, the working resolution),
-    ``names`` their names.  Points: the reference primitives on a
-    ``stride``-pixel lattice, observed in the reference image.  Returns the
-    model folder.
+    ``names`` their names.  Points: the supported reference primitives
+    (``result.supported_primitives``: a flagged result's unconstrained ones are
+    left out) on a ``stride``-pixel lattice, observed in the reference image.
+    Returns the model folder.
     """
     import cv2
 
@@ -368,7 +353,7 @@ def export_sfm_result(directory: Union[str, os.PathLike], result, images: Sequen
              else cv2.resize(img, cam.size, interpolation=cv2.INTER_AREA)
              for img in (to_float_image(np.asarray(i)) for i in images)]
     T = np.stack([np.eye(4)] + [np.asarray(t, dtype=np.float64) for t in result.T_ref_view])
-    points = primitive_points(result.primitives, T[0], 0, small[0], stride)
+    points = primitive_points(result.supported_primitives, T[0], 0, small[0], stride)
     return export_colmap(directory, cam, list(zip(names, small)), T, points, max_points)
 
 

@@ -7,15 +7,14 @@ an :class:`~spgeo.validation.InputError` (or ``FileNotFoundError``) naming the f
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 
 from ..images import read_raw_image
 from ..validation import InputError, check_input_file, check_real_array, check_sparse_depth
+from .outputs import prepare_output_file, write_bytes_atomic
 
-__all__ = ["MAX_PNG_DEPTH_M", "read_sparse_depth", "write_depth_png_mm", "prepare_output_file",
-           "write_bytes_atomic"]
+__all__ = ["MAX_PNG_DEPTH_M", "read_sparse_depth", "write_depth_png_mm"]
 
 #: the largest depth (metres) a 16-bit millimetre PNG holds
 MAX_PNG_DEPTH_M = 65.535
@@ -47,50 +46,6 @@ def read_sparse_depth(path) -> np.ndarray:
         raise InputError(f"{what} is a {raw.dtype} image; expected a single-channel 16-bit "
                          "(uint16) PNG in millimetres (an 8-bit PNG cannot hold millimetres)")
     return check_sparse_depth(raw.astype(np.float64) / 1000.0, what)
-
-
-def prepare_output_file(path, what: str = "output") -> str:
-    """Check that a file can be written at ``path`` before any work is done.
-
-    Creates the parent folder if needed.  Raises :class:`InputError` when
-    ``path`` is a folder, when the parent cannot be created (a file in its
-    way) or is not writable; returns ``os.fspath(path)``.
-    """
-    path = os.fspath(path)
-    if os.path.isdir(path):
-        raise InputError(f"{what} path {path} is a folder; expected a file name")
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):
-        raise InputError(f"cannot create the folder of {what} {path}: a file is in the "
-                         "way") from None
-    except OSError as exc:
-        raise InputError(f"cannot create the folder of {what} {path}: "
-                         f"{exc.strerror or exc}") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write {what} {path}: folder {folder} is not writable")
-    return path
-
-
-def write_bytes_atomic(path, data: bytes, what: str = "output") -> str:
-    """Write ``data`` to ``path`` atomically: a temporary file in the same folder,
-    then ``os.replace`` (readers never see a partial file; on any error the
-    temporary file is removed and an existing ``path`` is left unchanged).
-    Checks the location with :func:`prepare_output_file`; returns the path."""
-    path = prepare_output_file(path, what)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)   # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def write_depth_png_mm(path, depth: np.ndarray) -> str:

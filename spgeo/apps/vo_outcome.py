@@ -1,0 +1,236 @@
+"""The outcome of a batch VO run (:class:`VORun`, made by
+:func:`spgeo.apps.vo_run.run_odometry`): trajectory, Sim(3) ATE against the ground
+truth (:mod:`spgeo.evaluation.trajectory`), summary lines, files and COLMAP export.
+
+Frames: ``T_world_cam`` is the 4x4 camera-to-world pose; the VO's world is
+keyframe 0's camera (arbitrary scale for a monocular front-end), the ground
+truth's world is the data set's; ATE is in ground-truth metres after the Sim(3)
+alignment.
+"""
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Union
+
+import numpy as np
+
+from ..cli.config import config_to_dict
+from ..frame import Frame
+from ..vo import Odometry, OdometryResult
+
+if TYPE_CHECKING:
+    from .vo_run import VORunConfig
+
+__all__ = ["VORun", "ATE_LABELS"]
+
+log = logging.getLogger(__name__)
+
+#: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
+ATE_LABELS = ("per-frame", "keyframe-only")
+
+
+@dataclass
+class VORun:
+    """Outcome of :func:`run_odometry`.
+
+    Attributes:
+        odometry: the :class:`~spgeo.vo.Odometry` after the last frame
+            (trajectory, keyframes, :meth:`Odometry.save`).
+        gt_poses: per processed frame, the ground-truth camera-to-world 4x4
+            ``T_world_cam`` (data-set world, metres) or None where absent.
+        timestamps: (n,) frame timestamps (seconds; frame numbers for data
+            sets without timestamps, e.g. 7-Scenes).
+        names: per-frame names (file stems).
+        wall_seconds: wall time of the whole loop (frame loading, resizing and
+            VO), seconds.
+        fps: processed frames per wall-clock second (``n / wall_seconds``).
+        config: the :class:`VORunConfig` used.
+        keyframe_images: keyframe index -> the resized RGB image (float32
+            [0, 1]) the keyframe was made from (colours of the point clouds
+            when :meth:`Odometry.save` writes none).
+        interrupted: the run was stopped by Ctrl-C (``KeyboardInterrupt``)
+            between or during frames; it holds the frames processed before.
+    """
+
+    odometry: Odometry
+    gt_poses: List[Optional[np.ndarray]]
+    timestamps: np.ndarray
+    names: List[str]
+    wall_seconds: float
+    fps: float
+    config: "VORunConfig"
+    keyframe_images: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+    interrupted: bool = False
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def has_map(self) -> bool:
+        """Whether the poses were estimated against a map with depth: always with
+        a depth-using front-end (keyframe 0 carries the sensor depth); monocular,
+        when some map segment was initialised (a keyframe after frame 0: keyframe
+        1 of a segment)."""
+        if self.odometry.frontend.uses_depth:
+            return True
+        return any(s == "keyframe" for s in self.result().statuses[1:])
+
+    @property
+    def status(self) -> str:
+        """``"interrupted"`` (Ctrl-C), ``"no_map"`` (no segment initialised: the
+        poses are provisional; :attr:`Odometry.init_failure` says why) or ``"ok"``."""
+        if self.interrupted:
+            return "interrupted"
+        return "ok" if self.has_map else "no_map"
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """True when at least one frame has a ground-truth pose."""
+        return any(T is not None for T in self.gt_poses)
+
+    def result(self) -> OdometryResult:
+        """The VO trajectory (:meth:`Odometry.result`)."""
+        return self.odometry.result()
+
+    def status_counts(self) -> Dict[str, int]:
+        """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``, ...)."""
+        return dict(Counter(self.result().statuses))
+
+    def ate(self) -> Optional[Dict[str, object]]:
+        """Sim(3)-aligned ATE of the frames not flagged ``"lost"``.
+
+        Returns ``{"per-frame": AteResult, "keyframe-only": AteResult or None}``
+        (:class:`spgeo.evaluation.trajectory.AteResult`; errors in ground-truth
+        metres; keyframe-only aligns on the keyframes alone and is None with
+        fewer than 3 keyframes), or None when no frame has ground truth or
+        fewer than 3 poses can be evaluated (logged).
+        """
+        from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
+
+        if not self.has_ground_truth:
+            return None
+        res = self.result()
+        keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
+        has_gt = [i for i, T in enumerate(self.gt_poses) if T is not None]
+        gt = (self.timestamps[has_gt], np.array([self.gt_poses[i] for i in has_gt]))
+        try:
+            return ate_per_frame_and_keyframes(
+                (res.timestamps[keep], res.poses[keep]), gt, res.is_keyframe[keep],
+                max_time_diff=self.config.ate_max_time_diff)
+        except ValueError as exc:
+            log.warning("ATE not available: %s", exc)
+            return None
+
+    def ate_report(self, ate: Optional[Dict[str, object]] = None) -> Optional[Dict[str, object]]:
+        """JSON-friendly :meth:`ate`: per label the summary (``rmse_m``,
+        ``rmse_percent_of_length``, ``trajectory_length_m``, ``scale``, ...) or
+        None, plus ``n_lost_excluded``; None without ground truth.  ``ate``: a
+        result of :meth:`ate` to reuse (default: computed here)."""
+        if ate is None:
+            ate = self.ate()
+        if ate is None:
+            return None
+        out: Dict[str, object] = {lab: (None if ate.get(lab) is None else ate[lab].summary())
+                                  for lab in ATE_LABELS}
+        out["n_lost_excluded"] = int(sum(s == "lost" for s in self.result().statuses))
+        out["alignment"] = "Sim(3) (Umeyama, evo_ape -as), translation RMSE"
+        return out
+
+    def summary_lines(self, ate: Optional[Dict[str, object]] = None) -> List[str]:
+        """Short human-readable summary (frames, lost, keyframes, FPS, ATE lines).
+
+        ``ate``: a result of :meth:`ate` to reuse (default: computed here).
+        """
+        res = self.result()
+        n_lost = int(sum(s == "lost" for s in res.statuses))
+        w, h = self.config.resolution
+        lines = [f"{self.n_frames} frames, {n_lost} lost, {int(res.is_keyframe.sum())} "
+                 f"keyframes, {self.fps:.1f} FPS (front-end {self.frontend_name}, {w}x{h})"]
+        if ate is None:
+            ate = self.ate()
+        if ate is None:
+            lines.append("ATE: no ground truth" if not self.has_ground_truth
+                         else "ATE: not available (too few poses)")
+            return lines
+        for lab in ATE_LABELS:
+            a = ate.get(lab)
+            if a is None:
+                lines.append(f"Sim(3) ATE {lab}: not available (fewer than 3 keyframes)")
+            else:
+                lines.append(f"Sim(3) ATE {lab}: {a.rmse:.4f} m = "
+                             f"{a.rmse_percent_of_length:.2f}% of {a.trajectory_length:.3f} m "
+                             f"({a.n_associated} poses, scale {a.scale:.4g})")
+        return lines
+
+    @property
+    def frontend_name(self) -> str:
+        fe = self.odometry.frontend
+        return str(getattr(fe, "name", "") or type(fe).__name__)
+
+    def save(self, directory: Union[str, Path], with_ate: bool = True,
+             ate: Optional[Dict[str, object]] = None,
+             title: Optional[str] = None) -> Dict[str, object]:
+        """Write the run to ``directory`` (created).
+
+        Files: :meth:`Odometry.save`'s ``trajectory.txt`` (every processed
+        frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
+        ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
+        keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
+        ``"run"`` (resolution, front-end, wall time, FPS), ``"run_config"``
+        (this :class:`VORunConfig` without ``odometry``) and, with
+        ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
+        report and the plots ``trajectory_topview.png`` and
+        ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
+        paths ``"plot_topview"`` / ``"plot_error"``).  ``"run"`` holds
+        :attr:`status` (``ok``, ``no_map``, ``interrupted``) and the odometry's
+        ``init_failure``.  ``ate``: a result of :meth:`ate` to reuse; ``title``:
+        the plots' title (default the folder's name).  Returns the paths
+        (``"clouds"``: a list).
+        """
+        out = Path(directory)
+        w, h = self.config.resolution
+        extra: Dict[str, object] = {
+            "run": {"status": self.status, "init_failure": self.odometry.init_failure,
+                    "resolution": [w, h], "frontend": self.frontend_name,
+                    "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
+                    "n_frames": self.n_frames,
+                    "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
+                    "frame_names": list(self.names)},
+            # the odometry's own configuration is the report's "config"
+            "run_config": {k: v for k, v in config_to_dict(self.config).items()
+                           if k != "odometry"}}
+        if with_ate:
+            ate = self.ate() if ate is None else ate
+            extra["ate"] = self.ate_report(ate) if ate is not None else None
+        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra))
+        if with_ate and ate is not None and ate.get("per-frame") is not None:
+            paths.update(self._write_plots(out, ate["per-frame"], title or out.name or str(out)))
+        return paths
+
+    def _write_plots(self, out: Path, ate, title: str) -> Dict[str, Path]:
+        """``trajectory_topview.png`` / ``trajectory_error.png`` of the per-frame
+        ATE (:mod:`spgeo.apps.trajectory_plots`); none without matplotlib (logged)."""
+        try:
+            from .trajectory_plots import write_trajectory_plots
+
+            plots = write_trajectory_plots(ate, out, title=title)
+        except ImportError as exc:
+            log.warning("no trajectory plots: %s", exc)
+            return {}
+        return {"plot_topview": plots.topview, "plot_error": plots.error}
+
+    def export_colmap(self, directory: Union[str, Path], frames: Optional[Iterable[Frame]] = None,
+                      stride: int = 4, max_points: int = 200_000) -> Path:
+        """:func:`spgeo.io.colmap_export.export_odometry` of the run: the
+        keyframes, or with ``frames`` (the run's input frames again, e.g. the
+        data set re-opened without depth) every frame not lost.  Returns the
+        COLMAP model folder."""
+        from ..io.colmap_export import export_odometry
+
+        images = None if frames is None else ((str(f.name), f.image) for f in frames)
+        return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
+                               images, stride, max_points)
