@@ -226,6 +226,12 @@ class OdometryConfig:
             pixel's nearest are averaged (0: the nearest wins, which biases
             overlapping estimates of one surface towards the camera and makes
             the monocular scale shrink keyframe after keyframe).
+        propagate_shape: monocular front-ends: a new keyframe's primitives
+            that the rendered window covers take the shape integrated from the
+            render's normals (:mod:`spgeo.vo.shape_propagation`) instead of the
+            front-end's (default False; docs/results.md says why).
+        propagate_min_coverage: ... when at least this fraction (0, 1] of a
+            primitive's pixels has a rendered normal (default 0.6).
         init_min_parallax: keyframe 1 is the first frame whose tracked
             translation over keyframe 0's median depth reaches this
             (default 0.08) ...
@@ -288,6 +294,8 @@ class OdometryConfig:
     min_level_pixels: int = 4
     render_splat: int = 2
     render_tolerance: float = 0.2
+    propagate_shape: bool = False
+    propagate_min_coverage: float = 0.6
     init_min_parallax: float = 0.08
     init_max_gap: int = 30
     init_min_gap: int = 3
@@ -340,6 +348,7 @@ class OdometryConfig:
                 ("kf_max_rotation_deg", self.kf_max_rotation_deg > 0, "> 0"),
                 ("kf_max_relative_cost", self.kf_max_relative_cost > 0, "> 0"),
                 ("render_tolerance", self.render_tolerance >= 0, ">= 0"),
+                ("propagate_min_coverage", 0 < self.propagate_min_coverage <= 1, "in (0, 1]"),
                 ("gauge_sigma", self.gauge_sigma > 0, "> 0"),
                 ("planar_slope_sigma", self.planar_slope_sigma > 0, "> 0"),
                 ("map_lambda_max", self.map_lambda_max > 0, "> 0"),

@@ -38,6 +38,7 @@ from .feature_retry import FeatureRetry
 from .initialisation import InitialisationStage
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
+from .shape_propagation import propagate_shapes
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
@@ -397,6 +398,8 @@ class Odometry(InitialisationStage):
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
                                   prims.camera, T_world, splat=cfg.render_splat,
                                   tolerance=cfg.render_tolerance)
+        if cfg.propagate_shape and not self.frontend.uses_depth:
+            prims = propagate_shapes(prims, depth, cfg.propagate_min_coverage).primitives
         try:
             init = init_scales_from_render(prims, depth)
         except ValueError as exc:
