@@ -60,6 +60,7 @@ SLOW_TESTS = {
     "test_sfm.py": {"test_cli_writes_documented_outputs", "test_depth_frontend_accuracy",
                     "test_planar_model_classical_frontend",
                     "test_unconstrained_primitives_are_flagged_not_reported"},
+    "test_sfm_ablation.py": {"test_tum_classical_planar_row"},
     "test_sfm_real.py": {"test_tum_bundled_frames_rotation_error"},
     "test_trajectory_plots.py": {"test_vo_run_save_writes_the_plots"},
     "test_vo_frontier.py": {"test_tiny_synthetic_grid"},

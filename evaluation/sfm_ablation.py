@@ -1,0 +1,135 @@
+"""Few-view SfM shape ablation on real frames: front-end (shape prior) x shape model ->
+reference depth error after median scaling and rotation errors against ground truth.
+
+    python -m spgeo.evaluation.sfm_ablation [--root DIR] [--frontends classical manhattan depth]
+        [--shape-models scaled planar] [--out DIR] [--workers N | --address ADDR]
+
+Cases (reference first, then two supporting views; ``--root``: the shared data,
+default :func:`spgeo.evaluation.shared_data.shared_data_root`): TUM fr1_desk frames
+0, 4, 8 (``tum_fr1_desk_9``), ICL-NUIM living room 1, 2, 3 (``icl_nuim_lr_5``) and
+7-Scenes redkitchen 0/10/20, 100/110/120, 200/210/220 (``7scenes_redkitchen_dev``).
+Front-ends: ``classical`` (fronto-parallel superpixels), ``manhattan``
+(vanishing-point normals; both monocular) and ``depth`` (normals and initial
+scales from the sensor depth: the oracle row).  Shape models: ``scaled`` (one
+log-scale per primitive) and ``planar`` (3-DoF plane per primitive, initialised
+from the front-end's normals).  Per case: SfM status, median relative error of the
+reference depth after one median scale against the sensor depth (0.2-5 m), its
+coverage, and the mean rotation error of the views (deg).  One job per (case,
+front-end, shape model) (:mod:`spgeo.evaluation.jobs`).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from spgeo.evaluation.jobs import (EvalTable, Job, add_runner_arguments, provenance, run_table,
+                                   runner_config)
+from spgeo.evaluation.metrics import depth_metrics
+from spgeo.evaluation.pose_metrics import rotation_error_deg
+from spgeo.evaluation.shared_data import shared_data_root
+
+__all__ = ["CASES", "sfm_case_row", "make_jobs", "main"]
+
+#: (case name, data-set kind, folder under the root, frame selection "A:B:S" of 3 frames)
+CASES = (("tum 0-4-8", "tum", "tum_fr1_desk_9", "0:9:4"),
+         ("icl 1-2-3", "icl", "icl_nuim_lr_5", "1:4:1"),
+         ("7scenes 0-10-20", "7scenes", "7scenes_redkitchen_dev", "0:21:10"),
+         ("7scenes 100-110-120", "7scenes", "7scenes_redkitchen_dev", "100:121:10"),
+         ("7scenes 200-210-220", "7scenes", "7scenes_redkitchen_dev", "200:221:10"))
+FRONTENDS = ("classical", "manhattan", "depth")
+SHAPE_MODELS = ("scaled", "planar")
+DEPTH_RANGE_M = (0.2, 5.0)
+
+_COLUMNS = (("case", "case", 0), ("front-end", "frontend", 0), ("shape", "shape_model", 0),
+            ("status", "status", 0), ("median rel. depth err", "median_rel", 3),
+            ("coverage", "coverage", 2), ("mean rot. err deg", "rot_err_deg", 2),
+            ("s", "seconds", 1), ("error", "error", 0))
+
+
+def sfm_case_row(kind: str, folder: str, frames: str, frontend: str, shape_model: str,
+                 working_size=(320, 240)) -> Dict[str, object]:
+    """One job: few-view SfM on the three frames of ``folder`` (reference first)."""
+    import time
+
+    from spgeo.datasets import open_dataset
+    from spgeo.frame import Frame, resize_frame
+    from spgeo.frontend import FrontEndConfig, make_frontend
+    from spgeo.geometry import relative_pose
+    from spgeo.sfm import SfMConfig, few_view_sfm
+
+    seq = open_dataset(kind, folder, frames=frames)
+    fr = [seq[i] for i in range(len(seq))]
+    if len(fr) != 3:
+        raise ValueError(f"{folder} {frames}: expected 3 frames, got {len(fr)}")
+    ref, views = fr[0], fr[1:]
+    fe = make_frontend(frontend, FrontEndConfig(working_size=tuple(working_size)))
+    t0 = time.perf_counter()
+    res = few_view_sfm(ref.image, [v.image for v in views], ref.camera, fe,
+                       SfMConfig(marginals=False, shape_model=shape_model),
+                       ref_depth=ref.depth if fe.uses_depth else None)
+    secs = time.perf_counter() - t0
+    gt = resize_frame(Frame(ref.image, ref.camera, 0.0, depth=ref.depth), res.camera.size,
+                      keep_depth=True).depth
+    lo, hi = DEPTH_RANGE_M
+    ok = np.isfinite(res.depth) & np.isfinite(gt) & (gt > lo) & (gt < hi)
+    row: Dict[str, object] = {"status": res.status, "seconds": secs}
+    if ok.any():
+        k = float(np.median(gt[ok] / res.depth[ok]))
+        m = depth_metrics(res.depth * k, gt, min_depth=lo, max_depth=hi)
+        row.update(median_rel=m["median_rel"], coverage=m["coverage"])
+    gt_rel = [relative_pose(ref.T_world_cam, v.T_world_cam) for v in views]
+    row["rot_err_deg"] = float(np.mean([rotation_error_deg(a[:3, :3], b[:3, :3])
+                                        for a, b in zip(res.T_ref_view, gt_rel)]))
+    return row
+
+
+def make_jobs(root: Path, frontends: Sequence[str], shape_models: Sequence[str]) -> List[Job]:
+    """One job per (case, front-end, shape model); cases whose folder is missing are
+    left out (their names are returned in the provenance by :func:`main`)."""
+    return [Job(f"{name}/{fe}/{sm}", sfm_case_row, (kind, str(root / sub), frames, fe, sm),
+                meta={"case": name, "frontend": fe, "shape_model": sm})
+            for name, kind, sub, frames in CASES if (root / sub).is_dir()
+            for fe in frontends for sm in shape_models]
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", default=None, help="shared data folder (default: "
+                    "$SPGEO_SHARED_DATA or ../shared/data)")
+    ap.add_argument("--frontends", nargs="+", default=list(FRONTENDS), choices=FRONTENDS)
+    ap.add_argument("--shape-models", nargs="+", default=list(SHAPE_MODELS),
+                    choices=SHAPE_MODELS)
+    ap.add_argument("--out", default=None, help="write sfm_ablation.md/.json/.csv here")
+    add_runner_arguments(ap)
+    args = ap.parse_args(argv)
+    root = Path(args.root) if args.root else shared_data_root()
+    try:
+        runner = runner_config(args, desc="sfm_ablation")
+    except ValueError as exc:
+        ap.error(str(exc))
+    jobs = make_jobs(root, args.frontends, args.shape_models)
+    if not jobs:
+        print(f"sfm_ablation: no case found under {root}", file=sys.stderr)
+        return 2
+    missing = [name for name, _, sub, _ in CASES if not (root / sub).is_dir()]
+    prov = provenance({"root": str(root), "missing_cases": missing, "frontends": args.frontends,
+                       "shape_models": args.shape_models}, runner)
+
+    def table(rows):
+        return EvalTable(rows, _COLUMNS, group_by=("frontend", "shape_model"), provenance=prov,
+                         note="median rel. depth err: |k d - d_gt| / d_gt after one median scale "
+                              "k, sensor depth in 0.2-5 m; rotation error: mean over the views")
+
+    result = run_table(jobs, runner, table, Path(args.out) if args.out else None,
+                       stem="sfm_ablation")
+    print(result.markdown())
+    return 1 if result.failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

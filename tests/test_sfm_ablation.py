@@ -1,0 +1,24 @@
+"""The few-view SfM shape ablation protocol (spgeo.evaluation.sfm_ablation) on the
+shared TUM frames: one row's numbers against bounds from its measured output, and
+cases whose data are missing left out."""
+import pytest
+
+from spgeo.evaluation.sfm_ablation import CASES, make_jobs, sfm_case_row
+
+
+def test_tum_classical_planar_row(shared_data):
+    """TUM fr1_desk 0/4/8, classical front-end, planar shapes: verified, the
+    reference depth within 15 % (median, after one scale), rotations within 2 deg."""
+    row = sfm_case_row("tum", str(shared_data / "tum_fr1_desk_9"), "0:9:4", "classical",
+                       "planar")
+    assert row["status"] == "ok"
+    assert row["median_rel"] < 0.15 and row["coverage"] > 0.9
+    assert row["rot_err_deg"] < 2.0
+
+
+def test_jobs_skip_missing_cases(tmp_path):
+    (tmp_path / "tum_fr1_desk_9").mkdir()
+    jobs = make_jobs(tmp_path, ["classical", "depth"], ["scaled"])
+    assert [j.meta["case"] for j in jobs] == ["tum 0-4-8", "tum 0-4-8"]
+    assert {j.meta["frontend"] for j in jobs} == {"classical", "depth"}
+    assert len(CASES) == 5 and make_jobs(tmp_path / "none", ["classical"], ["scaled"]) == []
