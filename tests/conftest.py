@@ -34,7 +34,7 @@ def shared_data() -> Path:
 # Chosen by measuring ``python3 -m pytest -q --durations=0 tests``: a test is slow when its
 # call, or the set-up of a module-scoped fixture it requests, takes more than about 1.5 s.
 # A test that requests a slow fixture is slow too (else the fixture's cost moves to it).
-SLOW_FILES = {"test_notebooks.py"}
+SLOW_FILES = {"test_notebooks.py", "test_demo.py"}
 SLOW_FIXTURES = {
     "test_completion.py": {"synthetic_results"},
     "test_demo_vo.py": {"vo_demo"},

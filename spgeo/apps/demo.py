@@ -188,7 +188,9 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
     cam = synthetic.default_camera(*config.synthetic_size)
     poses = synthetic.make_trajectory(1, config.synthetic_seed)
     view = scene.render(cam, poses[0])
-    frontends = [make_frontend("classical", fe_cfg), make_frontend("depth", fe_cfg),
+    # offline (classical, manhattan: vanishing-point normals), sensor depth, oracle
+    frontends = [make_frontend("classical", fe_cfg), make_frontend("manhattan", fe_cfg),
+                 make_frontend("depth", fe_cfg),
                  PrimitiveFrontEnd(LabelSegmenter(view.surface_ids), _ExactNormals(view.normals),
                                    fe_cfg, name="oracle (GT ids+normals)")]
     best = None
@@ -202,11 +204,14 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
     # 2. real data: the bundled TUM fr1_desk frames (sensor depth as reference)
     seq = load_bundled_tum()
     frame = seq[config.tum_frame]
-    for fe in frontends[:2]:
+    for fe in frontends[:3]:
         prims, gt = _evaluate("tum_fr1_desk", fe, frame.image, frame.camera, frame.depth,
                               frame.depth, rows)
         if fe.name.startswith("depth"):
             best = (prims, gt)
+        elif fe.name == "manhattan":    # the offline shape prior beside the depth one
+            _picture(frame.image, prims, gt, out / "tum_manhattan_primitives.png")
+            files["tum_manhattan_png"] = str(out / "tum_manhattan_primitives.png")
     _picture(frame.image, best[0], best[1], out / "tum_primitives.png")
     files["tum_png"] = str(out / "tum_primitives.png")
     prims, gt = best
@@ -248,7 +253,9 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
               frame.camera, None)]
     for name, image, gt, camera, oracle in cases:
         sparse = keypoint_sparse_depth(image, gt, 150, rel_noise=0.01, seed=0)
-        preds = {"spgeo classical": complete_depth(image, sparse, camera).depth}
+        preds = {"spgeo classical": complete_depth(image, sparse, camera).depth,
+                 "spgeo manhattan (VP normals)": complete_depth(image, sparse, camera,
+                                                                "manhattan").depth}
         if oracle is not None:
             preds["spgeo ORACLE segments+normals"] = complete_depth(
                 image, sparse, camera, oracle, frontend_depth=gt).depth
