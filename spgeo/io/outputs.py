@@ -70,7 +70,12 @@ def write_bytes_atomic(path: PathLike, data: bytes, what: str = "output") -> str
     Checks the location with :func:`prepare_output_file`; returns the path."""
     path = prepare_output_file(path, what)
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp",
+                                   dir=folder)
+    except OSError as exc:
+        raise InputError(f"cannot write {what} {path}: {exc.strerror or exc} "
+                         f"(in folder {folder})") from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -130,6 +135,11 @@ def check_output_folder(path: PathLike, what: str = "--out") -> Path:
     _make_folder(str(parent), f"the parent folder of {what} {path}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"cannot write {what} {path}: folder {parent} is not writable")
+    try:    # a real probe (os.access says yes to root, and on some file systems)
+        os.rmdir(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".probe", dir=parent))
+    except OSError as exc:
+        raise InputError(f"cannot write {what} {path}: {exc.strerror or exc} "
+                         f"(in folder {parent})") from None
     return p
 
 
@@ -154,8 +164,12 @@ class StagedFolder:
         self.committed = False
 
     def __enter__(self) -> "StagedFolder":
-        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp",
-                                          dir=self.target.parent))
+        try:
+            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp",
+                                              dir=self.target.parent))
+        except OSError as exc:
+            raise InputError(f"cannot write the output folder {self.target}: "
+                             f"{exc.strerror or exc}") from None
         os.chmod(self.path, 0o755)   # mkdtemp creates 0700
         return self
 

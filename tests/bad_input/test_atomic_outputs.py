@@ -196,3 +196,16 @@ def test_vo_failure_mid_run_leaves_previous_run(inputs, tmp_path, monkeypatch):
     monkeypatch.undo()
     assert _vo(inputs, out) == 3          # a rerun replaces the folder: no stale cloud
     assert not (out / "clouds" / "keyframe_099.ply").exists()
+
+
+def test_check_output_folder_probes_the_parent(tmp_path, monkeypatch):
+    """A parent that os.access calls writable but that refuses new entries (root on
+    a read-only or virtual file system) is found by the probe, before any work."""
+    import spgeo.io.outputs as outputs
+
+    def refuse(*args, **kwargs):
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(outputs.tempfile, "mkdtemp", refuse)
+    with pytest.raises(InputError, match="cannot write --out .*Read-only file system"):
+        check_output_folder(tmp_path / "out")
