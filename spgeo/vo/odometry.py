@@ -32,7 +32,7 @@ from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
-from ..validation import InputError
+from ..validation import InputError, check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
 from .initialisation import InitialisationStage
@@ -61,7 +61,10 @@ class Odometry(InitialisationStage):
                  frontend: Optional[PrimitiveFrontEnd] = None) -> None:
         if frontend is None:
             raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
-        self.camera = camera
+        if not isinstance(config, OdometryConfig):
+            raise TypeError(f"Odometry: config must be an OdometryConfig, got "
+                            f"{type(config).__name__}")
+        self.camera = check_camera(camera, "Odometry: camera")
         self.config = config
         self.frontend = frontend
         self._frames: List[FrameResult] = []

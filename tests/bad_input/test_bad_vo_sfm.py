@@ -309,3 +309,17 @@ def test_init_buffer_is_bounded():
     for i in range(9):
         append_bounded(buf, i, 4)
     assert len(buf) <= 4 and buf[-1] == 8 and buf == sorted(buf)
+
+
+def test_odometry_rejects_a_tuple_camera_and_a_foreign_config():
+    """Odometry's constructor checks its camera and config types (it used to keep a
+    tuple camera and fail deep inside the first frame)."""
+    from spgeo.frontend import make_frontend
+    from spgeo.vo import Odometry
+
+    with pytest.raises(TypeError, match="Odometry: camera must be a spgeo.PinholeCamera, "
+                                        "got tuple"):
+        Odometry((60, 60, 31.5, 23.5, 64, 48), OdometryConfig(), make_frontend("classical"))
+    cam = synthetic.default_camera(64, 48)
+    with pytest.raises(TypeError, match="config must be an OdometryConfig, got dict"):
+        Odometry(cam, {"window": 5}, make_frontend("classical"))
