@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -173,8 +174,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     logging.basicConfig(level=logging.WARNING)
     path = Path(args.path) if args.path else default_path()
     if not path.is_dir():
-        print(f"7-Scenes sample not found at {path}: skipped")
-        return 0
+        print(f"completion_7scenes: error: 7-Scenes sample not found at {path} (give PATH)",
+              file=sys.stderr)
+        return 2
     res = run_7scenes(path, args.frames, args.points, args.seed, with_onnx=not args.no_onnx)
     print(res.table())
     return 0

@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -260,8 +261,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     logging.basicConfig(level=logging.WARNING)
     root = Path(args.root) if args.root else default_root()
     if not root.is_dir():
-        print(f"data root not found at {root}: skipped")
-        return 0
+        print(f"completion_real: error: data root not found at {root} (give --root)",
+              file=sys.stderr)
+        return 2
     names = [d for d in args.datasets.split(",") if d]
     fes = [f for f in args.frontends.split(",") if f] if args.frontends else None
     bls = [b for b in args.baselines.split(",") if b]
