@@ -46,6 +46,8 @@ SLOW_FIXTURES = {
     "test_vo_references.py": {"colmap_result"},
 }
 SLOW_TESTS = {
+    "test_atomic_outputs.py": {"test_sfm_failure_leaves_previous_output_byte_for_byte",
+                               "test_sfm_rerun_replaces_the_previous_run"},
     "test_colmap.py": {"test_colmap_fewview_paths_uint8_deterministic",
                        "test_colmap_two_view_fallback"},
     "test_eval_jobs.py": {"test_ray_gives_the_sequential_numbers",
