@@ -10,7 +10,7 @@ from conftest import shared_data_dir
 from spgeo.apps.vo_run import VORunConfig, run_dataset
 
 #: per-frame ATE bounds (metres) of the default config, by front-end
-ATE_BOUND_M = {"classical": 0.040, "depth": 0.011}
+ATE_BOUND_M = {"classical": 0.018, "depth": 0.011}
 
 
 @pytest.mark.slow

@@ -13,13 +13,16 @@ from ..validation import InputError
 from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
 
-__all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS"]
+__all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS", "INIT_METHODS"]
 
 #: ``OdometryConfig.primitive_model`` values: ``"integrated"`` (the paper's model),
 #: ``"constant_depth"`` (each primitive a fronto-parallel plane at its anchor depth),
 #: ``"constant_normal"`` (the least-squares plane of its integrated shape) and
 #: ``"planar"`` (those planes with their three parameters optimised in mapping).
 PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar")
+
+#: how a monocular map's initialisation SfM starts (``OdometryConfig.init_method``)
+INIT_METHODS = ("twoview", "tracked")
 
 
 @dataclass(frozen=True)
@@ -168,7 +171,7 @@ class OdometryConfig:
             ``min_level_pixels`` per primitive), in (0, 1] (default 1: all).
         pixel_budget: about this many tracking pixels per pyramid level,
             selected by :func:`spgeo.vo.pixels.select_pixels` with
-            ``pixel_selection``'s options (default 1000; docs/results.md
+            ``pixel_selection``'s options (default 1500; docs/results.md
             says why); None: every primitive pixel of a level's lattice.
         map_pixel_budget: the same for the mapping factors at ``map_level``
             (None, default: every pixel there).
@@ -226,6 +229,17 @@ class OdometryConfig:
             pixel's nearest are averaged (0: the nearest wins, which biases
             overlapping estimates of one surface towards the camera and makes
             the monocular scale shrink keyframe after keyframe).
+        kf_scale_check: monocular front-ends: after a new keyframe's
+            log-scales are rendered from the window, the previous keyframe's
+            image is tracked against it and its log-scales are shifted so
+            that the tracked translation matches the known one
+            (:func:`~spgeo.vo.scale_check.reverse_scale_check`; default True;
+            docs/results.md says why).
+        kf_scale_check_min_parallax: ... only when the two keyframes'
+            translation over the new one's median depth reaches this
+            (default 0.01).
+        kf_scale_check_max_change: ... by a factor of at most
+            ``1 + kf_scale_check_max_change`` either way (default 0.2, > 0).
         propagate_shape: monocular front-ends: a new keyframe's primitives
             that the rendered window covers take the shape integrated from the
             render's normals (:mod:`spgeo.vo.shape_propagation`) instead of the
@@ -246,6 +260,14 @@ class OdometryConfig:
             says why; :func:`spgeo.vo.initialisation.init_rejection`).
         init_min_gap: keyframe 1 is at least this many frames after keyframe
             0 (default 3; ``1 <= init_min_gap <= init_max_gap``).
+        init_method: how a monocular map's initialisation SfM starts:
+            ``"twoview"`` (default): keyframe 1's pose and keyframe 0's
+            primitive scales from feature-based two-view geometry
+            (:func:`~spgeo.vo.initialisation.twoview_start`), falling back to
+            ``"tracked"`` when that has no estimate; ``"tracked"``: keyframe 1's
+            pose tracked against keyframe 0's unscaled primitives, every
+            primitive at depth 1.  A depth-using front-end always starts from
+            the tracked pose and its metric scales.
         init_extra_views: frames between keyframes 0 and 1 (evenly spaced)
             added as supporting views to the initialisation's SfM (default
             1): with keyframe 1 alone the monocular structure of keyframe 0
@@ -277,7 +299,7 @@ class OdometryConfig:
     map_lambda_max: float = 1e3
     map_lambda_initial: float = 1e-5
     map_pixel_fraction: float = 1.0
-    pixel_budget: Optional[int] = 1000
+    pixel_budget: Optional[int] = 1500
     map_pixel_budget: Optional[int] = None
     pixel_selection: PixelSelectionConfig = field(default_factory=PixelSelectionConfig)
     map_chunk: int = 128
@@ -294,11 +316,15 @@ class OdometryConfig:
     min_level_pixels: int = 4
     render_splat: int = 2
     render_tolerance: float = 0.2
+    kf_scale_check: bool = True
+    kf_scale_check_min_parallax: float = 0.01
+    kf_scale_check_max_change: float = 0.2
     propagate_shape: bool = False
     propagate_min_coverage: float = 0.6
     init_min_parallax: float = 0.08
     init_max_gap: int = 30
     init_min_gap: int = 3
+    init_method: str = "twoview"
     init_extra_views: int = 1
     max_lost_frames: int = 10
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
@@ -322,6 +348,9 @@ class OdometryConfig:
                              "or >= 1")
         if not self.map_lambda_initial > 0:
             raise InputError("OdometryConfig.map_lambda_initial must be > 0")
+        if self.init_method not in INIT_METHODS:
+            raise InputError(f"OdometryConfig.init_method must be one of {INIT_METHODS}, "
+                             f"got {self.init_method!r}")
         if self.init_extra_views < 0:
             raise InputError("OdometryConfig.init_extra_views must be >= 0")
         if not 1 <= self.init_min_gap <= self.init_max_gap:
@@ -348,6 +377,8 @@ class OdometryConfig:
                 ("kf_max_rotation_deg", self.kf_max_rotation_deg > 0, "> 0"),
                 ("kf_max_relative_cost", self.kf_max_relative_cost > 0, "> 0"),
                 ("render_tolerance", self.render_tolerance >= 0, ">= 0"),
+                ("kf_scale_check_min_parallax", self.kf_scale_check_min_parallax >= 0, ">= 0"),
+                ("kf_scale_check_max_change", self.kf_scale_check_max_change > 0, "> 0"),
                 ("propagate_min_coverage", 0 < self.propagate_min_coverage <= 1, "in (0, 1]"),
                 ("gauge_sigma", self.gauge_sigma > 0, "> 0"),
                 ("planar_slope_sigma", self.planar_slope_sigma > 0, "> 0"),

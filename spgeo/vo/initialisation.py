@@ -21,12 +21,16 @@ import gtsam
 
 from ..frame import Frame
 from ..geometry import invert_pose, rotation_angle_deg
+from ..camera import PinholeCamera
+from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
+from ..sfm_init import twoview_initialisation
 from .mapping import MapKeyframe, SupportCandidate, apply_primitive_model
 from .result import FrameResult, FrameStatus
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["InitialisationStage", "init_views", "init_rejection", "append_bounded"]
+__all__ = ["InitialisationStage", "init_views", "init_rejection", "append_bounded",
+           "twoview_start"]
 
 log = logging.getLogger(__name__)
 
@@ -61,17 +65,53 @@ def init_views(image: np.ndarray, idx: int, frame0: int, buffer: Sequence[tuple]
     return views, init
 
 
-def init_rejection(sfm: SfMResult, tracked: bool, parallax: float,
-                   min_parallax: float) -> Optional[str]:
+def twoview_start(image0: np.ndarray, image1: np.ndarray, camera: PinholeCamera,
+                  prims0: PrimitiveSet) -> Optional[Tuple[np.ndarray, PrimitiveSet]]:
+    """Keyframe 1's pose and keyframe 0's log-scales from feature-based two-view
+    geometry (:func:`spgeo.sfm_init.twoview_initialisation`: essential matrix,
+    triangulated inliers, a robust median per primitive), for a monocular
+    front-end whose primitives have no scale yet.
+
+    Args:
+        image0, image1: keyframes 0 and 1 at ``camera``'s resolution.
+        camera: their intrinsics.
+        prims0: keyframe 0's primitives (their log-scales are ignored).
+    Returns:
+        ``(T_kf0_kf1, prims)``: with a two-view estimate (``"ok"``) its pose
+        and the triangulated scales, in the units where keyframe 0's median
+        depth is 1 (the units of a front-end's unscaled primitives); when the
+        matches show no parallax (``"low_parallax"``) the rotation-only
+        estimate with zero translation and the unscaled primitives (the SfM
+        finds the baseline from there: a pose tracked against unscaled
+        primitives overestimates it); None without an estimate (too few
+        matches or inliers, degenerate geometry).
+    """
+    report: dict = {}
+    unscaled = prims0.with_log_scales(np.zeros(len(prims0)))
+    poses, prims = twoview_initialisation(image0, [image1], camera, unscaled, report)
+    status = report["twoview_status"][0]
+    if status == "low_parallax":
+        # the rotation-only estimate, zero translation: the SfM finds the baseline
+        return np.asarray(poses[0], dtype=float).copy(), unscaled
+    if status != "ok" or not report.get("primitives_with_points"):
+        return None
+    med = float(np.median(np.exp(prims.scaled_log_depth())))
+    if not (np.isfinite(med) and med > 0):
+        return None
+    T = np.asarray(poses[0], dtype=float).copy()
+    T[:3, 3] /= med
+    return T, prims.with_log_scales(prims.log_scales - np.log(med))
+
+
+def init_rejection(sfm: SfMResult, tracked: bool) -> Optional[str]:
     """Why the SfM of keyframes 0 and 1 must not initialise a map, or None.
 
     A keyframe pair initialises only with a baseline: the SfM's view of
     keyframe 1 (its first view) must not be ``"low_parallax"`` / ``"diverged"``
     and its pose must be finite.  When keyframe 1 was not tracked against
     keyframe 0 (large motion or a frame the tracker cannot use) the SfM alone
-    decides, so its status must also be ``"ok"`` and ``parallax`` (its own
-    baseline over its median depth) at least ``min_parallax``
-    (``OdometryConfig.init_min_parallax``).
+    decides, so its status must also be ``"ok"`` (before ``init_max_gap`` the
+    caller also asks its baseline for ``init_min_parallax``).
     """
     if not sfm.T_ref_view or not np.all(np.isfinite(sfm.T_ref_view[0])):
         return "non-finite keyframe-1 pose"
@@ -81,8 +121,6 @@ def init_rejection(sfm: SfMResult, tracked: bool, parallax: float,
         return f"SfM view of keyframe 1 {kf1}" + ("" if p is None else f", parallax {p:.3g}")
     if not tracked and sfm.status != "ok":
         return f"keyframe 1 not tracked and SfM status {sfm.status}"
-    if not tracked and not parallax >= min_parallax:
-        return f"keyframe 1 not tracked and parallax {parallax:.3g} < {min_parallax:g}"
     return None
 
 
@@ -152,9 +190,18 @@ class InitialisationStage:
         # ---- SfM: keyframe 0 of the segment (reference), this frame and extra views
         t = time.perf_counter()
         sfm_cfg = dataclasses.replace(self.config.sfm, reset_scales=not self.frontend.uses_depth)
-        views, init = init_views(frame.image, idx, kf0.frame, self._init_buffer,
-                                 cfg.init_extra_views, T_kf0_f if tr.ok else None)
         prims0 = kf0.keyframe.primitives
+        T_init = T_kf0_f if tr.ok else None
+        if tr.ok and cfg.init_method == "twoview" and not self.frontend.uses_depth:
+            tv = twoview_start(kf0.image, frame.image, self.camera, prims0)
+            if tv is not None:
+                T_init, prims0 = tv
+                sfm_cfg = dataclasses.replace(sfm_cfg, reset_scales=False)
+            else:
+                log.info("frame %d: no two-view estimate for keyframe 1; the SfM starts from "
+                         "the tracked pose", idx)
+        views, init = init_views(frame.image, idx, kf0.frame, self._init_buffer,
+                                 cfg.init_extra_views, T_init)
         sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
         timings["init"] = time.perf_counter() - t
         finite = bool(np.all(np.isfinite(sfm.T_ref_view[0])))
@@ -163,7 +210,7 @@ class InitialisationStage:
                 np.exp(sfm.primitives.scaled_log_depth())))
         failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
                                                          or parallax < cfg.init_min_parallax))
-        rejected = None if failed else init_rejection(sfm, tr.ok, parallax, cfg.init_min_parallax)
+        rejected = None if failed else init_rejection(sfm, tr.ok)
         self._sfm_reports.append({
             "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
             "sfm_parallax": (sfm.report.get("parallax") or [None])[0], "n_views": len(views),

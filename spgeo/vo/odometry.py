@@ -38,6 +38,7 @@ from .feature_retry import FeatureRetry
 from .initialisation import InitialisationStage
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
+from .scale_check import reverse_scale_check
 from .shape_propagation import propagate_shapes
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
@@ -87,6 +88,7 @@ class Odometry(InitialisationStage):
         self._mapper = WindowMapper(config)
         self._retry = FeatureRetry(camera, config.feature_retry)
         self._sfm_reports: List[dict] = []
+        self._scale_checks: List[dict] = []
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -239,12 +241,14 @@ class Odometry(InitialisationStage):
             "seconds_total": float(np.sum(tot)),
             "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
             "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
-                                  for k in ("track", "frontend", "mapping", "init")},
+                                  for k in ("track", "frontend", "scale_check", "mapping",
+                                            "init")},
             "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
             "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
             "sfm": self._sfm_reports,
+            "scale_checks": self._scale_checks,
             "mapping": self._mapper.reports,
             "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
                         "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
@@ -409,12 +413,22 @@ class Odometry(InitialisationStage):
             log.warning("frame %d: no keyframe (%s)", idx, exc)
             timings["frontend"] = time.perf_counter() - t
             return None
-        prims = apply_primitive_model(init.primitives, cfg.primitive_model)
         timings["frontend"] = time.perf_counter() - t
+        keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.levels, cfg.selection)
         k = len(self._kf_order)
-        kf = MapKeyframe(k, idx, np.asarray(frame.image),
-                 Keyframe.build(frame.image, prims, T_world, cfg.levels, cfg.selection),
-                 self._segment,
+        prims = init.primitives
+        if cfg.kf_scale_check and not self.frontend.uses_depth:
+            t = time.perf_counter()
+            prev = self._kfs[self._seg_kfs[-1]]
+            check = reverse_scale_check(keyframe, prev.image, prev.keyframe.T_world_kf,
+                                        cfg.tracker, cfg.kf_scale_check_min_parallax,
+                                        cfg.kf_scale_check_max_change)
+            prims = prims.with_log_scales(prims.log_scales + check.log_correction)
+            self._scale_checks.append({"keyframe": k, "frame": idx, **check.as_dict()})
+            timings["scale_check"] = time.perf_counter() - t
+        prims = apply_primitive_model(prims, cfg.primitive_model)
+        keyframe = keyframe.rebuilt(prims, T_world)
+        kf = MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._segment,
                  prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
                                         cfg.scale_prior_weight, cfg.render_prior_weight))
         self._kfs[k] = kf
