@@ -8,7 +8,10 @@ A monocular map has one unknown scale; if it held, the ratio would be the same f
 every keyframe.  Its growth or decay along the run is the scale drift that
 Sim(3) ATE alignment can only average out.  The data set must have depth (used
 here only, never by a monocular front-end).  Prints one line per keyframe:
-frame number, ratio, and the ratio relative to keyframe 0's.
+frame number, ratio, the ratio relative to keyframe 0's, and the ratio of the
+ground-truth to the estimated distance from the previous keyframe (the
+trajectory's own scale: where it departs from the depth ratio, translations and
+depths of the map disagree).
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["keyframe_depth_ratios", "main"]
+__all__ = ["keyframe_depth_ratios", "keyframe_baseline_ratios", "main"]
 
 
 def keyframe_depth_ratios(run, frames) -> List[Tuple[int, float]]:
@@ -42,6 +45,21 @@ def keyframe_depth_ratios(run, frames) -> List[Tuple[int, float]]:
         ok = np.isfinite(gt) & (gt > 0) & np.isfinite(est)
         if ok.any():
             out.append((f, float(np.median(gt[ok] / est[ok]))))
+    return out
+
+
+def keyframe_baseline_ratios(run) -> Dict[int, float]:
+    """``{frame number: |GT baseline| / |estimated baseline|}`` from the previous
+    keyframe to each keyframe of ``run`` (final poses; keyframes without ground
+    truth or with a zero estimated baseline are left out)."""
+    res = run.result()
+    kf = [i for i in np.flatnonzero(res.is_keyframe) if run.gt_poses[i] is not None]
+    out = {}
+    for a, b in zip(kf[:-1], kf[1:]):
+        est = np.linalg.norm(res.poses[b][:3, 3] - res.poses[a][:3, 3])
+        gt = np.linalg.norm(run.gt_poses[b][:3, 3] - run.gt_poses[a][:3, 3])
+        if est > 0:
+            out[int(b)] = float(gt / est)
     return out
 
 
@@ -73,10 +91,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("vo_scale_drift: error: no keyframe with sensor depth", file=sys.stderr)
         return 2
     r0 = ratios[0][1]
-    print("| frame | sensor / keyframe depth | relative to keyframe 0 |")
-    print("|---|---|---|")
+    baselines = keyframe_baseline_ratios(run)
+    print("| frame | sensor / keyframe depth | relative to keyframe 0 | GT / estimated baseline |")
+    print("|---|---|---|---|")
     for f, r in ratios:
-        print(f"| {f} | {r:.3f} | {r / r0:.3f} |")
+        b = baselines.get(f)
+        print(f"| {f} | {r:.3f} | {r / r0:.3f} | {'-' if b is None else f'{b:.3f}'} |")
     return 0
 
 

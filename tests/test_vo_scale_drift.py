@@ -1,11 +1,13 @@
 """Keyframe scale-drift diagnostic (spgeo.evaluation.vo_scale_drift): with the
 depth front-end (metric scales from the sensor depth) every keyframe's depth
-matches the sensor's, so the ratios are 1 within a few per cent."""
+matches the sensor's and the keyframe baselines the ground truth's, so the
+ratios are 1 within a few per cent."""
 import numpy as np
 
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_odometry
-from spgeo.evaluation.vo_scale_drift import keyframe_depth_ratios, main
+from spgeo.evaluation.vo_scale_drift import (keyframe_baseline_ratios, keyframe_depth_ratios,
+                                             main)
 
 
 def test_depth_frontend_ratios_are_one():
@@ -17,6 +19,9 @@ def test_depth_frontend_ratios_are_one():
     ratios = keyframe_depth_ratios(run, frames)
     assert len(ratios) >= 2 and ratios[0][0] == 0
     np.testing.assert_allclose([r for _, r in ratios], 1.0, rtol=0.05)
+    baselines = keyframe_baseline_ratios(run)
+    assert set(baselines) == {f for f, _ in ratios[1:]}
+    np.testing.assert_allclose(list(baselines.values()), 1.0, rtol=0.1)
 
 
 def test_cli_bad_dataset(tmp_path, capsys):
