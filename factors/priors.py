@@ -44,10 +44,13 @@ def pose_gauge_prior(key: int, T_world_cam: np.ndarray = None,
 
 
 def planar_slope_prior(key: int, inverse_depth: float, slope_sigma: float = 2.0,
-                       inverse_depth_sigma: float = 1.0 / np.sqrt(LOG_SCALE_PRIOR_WEIGHT)
-                       ) -> gtsam.PriorFactorVector:
-    """Prior on a plane ``1/z = a x + b y + c`` towards ``(0, 0, inverse_depth)``."""
-    return gtsam.PriorFactorVector(key, np.array([0.0, 0.0, float(inverse_depth)]),
+                       inverse_depth_sigma: float = 1.0 / np.sqrt(LOG_SCALE_PRIOR_WEIGHT),
+                       slope: Sequence[float] = (0.0, 0.0)) -> gtsam.PriorFactorVector:
+    """Prior on a plane ``1/z = a x + b y + c`` towards ``(a0, b0, inverse_depth)``,
+    ``(a0, b0) = slope`` (default fronto-parallel; a front-end's normal gives
+    another: :meth:`spgeo.primitives.PrimitiveSet.fit_planes`)."""
+    a0, b0 = (float(v) for v in slope)
+    return gtsam.PriorFactorVector(key, np.array([a0, b0, float(inverse_depth)]),
                                    gtsam.noiseModel.Diagonal.Sigmas(
                                        np.array([slope_sigma, slope_sigma, inverse_depth_sigma])))
 

@@ -35,6 +35,7 @@ from .images import gaussian_pyramid, to_float_image, to_gray
 from .primitives import PointCloud, PrimitiveSet
 from .sfm_graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
                         hold_translation_and_shape, pose_key, scale_key)
+from .sfm_orientation import choose_planar_orientations
 from .sfm_init import twoview_initialisation
 from .validation import InputError, check_camera
 
@@ -62,7 +63,14 @@ class SfMConfig:
         scale_prior_weight: weight of the prior pulling each log-scale to its
             initial value (paper: 1e-5); sigma = ``1 / sqrt(weight)``.
         planar_prior_sigma: prior sigma pulling the plane's slopes ``(a, b)``
-            towards fronto-parallel (planar model only).
+            towards fronto-parallel, or towards the chosen orientation
+            (planar model only).
+        orientation_choice: planar model: after the coarse-to-fine solve from
+            fronto-parallel planes, each primitive whose front-end shape is
+            not flat takes that shape's orientation where it lowers the
+            primitive's photometric cost at the solved poses, and the finest
+            level is solved once more (:mod:`spgeo.sfm_orientation`; default
+            True; no effect on flat front-end shapes).
         ref_prior_sigma: sigma of the gauge prior on the reference pose.
         reset_scales: start every log-scale at 0 (paper) even if the front-end
             fitted scales (depth-using front-ends do).
@@ -105,6 +113,7 @@ class SfMConfig:
     brightness_prior_sigma: Tuple[float, float] = (0.3, 0.3)
     scale_prior_weight: float = 1e-5
     planar_prior_sigma: float = 2.0
+    orientation_choice: bool = True
     ref_prior_sigma: float = 1e-6
     reset_scales: bool = True
     min_level_pixels: int = 4
@@ -340,8 +349,10 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         np.allclose(T, np.eye(4)) for T in init_T_ref_view)
     if config.rotation_first and any_identity:
         stages.insert(0, (n_levels - 1, True))
+    orientations = None     # planar slope priors: fronto-parallel until a choice is made
     for lvl, rotation_only in stages:
-        graph, builders = build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config)
+        graph, builders = build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config,
+                                      orientations)
         if rotation_only:
             hold_translation_and_shape(graph, values, len(views), len(prims))
         params = gtsam.LevenbergMarquardtParams()
@@ -362,6 +373,11 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
         log.debug("level %d%s: %d factors, %d its, cost %.4g -> %.4g", lvl,
                   " (rotation only)" if rotation_only else "", graph.size(),
                   opt.iterations(), err0, err1)
+        if (lvl == 0 and not rotation_only and orientations is None
+                and config.shape_model == "planar" and config.orientation_choice):
+            values, orientations = choose_planar_orientations(prims, builders, values, report)
+            if orientations is not None:
+                stages.append((0, False))      # refine once more with the chosen planes
     t_opt = time.perf_counter()
 
     # ---- results

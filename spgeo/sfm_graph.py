@@ -8,7 +8,7 @@ of the VO tracker, which minimises the same cost.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, List
+from typing import TYPE_CHECKING, List, Optional
 
 import numpy as np
 
@@ -73,10 +73,13 @@ def hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam.
 
 
 def build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
-                values: gtsam.Values, config: "SfMConfig"):
+                values: gtsam.Values, config: "SfMConfig",
+                orientations: Optional[np.ndarray] = None):
     """The graph of one pyramid level; returns ``(graph, groups)``: one
     :class:`PhotometricFactorGroup` per view over the primitives with at least
-    ``min_level_pixels`` pixels on the level's lattice."""
+    ``min_level_pixels`` pixels on the level's lattice.  ``orientations``:
+    planar model, (N, 2) ``(a / c, b / c)`` the slope priors pull towards
+    (None: fronto-parallel)."""
     graph = gtsam.NonlinearFactorGraph()
     builders: List[PhotometricFactorGroup] = []
     graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
@@ -90,8 +93,10 @@ def build_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, l
     else:
         for i in range(len(prims)):
             c0 = values.atVector(scale_key(i))[2]
+            # slope prior towards the primitive's orientation (a/c, b/c), at the current c
+            slope = (0.0, 0.0) if orientations is None else c0 * orientations[i]
             graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
-                                         1.0 / np.sqrt(config.scale_prior_weight)))
+                                         1.0 / np.sqrt(config.scale_prior_weight), slope=slope))
     stride = 2 ** lvl
     ref_img = ref_pyr.images[lvl]
     w = prims.camera.width

@@ -394,7 +394,7 @@ class WindowMapper:
                 stamp(key, kf.index)
                 if self._planar:
                     graph.add(planar_slope_prior(key, float(th[i, 2]), cfg.planar_slope_sigma,
-                                                 1.0 / np.sqrt(pw[i])))
+                                                 1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
                 else:
                     graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
 
