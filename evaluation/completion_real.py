@@ -255,6 +255,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "present, depth oracle)")
     ap.add_argument("--baselines", default=",".join(BASELINES),
                     help="comma-separated baselines (default all)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                    help="CompletionConfig overrides (Python literals), e.g. plane_coupling=0.01; "
+                         "the method / shape_model of each row still vary")
     ap.add_argument("--out", default=None, help="folder for completion_real.md / .json")
     add_runner_arguments(ap)
     args = ap.parse_args(argv)
@@ -272,8 +275,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                                or args.address is not None)
     except ValueError as exc:
         ap.error(str(exc))
+    try:
+        from spgeo.cli.config import apply_overrides, nest, parse_assignments
+
+        over = nest(parse_assignments(args.set, strict=True))
+        config = apply_overrides(CompletionConfig(), over) if over else CompletionConfig()
+    except (ValueError, TypeError) as exc:
+        print(f"completion_real: error: --set: {exc}", file=sys.stderr)
+        return 2
     res = run_completion_real(root, names, runner, frames=args.frames, n_points=args.points,
-                              seed=args.seed, frontends=fes, baselines=bls,
+                              seed=args.seed, frontends=fes, baselines=bls, config=config,
                               progress=runner.backend == "local")
     text = "\n\n".join(r.table() for r in res.values())
     print(text)
