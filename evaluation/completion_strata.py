@@ -26,12 +26,12 @@ STRATA = (("no primitive", -1, 0), ("0 points", 0, 1), ("1-2 points", 1, 3),
           ("3+ points", 3, 1 << 30))
 
 
-def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] = None
-                  ) -> Dict[str, Dict[str, float]]:
+def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] = None,
+                  frames: Optional[str] = None) -> Dict[str, Dict[str, float]]:
     """``{stratum: {"fraction", "spgeo_mm", "linear_mm"}}`` for data set ``name``
-    of :data:`spgeo.evaluation.completion_real.DATASETS`, with the default
-    :class:`spgeo.completion.CompletionConfig`.  Raises ``FileNotFoundError``
-    when the data set's folder is missing."""
+    of :data:`spgeo.evaluation.completion_real.DATASETS` (``frames``: another
+    ``A:B[:S]`` selection), with the default :class:`spgeo.completion.CompletionConfig`.
+    Raises ``FileNotFoundError`` when the data set's folder is missing."""
     import cv2
 
     from spgeo.completion import CompletionConfig, complete_depth, working_size_for
@@ -45,6 +45,7 @@ def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] =
     path = Path(root if root is not None else default_root()) / folder
     if not path.is_dir():
         raise FileNotFoundError(f"{name} sample not found at {path}")
+    sel = frames or sel
     ds = open_dataset(kind, path, **({"frames": sel} if sel else {}))
     cfg = CompletionConfig()
     fe = make_frontend(frontend, FrontEndConfig(working_size=working_size_for(ds.camera,

@@ -52,3 +52,31 @@ def test_unknown_dataset_and_missing_root(tmp_path):
     with pytest.raises(FileNotFoundError):
         cr.run_dataset("tum", tmp_path)
     assert cr.run_completion_real(tmp_path, ["tum"]) == {}
+
+
+def test_set_overrides_the_completion_config(root, tmp_path, capsys):
+    args = ["--root", str(root), "--datasets", "tum", "--frames", "0:1", "--frontends",
+            "classical", "--baselines", "linear"]
+    assert cr.main(args + ["--out", str(tmp_path / "a")]) == 0
+    assert cr.main(args + ["--set", "plane_coupling=0.5", "--out", str(tmp_path / "b")]) == 0
+    a, b = (json.loads((tmp_path / d / "completion_real.json").read_text())["tum"]["mean"]
+            for d in ("a", "b"))
+    row = "spgeo classical graph/plane"
+    assert a[row]["mae_mm"] != b[row]["mae_mm"]              # the override reached the solver
+    assert a["linear"]["mae_mm"] == b["linear"]["mae_mm"]
+    capsys.readouterr()
+    assert cr.main(args + ["--set", "no_such_field=1"]) == 2
+    assert "unknown field 'no_such_field'" in capsys.readouterr().err
+
+
+def test_completion_strata_partition_and_errors(root, capsys):
+    from spgeo.evaluation.completion_strata import STRATA, main, strata_errors
+
+    rows = strata_errors("tum", root=root, frames="0:2")
+    assert list(rows) == [lab for lab, _, _ in STRATA]
+    assert sum(r["fraction"] for r in rows.values()) == pytest.approx(1.0)
+    for r in rows.values():
+        if r["fraction"] > 0.05:
+            assert 0 < r["spgeo_mm"] < 2000 and 0 < r["linear_mm"] < 2000
+    assert main(["--datasets", "tum", "--root", str(root / "none")]) == 2
+    assert "completion_strata: error:" in capsys.readouterr().err
