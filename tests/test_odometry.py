@@ -322,3 +322,24 @@ def test_pixel_selection_accuracy(frames):
     for tr in tracked:
         fine = tr.report[-1]
         assert fine["level"] == 0 and fine["pixels"] <= 1000 + n_min * fine["primitives"]
+
+
+def test_monocular_reinitialisation_keeps_the_depth_scale(frames):
+    """A monocular (classical) map re-initialised after a loss starts its new
+    segment near the previous map's depth scale (a coarse check: the synthetic
+    map's scale is close to 1, the unit of an unscaled front-end)."""
+    other = synthetic.render_frames(synthetic.SyntheticScene.generate(7), CAM,
+                                     synthetic.make_trajectory(40, 7), supersample=2)
+    seq = list(frames[:40]) + [Frame(np.zeros_like(frames[0].image), CAM, 0.0)] * 2 + list(other)
+    vo = Odometry(CAM, OdometryConfig(max_lost_frames=3),
+                  make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
+    out = [vo.track(Frame(f.image, CAM, i / 30.0)) for i, f in enumerate(seq)]
+    assert [r.status for r in out].count("reinit") == 1
+    seg = {0: [], 1: []}
+    for kf_res in out:
+        if kf_res.keyframe_index is not None:
+            seg[kf_res.segment].append(vo.keyframes[kf_res.keyframe_index].median_depth)
+    assert len(seg[0]) >= 2 and len(seg[1]) >= 2, seg
+    # the rooms differ, the scale of the map does not jump by more than the scenes do
+    ratio = np.median(seg[1]) / seg[0][-1]
+    assert 0.4 < ratio < 2.5, (seg, ratio)

@@ -19,9 +19,9 @@ import numpy as np
 
 import gtsam
 
+from ..camera import PinholeCamera
 from ..frame import Frame
 from ..geometry import invert_pose, rotation_angle_deg
-from ..camera import PinholeCamera
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
 from ..sfm_init import twoview_initialisation
@@ -237,7 +237,8 @@ class InitialisationStage:
         T_w0 = kf0.keyframe.T_world_kf
         if not self.frontend.uses_depth and self._segment > 0:
             # a re-initialised monocular segment keeps the previous map's depth scale
-            med = np.median(np.exp(prims0.scaled_log_depth()))
+            # (keyframe 0's primitives were set to it by Odometry._reinitialise)
+            med = np.median(np.exp(kf0.keyframe.primitives.scaled_log_depth()))
             med_new = np.median(np.exp(new_prims.scaled_log_depth()))
             c = float(np.log(med / med_new))
             new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
