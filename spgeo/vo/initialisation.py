@@ -249,12 +249,22 @@ class InitialisationStage:
         kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels,
                                       self.config.selection)
         T1 = T_w0 @ T_01
-        # re-track the buffered frames against the solved keyframe 0
+        # re-track the buffered frames against the solved keyframe 0: from the
+        # constant-velocity guess, else from the pose interpolated between keyframes
+        # 0 and 1 at the frame's place in the gap (a failed frame leaves no velocity)
         prev = None
         last = T_w0.copy()
+        xi01 = gtsam.Pose3.Logmap(gtsam.Pose3(T_01))
         for j, img in self._init_buffer:
             tj = track_frame(kf0.keyframe, img, constant_velocity_guess(last, prev),
                              self._brightness, self.config.tracker)
+            if not tj.ok:
+                frac = (j - kf0.frame) / max(idx - kf0.frame, 1)
+                T_guess = T_w0 @ gtsam.Pose3.Expmap(frac * xi01).matrix()
+                tj2 = track_frame(kf0.keyframe, img, T_guess, self._brightness,
+                                  self.config.tracker)
+                if tj2.ok or tj2.photometric_cost < tj.photometric_cost:
+                    tj = tj2
             if tj.ok:
                 prev, last = last, tj.T_world_frame
                 self._frames[j].T_world_cam = tj.T_world_frame.copy()
