@@ -35,8 +35,8 @@ from .images import gaussian_pyramid, to_float_image, to_gray
 from .primitives import PointCloud, PrimitiveSet
 from .sfm_graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
                         hold_translation_and_shape, pose_key, scale_key)
-from .sfm_orientation import choose_planar_orientations
 from .sfm_init import twoview_initialisation
+from .sfm_orientation import choose_planar_orientations
 from .validation import InputError, check_camera
 
 __all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
@@ -66,11 +66,11 @@ class SfMConfig:
             towards fronto-parallel, or towards the chosen orientation
             (planar model only).
         orientation_choice: planar model: after the coarse-to-fine solve from
-            fronto-parallel planes, each primitive whose front-end shape is
-            not flat takes that shape's orientation where it lowers the
-            primitive's photometric cost at the solved poses, and the finest
+            fronto-parallel planes, each primitive takes its front-end shape's
+            orientation or one of the scene's dominant orientations where that
+            lowers its photometric cost at the solved poses, and the finest
             level is solved once more (:mod:`spgeo.sfm_orientation`; default
-            True; no effect on flat front-end shapes).
+            True; no effect when every front-end shape is flat).
         ref_prior_sigma: sigma of the gauge prior on the reference pose.
         reset_scales: start every log-scale at 0 (paper) even if the front-end
             fitted scales (depth-using front-ends do).
