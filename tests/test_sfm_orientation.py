@@ -96,3 +96,25 @@ def test_choice_recovers_true_orientations(setup):
     # a primitive keeps its plane unless a hypothesis lowers its own cost
     after, _ = primitive_costs(groups, values, best, _index)
     assert np.all(after[seen] <= cost_flat[seen] + 1e-12)
+
+
+def test_few_view_sfm_makes_the_choice_and_refines():
+    """Planar few-view SfM with non-flat front-end shapes reports the choice and
+    solves the finest level once more; flat (classical) shapes make no choice."""
+    from spgeo.sfm import few_view_sfm
+
+    scene = synthetic.SyntheticScene.generate(1)
+    T_ref, views = synthetic.make_view_set(scene, CAM, 2, 4.0, 0.1, 3)
+    r0 = scene.render(CAM, T_ref, supersample=2)
+    imgs = [scene.render(CAM, T, supersample=2).rgb for T in views]
+    prims = make_frontend("depth").primify(r0.rgb, CAM, r0.depth)
+    cfg = SfMConfig(shape_model="planar", levels=3, marginals=False)
+    res = few_view_sfm(r0.rgb, imgs, CAM, prims, cfg)
+    rep = res.report["orientation_choice"]
+    assert rep["cost_after"] <= rep["cost_before"]
+    assert len(rep["n_per_hypothesis"]) >= 1
+    finest = [lv for lv in res.report["levels"] if lv["level"] == 0]
+    assert len(finest) == (2 if rep["n_kept"] < len(prims) else 1)
+    flat = few_view_sfm(r0.rgb, imgs, CAM, make_frontend("classical").primify(r0.rgb, CAM), cfg)
+    assert "orientation_choice" not in flat.report
+    assert len([lv for lv in flat.report["levels"] if lv["level"] == 0]) == 1
