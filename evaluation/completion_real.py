@@ -50,7 +50,7 @@ from .baselines_depth import (colorization_completion, ip_basic_completion,
 from .jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
 from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
 
-__all__ = ["DATASETS", "BASELINES", "default_root", "sparse_frames", "RealCompletionResult", "run_dataset",
+__all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames", "RealCompletionResult", "run_dataset",
            "run_completion_real", "main"]
 
 log = logging.getLogger(__name__)
@@ -151,6 +151,23 @@ def _label(fe: str) -> str:
     return "ORACLE depth-normals" if fe == "depth" else fe
 
 
+def open_sample(name: str, root: Optional[Path] = None, frames: Optional[str] = None):
+    """The frames of data set ``name`` of :data:`DATASETS` under ``root`` (default
+    :func:`default_root`); ``frames`` overrides its selection.  Raises
+    ``ValueError`` for an unknown name and ``FileNotFoundError`` when its folder
+    is missing."""
+    from spgeo.datasets import open_dataset
+
+    if name not in DATASETS:
+        raise ValueError(f"unknown data set {name!r}; choose from {sorted(DATASETS)}")
+    kind, folder, sel = DATASETS[name]
+    path = Path(root if root is not None else default_root()) / folder
+    if not path.is_dir():
+        raise FileNotFoundError(f"{name} sample not found at {path}")
+    sel = frames or sel
+    return open_dataset(kind, path, **({"frames": sel} if sel else {}))
+
+
 def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = None,
                 n_points: int = 150, seed: int = 0,
                 config: CompletionConfig = CompletionConfig(),
@@ -166,17 +183,9 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
     """
     import dataclasses
 
-    from spgeo.datasets import open_dataset
     from spgeo.frontend import FrontEndConfig, make_frontend
 
-    if name not in DATASETS:
-        raise ValueError(f"unknown data set {name!r}; choose from {sorted(DATASETS)}")
-    kind, folder, sel = DATASETS[name]
-    path = Path(root if root is not None else default_root()) / folder
-    if not path.is_dir():
-        raise FileNotFoundError(f"{name} sample not found at {path}")
-    opts = {"frames": frames or sel} if (frames or sel) else {}
-    ds = open_dataset(kind, path, **opts)
+    ds = open_sample(name, root, frames)
     fes = list(frontends) if frontends is not None else _frontend_names()
     fe_cfg = FrontEndConfig(working_size=working_size_for(ds.camera, config.working_width))
     built = {fe: make_frontend(fe, fe_cfg) for fe in fes}

@@ -31,22 +31,17 @@ def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] =
     """``{stratum: {"fraction", "spgeo_mm", "linear_mm"}}`` for data set ``name``
     of :data:`spgeo.evaluation.completion_real.DATASETS` (``frames``: another
     ``A:B[:S]`` selection), with the default :class:`spgeo.completion.CompletionConfig`.
-    Raises ``FileNotFoundError`` when the data set's folder is missing."""
+    Raises ``ValueError`` for an unknown name and ``FileNotFoundError`` when the
+    data set's folder is missing (:func:`~spgeo.evaluation.completion_real.open_sample`)."""
     import cv2
 
     from spgeo.completion import CompletionConfig, complete_depth, working_size_for
-    from spgeo.datasets import open_dataset
     from spgeo.frontend import FrontEndConfig, make_frontend
 
     from .baselines_depth import linear_interpolation_completion
-    from .completion_real import DATASETS, default_root, sparse_frames
+    from .completion_real import open_sample, sparse_frames
 
-    kind, folder, sel = DATASETS[name]
-    path = Path(root if root is not None else default_root()) / folder
-    if not path.is_dir():
-        raise FileNotFoundError(f"{name} sample not found at {path}")
-    sel = frames or sel
-    ds = open_dataset(kind, path, **({"frames": sel} if sel else {}))
+    ds = open_sample(name, root, frames)
     cfg = CompletionConfig()
     fe = make_frontend(frontend, FrontEndConfig(working_size=working_size_for(ds.camera,
                                                                               cfg.working_width)))

@@ -73,14 +73,10 @@ def scene_orientations(prims: PrimitiveSet, ratios: np.ndarray, max_orientations
 
 def centre_rays(prims: PrimitiveSet) -> np.ndarray:
     """(N, 2) mean normalised image coordinates ``(x, y)`` of each primitive's pixels."""
-    cam = prims.camera
-    w = cam.width
-    x = (prims.pixels % w - cam.cx) / cam.fx
-    y = (prims.pixels // w - cam.cy) / cam.fy
+    rays = prims.camera.rays().reshape(-1, 3)[prims.pixels]
     n = np.maximum(prims.sizes, 1)
-    ids = prims.primitive_ids
-    return np.stack([np.bincount(ids, weights=x, minlength=len(prims)) / n,
-                     np.bincount(ids, weights=y, minlength=len(prims)) / n], 1)
+    return np.stack([np.bincount(prims.primitive_ids, weights=rays[:, c], minlength=len(prims))
+                     for c in range(2)], 1) / n[:, None]
 
 
 def planes_with_orientation(thetas: np.ndarray, centres: np.ndarray,

@@ -63,6 +63,11 @@ def _make_folder(folder: str, what: str) -> None:
         raise InputError(f"cannot create {what}: {exc.strerror or exc}") from None
 
 
+def _cannot_write(what: str, path: PathLike, folder: PathLike, exc: OSError) -> InputError:
+    """The error of a temporary file or folder that cannot be created in ``folder``."""
+    return InputError(f"cannot write {what} {path}: {exc.strerror or exc} (in folder {folder})")
+
+
 def write_bytes_atomic(path: PathLike, data: bytes, what: str = "output") -> str:
     """Write ``data`` to ``path`` atomically: a temporary file in the same folder,
     then ``os.replace`` (readers never see a partial file; on any error the
@@ -74,8 +79,7 @@ def write_bytes_atomic(path: PathLike, data: bytes, what: str = "output") -> str
         fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp",
                                    dir=folder)
     except OSError as exc:
-        raise InputError(f"cannot write {what} {path}: {exc.strerror or exc} "
-                         f"(in folder {folder})") from None
+        raise _cannot_write(what, path, folder, exc) from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -138,8 +142,7 @@ def check_output_folder(path: PathLike, what: str = "--out") -> Path:
     try:    # a real probe (os.access says yes to root, and on some file systems)
         os.rmdir(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".probe", dir=parent))
     except OSError as exc:
-        raise InputError(f"cannot write {what} {path}: {exc.strerror or exc} "
-                         f"(in folder {parent})") from None
+        raise _cannot_write(what, path, parent, exc) from None
     return p
 
 
@@ -168,8 +171,8 @@ class StagedFolder:
             self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp",
                                               dir=self.target.parent))
         except OSError as exc:
-            raise InputError(f"cannot write the output folder {self.target}: "
-                             f"{exc.strerror or exc}") from None
+            raise _cannot_write("the output folder", self.target, self.target.parent,
+                                exc) from None
         os.chmod(self.path, 0o755)   # mkdtemp creates 0700
         return self
 

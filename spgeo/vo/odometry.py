@@ -424,7 +424,8 @@ class Odometry(InitialisationStage):
                                         cfg.tracker, cfg.kf_scale_check_min_parallax,
                                         cfg.kf_scale_check_max_change)
             prims = prims.with_log_scales(prims.log_scales + check.log_correction)
-            self._scale_checks.append({"keyframe": k, "frame": idx, **check.as_dict()})
+            self._scale_checks.append({"keyframe": k, "frame": idx,
+                                       **dataclasses.asdict(check)})
             timings["scale_check"] = time.perf_counter() - t
         prims = apply_primitive_model(prims, cfg.primitive_model)
         keyframe = keyframe.rebuilt(prims, T_world)

@@ -46,19 +46,17 @@ class ScaleCheck:
         ratio: ``k``, the tracked over the known translation (least squares
             along the known one), or None (no parallax, or the track failed).
         log_correction: the shift added to every log-scale of the new
-            keyframe (0 when ``ratio`` is None); ``-log k`` clipped to
+            keyframe (0 when ``reason`` is set); ``-log k`` clipped to
             ``+-log(1 + max_change)``.
-        reason: why nothing was measured (``"parallax"``, ``"lost"``) or "".
+        reason: why nothing was changed (``"parallax"``: too little of it;
+            ``"lost"``: the reverse track failed; ``"direction"``: the tracked
+            translation points against the known one) or "".
     """
 
     parallax: float
     ratio: Optional[float]
     log_correction: float
     reason: str = ""
-
-    def as_dict(self) -> dict:
-        return {"parallax": self.parallax, "ratio": self.ratio,
-                "log_correction": self.log_correction, "reason": self.reason}
 
 
 def reverse_scale_check(new: Keyframe, other_image: np.ndarray, T_world_other: np.ndarray,
