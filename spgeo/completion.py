@@ -43,6 +43,15 @@ sparse depth fixes one log-scale per primitive:
    (``CompletionResult.fallback`` is True; a warning is logged).  The authors
    instead re-ran SAM keeping all three masks per prompt; a finer / coarser
    re-segmentation is left to the caller (pass another front-end).
+6. **residual correction** (``residual_clip``) — the log-residuals of the
+   complete map at the sparse points, each clipped to ``residual_clip``, are
+   interpolated linearly over the image and applied as a factor
+   (:func:`spgeo.completion_fill.residual_correction`) on the pixels of flat
+   primitives (the front-end knew no shape: one scale or plane cannot pass
+   through their points) and of holes; the map there honours its points up to
+   the clip, smoothly.  Primitives shaped by normals are left as fitted (there
+   the residuals are mostly rejected border points and noise).  Not applied to
+   the fallback (it already passes through the points).
 
 **Monocular + sparse only.**  The sparse depth is never given to the
 front-end.  Front-ends whose normal estimator reads dense depth (``"depth"``,
@@ -65,7 +74,8 @@ import numpy as np
 
 from .camera import PinholeCamera
 from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
-                              fill_holes, linear_fill, nearest_fill, resample_sparse, upsample)
+                              fill_holes, linear_fill, nearest_fill, resample_sparse,
+                              residual_correction, upsample)
 from .completion_graph import solve_log_scales_graph, solve_planes_graph
 from .completion_planes import (MODE_NONE, MODE_SCALE, fit_primitive_planes,
                                 lend_across_weak_edges)
@@ -142,6 +152,8 @@ class CompletionConfig:
             lends depth to a primitive without points; None: no lending.
         lend_rounds: ``"plane"``: lending passes (depth spreads one primitive
             per pass).
+        residual_clip: step 6's largest correction in log units (>= 0; 0 or
+            None: off).  Default 0.05 (docs/results.md says why).
     """
 
     method: str = "graph"
@@ -160,8 +172,13 @@ class CompletionConfig:
     graph_coupling: float = 1.0
     plane_coupling: float = 0.03
     plane_prior_flat: float = 1e-4
+    residual_clip: Optional[float] = 0.05
 
     def __post_init__(self) -> None:
+        if self.residual_clip is not None and not (
+                np.isfinite(self.residual_clip) and self.residual_clip >= 0):
+            raise ValueError(f"CompletionConfig: residual_clip must be >= 0 or None, "
+                             f"got {self.residual_clip}")
         if not (np.isfinite(self.plane_prior_flat) and self.plane_prior_flat >= 0):
             raise ValueError(f"CompletionConfig: plane_prior_flat must be >= 0, "
                              f"got {self.plane_prior_flat}")
@@ -231,7 +248,7 @@ class CompletionResult:
         fallback: True when the primitives were ignored (low coverage) and the
             depth is plain linear interpolation of the sparse points.
         timings: seconds per stage (``frontend``, ``scales``, ``render``,
-            ``fill``, ``total``).
+            ``fill``: holes and the residual correction, ``total``).
         solver: ``"joint"``: LM report (iterations, initial / final error).
         modes: (N_kept,) how each kept primitive got its depth
             (:data:`spgeo.completion_planes.MODE_SCALE` / ``MODE_PLANE`` /
@@ -358,6 +375,21 @@ def _plane_model(image, prims, uv, camera, point, prim, point_d, s, counts, kept
     return sub, kept, fit.mode[kept]
 
 
+def _shapeless_weight(prims: PrimitiveSet, camera: PinholeCamera) -> np.ndarray:
+    """(H, W) of ``camera``: 0 on pixels of primitives with a front-end shape
+    (not flat), 1 elsewhere (flat primitives, no primitive)."""
+    import cv2
+
+    npix = prims.camera.width * prims.camera.height
+    shaped = np.zeros(npix, np.float32)
+    keep = ~prims.is_flat()
+    shaped[prims.pixels[keep[prims.primitive_ids]]] = 1.0
+    w = 1.0 - shaped.reshape(prims.camera.shape)
+    if w.shape != camera.shape:
+        w = cv2.resize(w, camera.size, interpolation=cv2.INTER_LINEAR)
+    return w.astype(np.float64)
+
+
 # ----------------------------------------------------------------- main entry point
 def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeCamera,
                    frontend: Union[None, str, "PrimitiveFrontEnd", PrimitiveSet] = None,
@@ -447,6 +479,9 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera,
                                                                     prims.camera))
         depth, conf = upsample(depth_w, conf_w, camera)
+        if config.residual_clip:
+            depth = residual_correction(depth, uv, sd, config.residual_clip,
+                                        _shapeless_weight(prims, camera))
     t_fi = time.perf_counter()
     res = CompletionResult(
         depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),

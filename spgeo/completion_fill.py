@@ -19,6 +19,7 @@ from .completion_scales import working_pixels
 __all__ = [
     "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST",
     "nearest_fill", "linear_fill", "upsample", "resample_sparse", "fill_holes",
+    "residual_correction",
 ]
 
 log = logging.getLogger(__name__)
@@ -124,3 +125,40 @@ def fill_holes(depth: np.ndarray, covered: np.ndarray, sparse: np.ndarray
         out[rest] = filled[rest]
     return out, conf
 
+
+def residual_correction(depth: np.ndarray, uv: np.ndarray, values: np.ndarray, clip: float,
+                        weight: Optional[np.ndarray] = None) -> np.ndarray:
+    """``depth`` corrected towards its sparse points by a smooth multiplicative field.
+
+    At each sparse pixel the log-residual ``log(value) - log(depth)`` is clipped
+    to ``[-clip, clip]``; the field interpolates these linearly (Delaunay) and
+    takes the nearest value outside their convex hull; the result is
+    ``depth * exp(weight * field)``.  Where ``weight`` is 1 (default everywhere)
+    the result at the sparse pixels therefore equals the
+    point where the residual is within ``clip`` and moves by ``clip`` towards it
+    otherwise (a point the robust fits rejected cannot drag its surroundings by
+    more than the factor ``exp(clip)``).
+
+    Args:
+        depth: (H, W) metres, finite and > 0.
+        uv: (K, 2) integer pixel positions (u = column, v = row) inside the map.
+        values: (K,) metres > 0.
+        clip: largest correction in log units (>= 0; 0 returns ``depth``).
+        weight: (H, W) factor in [0, 1] on the field (None: 1).
+    Returns:
+        (H, W) float64 metres, finite and > 0.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    uv = np.asarray(uv).reshape(-1, 2)
+    if clip <= 0 or uv.shape[0] == 0:
+        return depth
+    u = uv[:, 0].astype(np.int64)
+    v = uv[:, 1].astype(np.int64)
+    r = np.clip(np.log(np.asarray(values, dtype=np.float64).reshape(-1)) - np.log(depth[v, u]),
+                -clip, clip)
+    field = linear_fill(np.stack([u, v], 1), r, depth.shape)
+    field[v, u] = r
+    field = nearest_fill(field, np.isfinite(field))
+    if weight is not None:
+        field = field * weight
+    return depth * np.exp(field)

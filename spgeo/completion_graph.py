@@ -247,11 +247,7 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     ridge_idx = (4 * np.flatnonzero(act)[:, None] + np.arange(1, 4)[None]).ravel()
     pr = np.full(n, float(prior))
     if prior_flat is not None:
-        lo = np.full(n, np.inf)
-        hi = np.full(n, -np.inf)
-        np.minimum.at(lo, prims.primitive_ids, prims.log_depth)
-        np.maximum.at(hi, prims.primitive_ids, prims.log_depth)
-        pr[hi - lo <= 1e-9] = prior_flat
+        pr[prims.is_flat()] = prior_flat
     ridge[ridge_idx] = np.repeat(pr[act] / rho_ref ** 2, 3)
     ridge[4 * np.flatnonzero(~act)] = 1.0   # inactive primitives: decoupled, zero
     ridge[(4 * np.flatnonzero(~act)[:, None] + np.arange(1, 4)[None]).ravel()] = 1.0

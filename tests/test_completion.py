@@ -161,6 +161,54 @@ def test_complete_depth_exact_on_exact_primitives_and_fills_holes():
     assert np.all(np.isfinite(res.depth)) and np.all(res.depth > 0)
 
 
+def test_residual_correction_interpolates_clipped_log_residuals():
+    from spgeo.completion_fill import residual_correction
+
+    depth = np.full((48, 64), 2.0)
+    uv = np.array([[0, 0], [63, 0], [0, 47], [63, 47], [30, 20]])
+    vals = np.full(5, 2.0 * np.exp(0.03))
+    out = residual_correction(depth, uv, vals, 0.05)
+    np.testing.assert_allclose(out, 2.0 * np.exp(0.03), rtol=1e-12)  # one factor everywhere
+    vals[4] = 3.0                                                      # log-residual 0.405
+    out = residual_correction(depth, uv, vals, 0.05)
+    assert out[20, 30] == pytest.approx(2.0 * np.exp(0.05), rel=1e-12)  # moved by the clip only
+    assert np.all(out <= 2.0 * np.exp(0.05) + 1e-12) and np.all(out >= 2.0 * np.exp(0.03) - 1e-12)
+    np.testing.assert_array_equal(residual_correction(depth, uv, vals, 0.0), depth)
+    half = np.where(np.arange(64) < 32, 0.0, 1.0)[None].repeat(48, 0)
+    out = residual_correction(depth, uv, np.full(5, 2.0 * np.exp(0.03)), 0.05, half)
+    assert np.all(out[:, :32] == 2.0) and np.allclose(out[:, 32:], 2.0 * np.exp(0.03))
+    # two points: no triangle, the nearest point's residual everywhere
+    two = residual_correction(depth, uv[:2], np.array([2.0, 2.0 * np.exp(-0.02)]), 0.05)
+    assert two[0, 10] == pytest.approx(2.0) and two[47, 60] == pytest.approx(2.0 * np.exp(-0.02))
+
+
+def test_complete_depth_honours_its_points_up_to_the_residual_clip():
+    """Points scaled by 0.98 / 1.00 / 1.03 on each primitive: one scale cannot fit
+    them.  On the flat (right, 3 m) primitive the residual correction makes the
+    map pass through each; the shaped (left, tilted) primitive is left as fitted."""
+    cam, prims, depth = _two_plane_set()
+    assert prims.is_flat().tolist() == [False, True]
+    sparse = np.zeros_like(depth)
+    pts = ((10, 5), (40, 20), (24, 12), (10, 40), (40, 50), (24, 60))
+    for (v, u), f in zip(pts, (0.98, 1.0, 1.03) * 2):
+        sparse[v, u] = depth[v, u] * f
+    image = np.zeros((48, 64, 3), np.float32)
+    off = complete_depth(image, sparse, cam, prims, CompletionConfig(residual_clip=None, **MEDIAN))
+    on = complete_depth(image, sparse, cam, prims, CompletionConfig(residual_clip=0.05, **MEDIAN))
+    v, u = np.nonzero(sparse)
+    right = u >= 32
+    err_off = np.abs(np.log(off.depth[v, u] / sparse[v, u]))
+    assert err_off[right].max() > 0.019
+    np.testing.assert_allclose(on.depth[v, u][right], sparse[v, u][right], rtol=1e-9)
+    np.testing.assert_array_equal(on.depth[:, :32], off.depth[:, :32])
+    small = complete_depth(image, sparse, cam, prims, CompletionConfig(residual_clip=0.01, **MEDIAN))
+    err_small = np.abs(np.log(small.depth[v, u] / sparse[v, u]))
+    np.testing.assert_allclose(err_small[right], np.maximum(err_off[right] - 0.01, 0.0), atol=1e-9)
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="residual_clip"):
+            CompletionConfig(residual_clip=bad)
+
+
 def test_low_coverage_falls_back_to_linear_interpolation():
     cam, prims, depth = _two_plane_set()
     sparse = np.zeros_like(depth)

@@ -173,8 +173,16 @@ def test_graph_scales_reject_a_border_outlier_and_reach_empty_primitives():
     g2 = solve_log_scales_graph(prims, img, prim, l, d)
     np.testing.assert_allclose(np.exp(g2.log_scales), [2.0, 2.0, 2.0, 5.0], rtol=1e-3)
     res = complete_depth(img, sparse, CAM, prims,
-                         CompletionConfig(method="graph", shape_model="scale"))
+                         CompletionConfig(method="graph", shape_model="scale", residual_clip=None))
     np.testing.assert_allclose(res.depth[:, :48], 2.0, rtol=0.02)
+    np.testing.assert_allclose(res.depth[:, 48:], 5.0, rtol=0.02)
+    # the residual correction lets the rejected point pull by the clip at most
+    clip = CompletionConfig().residual_clip
+    res = complete_depth(img, sparse, CAM, prims, CompletionConfig(method="graph",
+                                                                   shape_model="scale"))
+    near = res.depth[:, :48]
+    assert near.max() <= 2.0 * 1.02 * np.exp(clip) and near.min() >= 2.0 * 0.98
+    assert res.depth[24, 20] > 2.0 * 1.02  # it does pull where it sits
     np.testing.assert_allclose(res.depth[:, 48:], 5.0, rtol=0.02)
 
 
