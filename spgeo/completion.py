@@ -79,8 +79,8 @@ from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_
 from .completion_graph import solve_log_scales_graph, solve_planes_graph
 from .completion_planes import (MODE_NONE, MODE_SCALE, fit_primitive_planes,
                                 lend_across_weak_edges)
-from .completion_scales import (grouped_median, solve_log_scales_joint, sparse_point_assignments,
-                                working_pixels)
+from .completion_scales import (flat_primitives, grouped_median, solve_log_scales_joint,
+                                sparse_point_assignments, working_pixels)
 from .images import to_float_image
 from .primitives import PrimitiveSet
 from .validation import check_camera, check_sparse_depth
@@ -382,7 +382,7 @@ def _shapeless_weight(prims: PrimitiveSet, camera: PinholeCamera) -> np.ndarray:
 
     npix = prims.camera.width * prims.camera.height
     shaped = np.zeros(npix, np.float32)
-    keep = ~prims.is_flat()
+    keep = ~flat_primitives(prims)
     shaped[prims.pixels[keep[prims.primitive_ids]]] = 1.0
     w = 1.0 - shaped.reshape(prims.camera.shape)
     if w.shape != camera.shape:

@@ -34,6 +34,7 @@ from scipy.sparse.linalg import spsolve
 
 from .completion_planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, pixel_rays,
                                 apply_planes, primitive_adjacency)
+from .completion_scales import flat_primitives
 from .primitives import PrimitiveSet
 
 __all__ = ["GraphScales", "solve_log_scales_graph", "solve_planes_graph"]
@@ -247,7 +248,7 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     ridge_idx = (4 * np.flatnonzero(act)[:, None] + np.arange(1, 4)[None]).ravel()
     pr = np.full(n, float(prior))
     if prior_flat is not None:
-        pr[prims.is_flat()] = prior_flat
+        pr[flat_primitives(prims)] = prior_flat
     ridge[ridge_idx] = np.repeat(pr[act] / rho_ref ** 2, 3)
     ridge[4 * np.flatnonzero(~act)] = 1.0   # inactive primitives: decoupled, zero
     ridge[(4 * np.flatnonzero(~act)[:, None] + np.arange(1, 4)[None]).ravel()] = 1.0

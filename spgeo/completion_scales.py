@@ -15,7 +15,7 @@ from .camera import PinholeCamera
 from .primitives import PrimitiveSet
 
 __all__ = ["working_pixels", "sparse_point_assignments", "grouped_median",
-           "solve_log_scales_joint"]
+           "solve_log_scales_joint", "flat_primitives"]
 
 
 def working_pixels(uv: np.ndarray, camera: PinholeCamera, target: PinholeCamera) -> np.ndarray:
@@ -122,3 +122,13 @@ def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d:
     return out, {"iterations": int(opt.iterations()), "initial_error": e0,
                  "final_error": float(graph.error(res))}
 
+
+def flat_primitives(prims: PrimitiveSet, tol: float = 1e-9) -> np.ndarray:
+    """(N,) bool: primitives whose unscaled log-depth spans at most ``tol``
+    (fronto-parallel patches: the front-end knew no shape for them)."""
+    n = len(prims)
+    lo = np.full(n, np.inf)
+    hi = np.full(n, -np.inf)
+    np.minimum.at(lo, prims.primitive_ids, prims.log_depth)
+    np.maximum.at(hi, prims.primitive_ids, prims.log_depth)
+    return hi - lo <= tol

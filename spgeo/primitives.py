@@ -287,16 +287,6 @@ class PrimitiveSet:
             raise ValueError(f"log_scales must have shape ({len(self)},), got {s.shape}")
         return self.log_depth + s[self.primitive_ids]
 
-    def is_flat(self, tol: float = 1e-9) -> np.ndarray:
-        """(N,) bool: primitives whose unscaled log-depth spans at most ``tol``
-        (fronto-parallel patches: the front-end knew no shape for them)."""
-        n = len(self)
-        lo = np.full(n, np.inf)
-        hi = np.full(n, -np.inf)
-        np.minimum.at(lo, self.primitive_ids, self.log_depth)
-        np.maximum.at(hi, self.primitive_ids, self.log_depth)
-        return hi - lo <= tol
-
     def coverage(self) -> np.ndarray:
         """(H, W) int32 number of primitives covering each pixel."""
         c = np.bincount(self.pixels, minlength=self.camera.width * self.camera.height)

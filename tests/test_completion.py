@@ -13,6 +13,7 @@ from spgeo.camera import PinholeCamera
 from spgeo.completion import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
                               CompletionConfig, complete_depth, grouped_median,
                               sparse_point_assignments)
+from spgeo.completion_scales import flat_primitives
 from spgeo.evaluation.baselines_depth import (IPBasicConfig, ip_basic_completion,
                                               linear_interpolation_completion, oracle_frontend)
 from spgeo.evaluation.void import (VOIDDataset, keypoint_sparse_depth, read_void_depth,
@@ -187,7 +188,7 @@ def test_complete_depth_honours_its_points_up_to_the_residual_clip():
     them.  On the flat (right, 3 m) primitive the residual correction makes the
     map pass through each; the shaped (left, tilted) primitive is left as fitted."""
     cam, prims, depth = _two_plane_set()
-    assert prims.is_flat().tolist() == [False, True]
+    assert flat_primitives(prims).tolist() == [False, True]
     sparse = np.zeros_like(depth)
     pts = ((10, 5), (40, 20), (24, 12), (10, 40), (40, 50), (24, 60))
     for (v, u), f in zip(pts, (0.98, 1.0, 1.03) * 2):
