@@ -31,7 +31,8 @@ import numpy as np
 from scipy import sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from spgeo.completion import check_sparse_depth, linear_fill, nearest_fill
+from spgeo.completion import check_sparse_depth, nearest_fill
+from spgeo.completion_fill import scattered_fill
 
 __all__ = ["check_sparse_depth", "linear_interpolation_completion", "nearest_fill",
            "IPBasicConfig", "ip_basic_completion", "diamond_kernel",
@@ -54,13 +55,10 @@ def linear_interpolation_completion(sparse_depth: np.ndarray, space: str = "dept
     d = check_sparse_depth(sparse_depth)
     if space not in ("depth", "inverse", "log"):
         raise ValueError(f"space must be 'depth', 'inverse' or 'log', got {space!r}")
-    h, w = d.shape
     v, u = np.nonzero(d > 0)
     z = d[v, u]
     val = {"depth": z, "inverse": 1.0 / z, "log": np.log(z)}[space]
-    out = linear_fill(np.stack([u, v], 1), val, (h, w))
-    out[v, u] = val
-    out = nearest_fill(out, np.isfinite(out))
+    out = scattered_fill(np.stack([u, v], 1), val, d.shape)
     if space == "inverse":
         return 1.0 / out
     if space == "log":

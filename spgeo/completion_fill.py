@@ -19,7 +19,7 @@ from .completion_scales import working_pixels
 __all__ = [
     "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST",
     "nearest_fill", "linear_fill", "upsample", "resample_sparse", "fill_holes",
-    "residual_correction",
+    "scattered_fill", "residual_correction",
 ]
 
 log = logging.getLogger(__name__)
@@ -98,6 +98,17 @@ def resample_sparse(uv: np.ndarray, d: np.ndarray, camera: PinholeCamera,
     return np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0).reshape(target.shape)
 
 
+def scattered_fill(uv: np.ndarray, values: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
+    """(H, W) map of scattered ``values`` at integer pixels ``uv`` (K >= 1, u =
+    column, v = row): the values themselves at their pixels, linear
+    interpolation (:func:`linear_fill`) inside their convex hull, the nearest
+    value outside it."""
+    uv = np.asarray(uv).reshape(-1, 2).astype(np.int64)
+    out = linear_fill(uv, values, shape)
+    out[uv[:, 1], uv[:, 0]] = values
+    return nearest_fill(out, np.isfinite(out))
+
+
 def fill_holes(depth: np.ndarray, covered: np.ndarray, sparse: np.ndarray
                ) -> Tuple[np.ndarray, np.ndarray]:
     """Fill ``~covered`` pixels: linear interpolation of hole-border depths and
@@ -156,9 +167,7 @@ def residual_correction(depth: np.ndarray, uv: np.ndarray, values: np.ndarray, c
     v = uv[:, 1].astype(np.int64)
     r = np.clip(np.log(np.asarray(values, dtype=np.float64).reshape(-1)) - np.log(depth[v, u]),
                 -clip, clip)
-    field = linear_fill(np.stack([u, v], 1), r, depth.shape)
-    field[v, u] = r
-    field = nearest_fill(field, np.isfinite(field))
+    field = scattered_fill(np.stack([u, v], 1), r, depth.shape)
     if weight is not None:
         field = field * weight
     return depth * np.exp(field)
