@@ -285,7 +285,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ValueError as exc:
         ap.error(str(exc))
     try:
-        from spgeo.cli.config import apply_overrides, nest, parse_assignments
+        from spgeo.configs import apply_overrides, nest, parse_assignments
 
         over = nest(parse_assignments(args.set, strict=True))
         config = apply_overrides(CompletionConfig(), over) if over else CompletionConfig()

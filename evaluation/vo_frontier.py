@@ -9,7 +9,7 @@ The grid is every (data set, front-end, resolution, setting) and, for the
 synthetic data set, every seed.  A *setting* is one string of ``FIELD=VALUE``
 :class:`spgeo.vo.OdometryConfig` overrides separated by spaces or commas
 (nested fields with dots, values Python literals; ``defaults`` or an empty
-string: no override), applied with :func:`spgeo.cli.config.apply_overrides`;
+string: no override), applied with :func:`spgeo.configs.apply_overrides`;
 a field the config does not have makes that setting's cells error rows.
 
 Data sets: ``7scenes`` (frames ``0:N`` of ``--sevenscenes``, default the
@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from spgeo.cli.args import parse_resolution
-from spgeo.cli.config import apply_overrides, parse_assignments
+from spgeo.configs import apply_overrides, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_table, runner_config)
 from spgeo.evaluation.shared_data import shared_data_root
@@ -104,7 +104,7 @@ def parse_setting(text: str) -> List[str]:
 
 def setting_config(text: str):
     """``OdometryConfig()`` with the setting's overrides; raises
-    :class:`spgeo.cli.config.ConfigError` (unknown field, wrong type) or
+    :class:`spgeo.configs.ConfigError` (unknown field, wrong type) or
     ``ValueError`` / ``SyntaxError`` (a value that is not a Python literal)."""
     from spgeo.vo import OdometryConfig
 

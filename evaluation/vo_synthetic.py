@@ -42,7 +42,7 @@ from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.apps.vo_run import VORunConfig, blas_threads
-from spgeo.cli.config import apply_overrides, nest, parse_assignments
+from spgeo.configs import apply_overrides, nest, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, add_runner_arguments, provenance,
                                     run_table, runner_config)
 from spgeo.vo import Odometry, OdometryConfig
@@ -143,7 +143,7 @@ def parse_overrides(items: Sequence[str]) -> dict:
 
 def odometry_config(overrides: dict) -> OdometryConfig:
     """``OdometryConfig()`` with :func:`parse_overrides`' result applied
-    (:func:`spgeo.cli.config.apply_overrides`; an unknown field raises a
+    (:func:`spgeo.configs.apply_overrides`; an unknown field raises a
     ``TypeError``, a value of the wrong type a ``ValueError``)."""
     return apply_overrides(OdometryConfig(), overrides)
 

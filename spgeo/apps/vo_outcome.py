@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Union
 
 import numpy as np
 
-from ..cli.config import config_to_dict
+from ..configs import config_to_dict
 from ..frame import Frame
 from ..vo import Odometry, OdometryResult
 

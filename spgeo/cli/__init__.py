@@ -2,7 +2,7 @@
 the work is in the library and in :mod:`spgeo.apps`.
 
 Sub-commands: ``demo``, ``vo``, ``sfm``, ``complete`` (each with ``--config
-FILE`` / ``--set FIELD=VALUE``, :mod:`spgeo.cli.config`), ``models`` and
+FILE`` / ``--set FIELD=VALUE``, :mod:`spgeo.configs`, :mod:`spgeo.cli.config_args`), ``models`` and
 ``eval PROTOCOL [ARGS...]``.
 
 Exit codes (one convention for every command, :mod:`spgeo.cli.exit_codes`): :data:`EXIT_OK` 0 (done, result

@@ -14,7 +14,8 @@ import argparse
 import json
 from pathlib import Path
 
-from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
+from ..configs import apply_overrides, config_to_dict, resolve_config
+from .config_args import add_config_arguments
 
 __all__ = ["add_demo_cli"]
 

@@ -31,7 +31,8 @@ from ..frontend import MONOCULAR_FRONTENDS
 from ..validation import InputError
 from .args import parse_intrinsics
 from .exit_codes import EXIT_FLAGGED, EXIT_OK
-from .config import add_config_arguments, apply_overrides, config_to_dict, resolve_config
+from ..configs import apply_overrides, config_to_dict, resolve_config
+from .config_args import add_config_arguments
 from .rerun_args import add_rerun_argument, open_rerun
 
 __all__ = ["add_sfm_cli"]

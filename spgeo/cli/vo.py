@@ -19,7 +19,8 @@ import sys
 from ..frontend import FRONTENDS
 from ..validation import InputError
 from .args import DATASET_KINDS, parse_resolution
-from .config import add_config_arguments, apply_overrides, resolve_config
+from ..configs import apply_overrides, resolve_config
+from .config_args import add_config_arguments
 from .rerun_args import add_rerun_argument, open_rerun
 from .exit_codes import EXIT_FLAGGED, EXIT_INTERRUPTED
 

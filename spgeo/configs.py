@@ -1,14 +1,16 @@
-"""Config dataclasses from the command line: ``--config FILE`` (TOML, or YAML
-when PyYAML is installed) and ``--set FIELD=VALUE`` overrides (nested fields
-with dots: ``tracker.relative_cost_tol=1e-4``), applied to frozen or plain
-dataclass instances with :func:`dataclasses.replace`.
+"""Config dataclasses set from text: ``FIELD=VALUE`` overrides (nested fields
+with dots: ``tracker.relative_cost_tol=1e-4``) and TOML (or YAML, when PyYAML is
+installed) files, applied to frozen or plain dataclass instances with
+:func:`dataclasses.replace`; and :func:`config_repr`, the ``repr`` that shows only
+the fields that differ from the defaults.  The library home of the command line's
+``--set`` / ``--config`` (:mod:`spgeo.cli.config_args`); notebooks and evaluation
+scripts use it directly.
 
 Every error is a :class:`ConfigError` (a ``ValueError``) with a one-line
 message naming the offending field or file.
 """
 from __future__ import annotations
 
-import argparse
 import ast
 import dataclasses
 import typing
@@ -17,7 +19,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
 __all__ = ["ConfigError", "UnknownFieldError", "parse_value", "parse_assignments", "nest",
            "flatten", "apply_overrides",
-           "load_config_file", "config_to_dict", "resolve_config", "add_config_arguments"]
+           "load_config_file", "config_to_dict", "resolve_config", "config_repr", "changed_fields"]
 
 Overrides = Union[Mapping[str, Any], Iterable[str]]
 
@@ -272,12 +274,38 @@ def resolve_config(config: Any, config_file: Optional[str] = None,
     return config
 
 
-def add_config_arguments(parser: argparse.ArgumentParser, what: str) -> None:
-    """``--config FILE`` and ``--set FIELD=VALUE ...`` (dest ``config_file`` /
-    ``set``); ``what`` names the config class in the help."""
-    parser.add_argument("--config", dest="config_file", default=None, metavar="FILE",
-                        help=f"{what} fields from a TOML (or YAML) file")
-    parser.add_argument("--set", dest="set", nargs="+", action="extend", default=[],
-                        metavar="FIELD=VALUE",
-                        help=f"{what} field overrides, Python literals or plain strings "
-                             f"(nested: a.b=1); override --config")
+def changed_fields(config: Any) -> Dict[str, Any]:
+    """The init fields of the dataclass instance ``config`` whose values differ from
+    the class defaults, as ``{name: value}`` (a nested config dataclass that differs
+    appears as itself).  Fields without a default are always included."""
+    out: Dict[str, Any] = {}
+    for f in dataclasses.fields(config):
+        if not f.init or not f.repr:
+            continue
+        value = getattr(config, f.name)
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            out[f.name] = value
+            continue
+        try:
+            same = bool(value == default)
+        except Exception:       # array-valued fields: compare by identity only
+            same = value is default
+        if not same:
+            out[f.name] = value
+    return out
+
+
+def config_repr(cls: type) -> type:
+    """Class decorator (above ``@dataclass``): ``repr`` shows only the fields that
+    differ from the defaults, e.g. ``OdometryConfig(window=7)``; a default
+    instance prints as ``OdometryConfig()``."""
+    def __repr__(self) -> str:
+        items = ", ".join(f"{k}={v!r}" for k, v in changed_fields(self).items())
+        return f"{type(self).__name__}({items})"
+
+    cls.__repr__ = __repr__
+    return cls

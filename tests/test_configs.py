@@ -1,4 +1,4 @@
-"""``--set`` / ``--config`` (spgeo.cli.config) and ``spgeo eval`` dispatch."""
+"""`spgeo.configs` (`--set` / `--config` overrides, the changed-fields repr) and `spgeo eval` dispatch."""
 import importlib.util
 import json
 from dataclasses import dataclass, field
@@ -7,8 +7,8 @@ from typing import Optional, Tuple
 import pytest
 
 from spgeo.cli import build_parser, main
-from spgeo.cli.config import (ConfigError, apply_overrides, config_to_dict, load_config_file,
-                              parse_assignments, parse_value, resolve_config)
+from spgeo.configs import (ConfigError, apply_overrides, config_repr, config_to_dict, load_config_file,
+                           parse_assignments, parse_value, resolve_config)
 from spgeo.odometry import OdometryConfig
 
 
@@ -159,3 +159,18 @@ def test_eval_dispatches_argv(monkeypatch):
 def test_eval_protocol_help_exits_cleanly(capsys):
     assert main(["eval", "vo_synthetic", "--help"]) == 0
     assert "usage: spgeo eval vo_synthetic" in capsys.readouterr().out
+
+
+def test_config_repr_shows_only_changed_fields():
+    @config_repr
+    @dataclass(frozen=True)
+    class Shown:
+        a: int = 1
+        b: Tuple[int, int] = (1, 2)
+        inner: Inner = field(default_factory=Inner)
+
+    assert repr(Shown()) == "Shown()"
+    assert repr(Shown(a=2)) == "Shown(a=2)"
+    changed = Shown(inner=Inner(iters=3))
+    assert repr(changed) == "Shown(inner=Inner(tol=0.001, iters=3))"
+    assert apply_overrides(Shown(), ["b=(3, 4)"]).b == (3, 4)
