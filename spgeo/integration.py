@@ -63,7 +63,7 @@ class IntegrationConfig:
             (exact red-black elimination, then sparse LU (SuperLU) of the
             half-size Schur complement) or ``"cg"`` (Jacobi-preconditioned
             conjugate gradients, as the authors ran on a GPU; kept for
-            comparison).  ``evaluation/bench_integration.py`` compares them
+            comparison).  ``evaluation/bench/integration.py`` compares them
             (results in docs/results.md).
         cholesky_max_band: widest raster bandwidth (entries between a pixel
             and its farthest linked neighbour) that ``"cholesky"`` factorises

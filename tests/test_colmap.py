@@ -1,5 +1,5 @@
 """Two-view relative pose (spgeo.twoview), the COLMAP few-view cross-check
-(spgeo.evaluation.colmap) and the pose metrics (spgeo.evaluation.pose_metrics).
+(spgeo.evaluation.references.colmap) and the pose metrics (spgeo.evaluation.pose_metrics).
 
 Accuracy bounds are measured values with margin (deterministic: one thread,
 fixed seeds; fixtures: synthetic scene 0, view set seed 0, 640x480; the TUM
@@ -18,9 +18,9 @@ import pytest
 
 from spgeo.frame import Frame
 from spgeo.geometry import invert_pose, relative_pose, so3_exp
-from spgeo.evaluation.colmap import ColmapConfig, colmap_estimator, main, run_colmap_fewview
-from spgeo.evaluation.colmap_compare import (compare_fewview, compare_on_dataset,
-                                             format_comparison)
+from spgeo.evaluation.references.colmap import (ColmapConfig, colmap_estimator, main,
+                                               run_colmap_fewview)
+from spgeo.evaluation.pose_compare import compare_fewview, compare_on_dataset, format_comparison
 from spgeo.evaluation.pose_metrics import (compare_pose_lists, relative_pose_errors,
                                            rotation_error_deg, translation_direction_defined,
                                            translation_direction_error_deg)

@@ -14,10 +14,11 @@ from spgeo.completion import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_
                               CompletionConfig, complete_depth, grouped_median,
                               sparse_point_assignments)
 from spgeo.completion_scales import flat_primitives
-from spgeo.evaluation.baselines_depth import (IPBasicConfig, ip_basic_completion,
-                                              linear_interpolation_completion, oracle_frontend)
-from spgeo.evaluation.void import (VOIDDataset, keypoint_sparse_depth, read_void_depth,
-                                   run_void, void_metrics, write_synthetic_void)
+from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
+                                                          linear_interpolation_completion,
+                                                          oracle_frontend)
+from spgeo.evaluation.completion.void import (VOIDDataset, keypoint_sparse_depth, read_void_depth,
+                                              run_void, void_metrics, write_synthetic_void)
 from spgeo.factors.sparse_depth import SparseDepthFactor, huber_phi, make_sparse_depth_factor
 from spgeo.frontend import make_frontend
 from spgeo.primitives import PrimitiveSet

@@ -14,8 +14,9 @@ from spgeo.completion_planes import (MODE_LENT, MODE_NONE, MODE_PLANE, MODE_SCAL
                                      fit_primitive_planes, lend_across_weak_edges,
                                      pixel_rays, primitive_adjacency)
 from spgeo.completion_scales import grouped_median, sparse_point_assignments
-from spgeo.evaluation.baselines_depth import (ColorizationConfig, colorization_completion,
-                                              linear_interpolation_completion)
+from spgeo.evaluation.references.depth_completion import (ColorizationConfig,
+                                                          colorization_completion,
+                                                          linear_interpolation_completion)
 from spgeo.primitives import PrimitiveSet
 
 CAM = PinholeCamera(80.0, 80.0, 31.5, 23.5, 64, 48)
@@ -260,7 +261,7 @@ def test_graph_plane_completion_on_synthetic_scenes_with_keypoint_depth():
     to the per-primitive median and must beat linear interpolation clearly
     (depth-normal primitives: the shapes are right, the scales are the test)."""
     from spgeo import synthetic
-    from spgeo.evaluation.void import keypoint_sparse_depth, void_metrics
+    from spgeo.evaluation.completion.void import keypoint_sparse_depth, void_metrics
     from spgeo.frontend import make_frontend
 
     cam = synthetic.default_camera(320, 240)

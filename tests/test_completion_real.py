@@ -70,7 +70,7 @@ def test_set_overrides_the_completion_config(root, tmp_path, capsys):
 
 
 def test_completion_strata_partition_and_errors(root, capsys):
-    from spgeo.evaluation.completion_strata import STRATA, main, strata_errors
+    from spgeo.evaluation.completion.strata import STRATA, main, strata_errors
 
     rows = strata_errors("tum", root=root, frames="0:2")
     assert list(rows) == [lab for lab, _, _ in STRATA]

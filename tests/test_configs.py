@@ -147,7 +147,7 @@ def test_eval_help_lists_protocols(capsys):
 
 
 def test_eval_dispatches_argv(monkeypatch):
-    import spgeo.evaluation.tum_fr1 as mod
+    import spgeo.evaluation.vo.tum_fr1 as mod
 
     seen = []
     monkeypatch.setattr(mod, "main", lambda argv: seen.append(argv) or 3)

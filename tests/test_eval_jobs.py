@@ -104,7 +104,7 @@ def test_run_table_rewrites_files_after_each_job(tmp_path):
 
 
 def test_vo_synthetic_cli_error_row(tmp_path, capsys):
-    from spgeo.evaluation.vo_synthetic import main
+    from spgeo.evaluation.vo.synthetic import main
 
     rc = main(["--seeds", "0", "--frames", "12", "--runs", "depth", "nosuch", "--rotation", "none",
                "--no-progress", "--out", str(tmp_path)])
@@ -119,7 +119,7 @@ def test_vo_synthetic_cli_error_row(tmp_path, capsys):
 
 def test_ray_gives_the_sequential_numbers():
     pytest.importorskip("ray")
-    from spgeo.evaluation.vo_synthetic import make_jobs
+    from spgeo.evaluation.vo.synthetic import make_jobs
 
     jobs = make_jobs([0, 1], ["depth"], n_frames=20, size=(160, 120), rotation=None)
     local = run_jobs(jobs, RunnerConfig(progress=False))

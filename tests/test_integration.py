@@ -144,7 +144,7 @@ def test_nan_normals_and_bad_input():
 
 
 def test_many_masks_batched_equals_one_by_one():
-    from spgeo.evaluation.bench_integration import make_case
+    from spgeo.evaluation.bench.integration import make_case
 
     cam, n, z, regions = make_case(40, 160, 120, seed=3)
     res = integrate_normals_regions(n, regions, cam)
@@ -202,7 +202,7 @@ def test_cholesky_matches_direct_random(shape, n_masks, seed, constant):
 
 
 def test_cholesky_matches_direct_bench_case_and_wide_masks():
-    from spgeo.evaluation.bench_integration import make_case
+    from spgeo.evaluation.bench.integration import make_case
 
     cam, n, z, regions = make_case(60, 160, 120, seed=5)
     regions = regions + [np.arange(cam.width * cam.height)]   # one whole-image (wide) mask

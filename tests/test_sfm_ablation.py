@@ -1,9 +1,9 @@
-"""The few-view SfM shape ablation protocol (spgeo.evaluation.sfm_ablation) on the
+"""The few-view SfM shape ablation protocol (spgeo.evaluation.sfm.ablation) on the
 shared TUM frames: one row's numbers against bounds from its measured output, and
 cases whose data are missing left out."""
 import pytest
 
-from spgeo.evaluation.sfm_ablation import CASES, make_jobs, sfm_case_row
+from spgeo.evaluation.sfm.ablation import CASES, make_jobs, sfm_case_row
 
 
 def test_tum_classical_planar_row(shared_data):

@@ -1,6 +1,6 @@
 """Few-view SfM on real frames: spgeo vs ground truth, not to regress.
 
-Bounds come from ``python -m spgeo.evaluation.sfm_real`` (measurements in
+Bounds come from ``python -m spgeo.evaluation.sfm.real`` (measurements in
 docs/results_parts/baselines.md); COLMAP on the same frames is tested in
 test_colmap.py.
 """
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spgeo.evaluation.sfm_real import run_case, spgeo_estimator
+from spgeo.evaluation.sfm.real import run_case, spgeo_estimator
 
 
 def _errors(comp, name):

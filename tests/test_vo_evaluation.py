@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from spgeo.evaluation.feature_vo import (STATUSES, FeatureVOConfig, main as feature_vo_main,
-                                         resize_frames, run_feature_vo)
+from spgeo.evaluation.references.feature_vo import (STATUSES, FeatureVOConfig,
+                                                    main as feature_vo_main, resize_frames,
+                                                    run_feature_vo)
 from spgeo.evaluation.trajectory import (TumTrajectory, ate_per_frame_and_keyframes, ate_sim3,
                                          path_length, read_status, read_tum, status_path_for,
                                          umeyama_sim3, write_status, write_tum)
@@ -221,7 +222,7 @@ def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
 
 
 def test_vo_synthetic_config_overrides():
-    from spgeo.evaluation.vo_synthetic import odometry_config, parse_overrides
+    from spgeo.evaluation.vo.synthetic import odometry_config, parse_overrides
 
     over = parse_overrides(["kf_depth_link_sigma=None", "render_prior_weight = 1e-5",
                             "brightness_prior_sigma=(0.1, 0.2)", "tracker.relative_cost_tol=1e-4",

@@ -98,7 +98,7 @@ def test_vo_holds_a_fast_forward_drive(frames, frontend, max_ate_pct):
 def test_vo_synthetic_forward_sequence():
     """``spgeo eval vo_synthetic --forward STEP``'s sequence: steps of STEP metres,
     cut so the drive stays inside the hall (FORWARD_DRIVE_M)."""
-    from spgeo.evaluation.vo_synthetic import (FORWARD_DRIVE_M, SyntheticVOConfig,
+    from spgeo.evaluation.vo.synthetic import (FORWARD_DRIVE_M, SyntheticVOConfig,
                                                synthetic_sequence)
 
     seq = synthetic_sequence(SyntheticVOConfig(n_frames=100, size=(40, 30), forward_step=0.8,
@@ -117,7 +117,7 @@ def test_frames_before_keyframe_1_are_retracked_from_the_interpolated_pose():
     initialisation; where the constant-velocity guess fails (no velocity after a
     lost frame) the pose interpolated between keyframes 0 and 1 starts the tracker,
     so no frame stays lost."""
-    from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, synthetic_sequence
+    from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, synthetic_sequence
 
     seq = synthetic_sequence(SyntheticVOConfig(seed=1, size=SIZE, forward_step=0.25))
     vo = Odometry(seq[0].camera, OdometryConfig(),

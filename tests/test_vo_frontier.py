@@ -6,7 +6,7 @@ import math
 import pytest
 
 from spgeo.configs import ConfigError
-from spgeo.evaluation.vo_frontier import (COLUMNS, Cell, main, make_grid, markdown_table,
+from spgeo.evaluation.vo.frontier import (COLUMNS, Cell, main, make_grid, markdown_table,
                                           parse_setting, run_grid, setting_config)
 
 

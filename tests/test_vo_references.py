@@ -1,6 +1,6 @@
-"""VO evaluation references: the pycolmap SfM reference (evaluation.colmap_vo),
-the side-by-side comparison (evaluation.vo_compare) and the TUM fr1 protocol
-runner (evaluation.tum_fr1).
+"""VO evaluation references: the pycolmap SfM reference (evaluation.references.colmap_vo),
+the side-by-side comparison (evaluation.vo.compare) and the TUM fr1 protocol
+runner (evaluation.vo.tum_fr1).
 
 Tolerances are measured values with margin (deterministic: one COLMAP
 thread, fixed seeds; synthetic scene 0, trajectory seed 0, 25 frames rendered
@@ -22,11 +22,11 @@ from spgeo.evaluation.trajectory import read_status, read_tum, status_path_for
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from spgeo.evaluation.colmap_vo import ColmapVOConfig, run_colmap_vo  # noqa: E402
-from spgeo.evaluation.tum_fr1 import (  # noqa: E402
+from spgeo.evaluation.references.colmap_vo import ColmapVOConfig, run_colmap_vo  # noqa: E402
+from spgeo.evaluation.vo.tum_fr1 import (  # noqa: E402
     FR1_SEQUENCES, FR1Config, crop_camera, crop_frame, format_fr1_table, main as fr1_main,
     protocol_frames, run_fr1, sequence_folder)
-from spgeo.evaluation.vo_compare import (  # noqa: E402
+from spgeo.evaluation.vo.compare import (  # noqa: E402
     VOCompareRow, compare_vo, format_markdown_table, main as compare_main, write_results)
 
 N_FRAMES = 25
@@ -216,7 +216,7 @@ def test_tum_fr1_runner_skips_missing_sequences(tmp_path, capsys):
 
 def test_tum_fr1_runner_spgeo_classical(tmp_path):
     from spgeo.datasets import bundled_tum_path
-    from spgeo.evaluation.tum_fr1 import run_fr1_sequence
+    from spgeo.evaluation.vo.tum_fr1 import run_fr1_sequence
 
     seq = sequence_folder(tmp_path, "desk")
     shutil.copytree(bundled_tum_path(), seq)

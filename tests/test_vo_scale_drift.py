@@ -1,4 +1,4 @@
-"""Keyframe scale-drift diagnostic (spgeo.evaluation.vo_scale_drift): with the
+"""Keyframe scale-drift diagnostic (spgeo.evaluation.vo.scale_drift): with the
 depth front-end (metric scales from the sensor depth) every keyframe's depth
 matches the sensor's and the keyframe baselines the ground truth's, so the
 ratios are 1 within a few per cent."""
@@ -6,8 +6,7 @@ import numpy as np
 
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_odometry
-from spgeo.evaluation.vo_scale_drift import (keyframe_baseline_ratios, keyframe_depth_ratios,
-                                             main)
+from spgeo.evaluation.vo.scale_drift import keyframe_baseline_ratios, keyframe_depth_ratios, main
 
 
 def test_depth_frontend_ratios_are_one():

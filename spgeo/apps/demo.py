@@ -240,9 +240,10 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
     """Zero-shot depth completion from 150 sparse points at FAST keypoints (1% noise)
     against the two baselines, on the synthetic view and a bundled TUM frame."""
     from ..completion import complete_depth
-    from ..evaluation.baselines_depth import (ip_basic_completion, linear_interpolation_completion,
-                                              oracle_frontend)
-    from ..evaluation.void import keypoint_sparse_depth, void_metrics
+    from ..evaluation.references.depth_completion import (ip_basic_completion,
+                                                          linear_interpolation_completion,
+                                                          oracle_frontend)
+    from ..evaluation.completion.void import keypoint_sparse_depth, void_metrics
 
     lines = [f"{'scene':12s} {'method':28s} {'MAE mm':>8s} {'RMSE mm':>8s} {'iMAE':>7s} "
              f"{'iRMSE':>7s}"]

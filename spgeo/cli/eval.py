@@ -1,11 +1,13 @@
 """``spgeo eval PROTOCOL [ARGS...]``: the evaluation protocols and benchmarks of
-:mod:`spgeo.evaluation` that have a ``main(argv)``; ``ARGS`` go unchanged to
-``spgeo.evaluation.PROTOCOL.main``, imported only when run (``spgeo eval
-PROTOCOL --help`` shows its own options).
+:mod:`spgeo.evaluation` that have a ``main(argv)``; ``ARGS`` go unchanged to that
+module's ``main``, imported only when run (``spgeo eval PROTOCOL --help`` shows its
+own options).
 
-The protocols are found by reading the package's source files (a module
-``def main(`` at top level; its docstring's first sentence is the one-line
-help), so the list follows the package without importing it.
+:data:`PROTOCOLS` names the module of each protocol (``vo_synthetic`` ->
+``spgeo.evaluation.vo.synthetic``; the names predate the task sub-packages and
+stay as they were).  The one-line help is the first sentence of the module's
+docstring, read from its source file, so ``spgeo eval --help`` imports no
+protocol.
 """
 from __future__ import annotations
 
@@ -17,7 +19,37 @@ import sys
 from pathlib import Path
 from typing import Dict, List, Optional
 
-__all__ = ["protocols", "add_eval_cli", "run_protocol"]
+__all__ = ["PROTOCOLS", "protocols", "add_eval_cli", "run_protocol"]
+
+#: ``spgeo eval`` name -> module under :mod:`spgeo.evaluation` with a top-level ``main(argv)``.
+PROTOCOLS: Dict[str, str] = {
+    # vo/: monocular visual odometry
+    "vo_synthetic": "vo.synthetic",
+    "vo_frontier": "vo.frontier",
+    "vo_compare": "vo.compare",
+    "vo_scale_drift": "vo.scale_drift",
+    "tum_fr1": "vo.tum_fr1",
+    # sfm/: few-view structure from motion
+    "sfm_real": "sfm.real",
+    "sfm_ablation": "sfm.ablation",
+    "scannet": "sfm.scannet",
+    # completion/: depth completion
+    "completion_real": "completion.real",
+    "completion_7scenes": "completion.seven_scenes",
+    "completion_strata": "completion.strata",
+    "void": "completion.void",
+    # frontend/: single-frame primitives (segments, normals)
+    "bench_segmenters": "frontend.segmenters",
+    "manhattan_normals": "frontend.manhattan_normals",
+    # references/: methods spgeo is compared with
+    "colmap": "references.colmap",
+    "colmap_vo": "references.colmap_vo",
+    "feature_vo": "references.feature_vo",
+    # bench/: speed micro-benchmarks
+    "bench_factors": "bench.factors",
+    "bench_integration": "bench.integration",
+    "bench_vo": "bench.vo",
+}
 
 _DOC = re.compile(r'\A\s*(?:#[^\n]*\n\s*)*[rRuU]?("""|\'\'\')(.*?)\1', re.S)
 _MAIN = re.compile(r"^def main\(", re.M)
@@ -39,20 +71,21 @@ def _one_line(doc: str) -> str:
 
 
 def protocols() -> Dict[str, str]:
-    """``{module name: one-line help}`` of the ``spgeo.evaluation`` modules with
-    a top-level ``main``, sorted by name (empty if the package is missing)."""
+    """``{protocol name: one-line help}`` of :data:`PROTOCOLS` whose module file
+    defines a top-level ``main``, sorted by name (empty if the package is missing)."""
     folder = _evaluation_dir()
     out: Dict[str, str] = {}
     if folder is None:
         return out
-    for path in sorted(folder.glob("*.py")):
-        if path.stem.startswith("_"):
+    for name in sorted(PROTOCOLS):
+        path = folder.joinpath(*PROTOCOLS[name].split(".")).with_suffix(".py")
+        if not path.is_file():
             continue
         text = path.read_text(encoding="utf-8", errors="replace")
         if not _MAIN.search(text):
             continue
         m = _DOC.match(text)
-        out[path.stem] = _one_line(m.group(2)) if m else ""
+        out[name] = _one_line(m.group(2)) if m else ""
     return out
 
 
@@ -71,9 +104,10 @@ def add_eval_cli(subparsers) -> argparse.ArgumentParser:
 
 
 def run_protocol(name: str, argv: List[str]) -> int:
-    """``spgeo.evaluation.<name>.main(argv)`` (its ``prog`` shows as ``spgeo eval
-    <name>``); the exit code (None counts as 0; argparse exits give theirs)."""
-    module = importlib.import_module(f"spgeo.evaluation.{name}")
+    """``main(argv)`` of the protocol's module (``spgeo.evaluation.<PROTOCOLS[name]>``;
+    its ``prog`` shows as ``spgeo eval <name>``); the exit code (None counts as 0;
+    argparse exits give theirs)."""
+    module = importlib.import_module(f"spgeo.evaluation.{PROTOCOLS[name]}")
     saved = sys.argv[0]
     sys.argv[0] = f"spgeo eval {name}"
     try:

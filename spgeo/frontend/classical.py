@@ -24,7 +24,7 @@ then post-processes the label image identically for every method:
    longest boundary, giving an exact partition (every pixel in exactly one
    region).  ``"drop"`` is the default because the tiny components are mostly
    slivers along surface boundaries (anti-aliased edge pixels) and merging
-   them raises the under-segmentation error (``evaluation/bench_segmenters.py``,
+   them raises the under-segmentation error (``evaluation/frontend/segmenters.py``,
    results in docs/results.md);
 3. anchors are each region's most interior pixel (maximum of the Euclidean
    distance to the nearest pixel of another region or the image border); scores
@@ -68,7 +68,7 @@ class ClassicalSegmenterConfig:
 
     Attributes:
         method: one of :data:`METHODS`.  Default ``"graph"``, chosen with
-            ``evaluation/bench_segmenters.py`` on the synthetic scenes
+            ``evaluation/frontend/segmenters.py`` on the synthetic scenes
             (results in docs/results.md).
         num_segments: target number of superpixels for the SLIC family, SEEDS
             and LSC (independent of resolution; SLIC/LSC turn it into a region

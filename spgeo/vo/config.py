@@ -134,7 +134,7 @@ class TrackerConfig:
 class OdometryConfig:
     """Options of :class:`spgeo.vo.Odometry` (defaults: docs/design.md §5 where
     it gives one; the others chosen on synthetic 160x120 hand-held sequences,
-    ``python -m spgeo.evaluation.vo_synthetic``; measurements in
+    ``python -m spgeo.evaluation.vo.synthetic``; measurements in
     docs/results.md).
 
     Attributes:

@@ -15,8 +15,8 @@ a field the config does not have makes that setting's cells error rows.
 Data sets: ``7scenes`` (frames ``0:N`` of ``--sevenscenes``, default the
 shared redkitchen sequence, run by :func:`spgeo.apps.vo_run.run_dataset`, the
 frames resized to the resolution) and ``synthetic`` (the rendered sequences of
-:func:`spgeo.evaluation.vo_synthetic.synthetic_sequence`, rendered at the
-resolution, run by :func:`~spgeo.evaluation.vo_synthetic.run_synthetic_vo`).
+:func:`spgeo.evaluation.vo.synthetic.synthetic_sequence`, rendered at the
+resolution, run by :func:`~spgeo.evaluation.vo.synthetic.run_synthetic_vo`).
 
 Each cell runs in a fresh Python process (``--in-process``: in this one, no
 peak memory).  Columns: per-frame and keyframe-only Sim(3) ATE (metres and %
@@ -175,7 +175,7 @@ def run_cell(cell: Cell) -> Dict[str, object]:
                 for lab, a in ate.items()}
         report = run.odometry.report()
     elif cell.dataset == "synthetic":
-        from spgeo.evaluation.vo_synthetic import (SyntheticVOConfig, run_synthetic_vo,
+        from spgeo.evaluation.vo.synthetic import (SyntheticVOConfig, run_synthetic_vo,
                                                    synthetic_sequence)
 
         frames = synthetic_sequence(SyntheticVOConfig(cell.frames, int(cell.seed or 0),
@@ -206,11 +206,11 @@ def _child_main(cell_json: str) -> int:
 
 
 def run_cell_subprocess(cell: Cell, timeout: Optional[float] = None) -> Dict[str, object]:
-    """Run one cell in a fresh ``python -m spgeo.evaluation.vo_frontier``
+    """Run one cell in a fresh ``python -m spgeo.evaluation.vo.frontier``
     process; the row with its peak memory, or an error row (exception, exit
     status, timeout; the last stderr lines)."""
     t0 = time.perf_counter()
-    cmd = [sys.executable, "-m", "spgeo.evaluation.vo_frontier", "--_cell",
+    cmd = [sys.executable, "-m", "spgeo.evaluation.vo.frontier", "--_cell",
            json.dumps(asdict(cell))]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)

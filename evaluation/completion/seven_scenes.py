@@ -2,7 +2,7 @@
 
 For every selected frame, ``n_points`` (150, VOID-150's density) sparse depths
 are taken from the Kinect depth at FAST keypoints of the colour image
-(:func:`spgeo.evaluation.void.keypoint_sparse_depth`, no added noise: the
+(:func:`spgeo.evaluation.completion.void.keypoint_sparse_depth`, no added noise: the
 sensor's own noise is there), completed by each method, and scored against
 the same sensor depth with the VOID protocol (ground truth in (0.2, 5.0) m;
 MAE/RMSE in mm, iMAE/iRMSE in 1/km, averaged over frames).
@@ -27,7 +27,7 @@ Methods (rows):
 * ``linear`` and ``ip_basic`` — the sparse-only baselines; ``colorization``
   — the image-guided fill of the NYU toolbox.
 
-:mod:`spgeo.evaluation.completion_real` runs the same protocol on all three
+:mod:`spgeo.evaluation.completion.real` runs the same protocol on all three
 real samples with more spgeo variants.
 
 The ``"depth"`` front-end as a monocular method is not applicable: it needs
@@ -35,7 +35,7 @@ dense depth.
 
 Run::
 
-    python -m spgeo.evaluation.completion_7scenes [PATH] [--frames 0:300:10] [--points 150]
+    python -m spgeo.evaluation.completion.seven_scenes [PATH] [--frames 0:300:10] [--points 150]
 """
 from __future__ import annotations
 
@@ -51,9 +51,11 @@ import numpy as np
 
 from spgeo.completion import CompletionConfig, complete_depth
 
-from .baselines_depth import (IPBasicConfig, colorization_completion, ip_basic_completion,
-                              linear_interpolation_completion)
-from .completion_real import sparse_frames
+from spgeo.evaluation.references.depth_completion import (IPBasicConfig, colorization_completion,
+                                                          ip_basic_completion,
+                                                          linear_interpolation_completion)
+
+from .real import sparse_frames
 from .void import METRIC_KEYS, void_metrics
 
 __all__ = ["default_path", "SevenScenesCompletionResult", "run_7scenes", "main"]
@@ -64,7 +66,7 @@ log = logging.getLogger(__name__)
 def default_path() -> Path:
     """``7scenes_redkitchen_dev`` in the shared sample data
     (:func:`spgeo.evaluation.shared_data.shared_data_root`)."""
-    from .shared_data import shared_data_root
+    from spgeo.evaluation.shared_data import shared_data_root
 
     return shared_data_root() / "7scenes_redkitchen_dev"
 

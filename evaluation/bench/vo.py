@@ -1,9 +1,9 @@
 """Speed of the monocular VO at 160x120 on this machine (one thread).
 
-    python -m spgeo.evaluation.bench_vo [--frames 150] [--seed 0] [--frontend classical]
+    python -m spgeo.evaluation.bench.vo [--frames 150] [--seed 0] [--frontend classical]
 
 Four measurements on one rendered synthetic sequence
-(:func:`spgeo.evaluation.vo_synthetic.synthetic_sequence`), printed as a table:
+(:func:`spgeo.evaluation.vo.synthetic.synthetic_sequence`), printed as a table:
 
 1. *Tracking alone*: every frame after the first tracked against keyframe 0
    built from ground-truth depth (frames that see less than half of it are
@@ -21,7 +21,7 @@ Four measurements on one rendered synthetic sequence
 
 ``--settings`` replaces the pipeline rows of 2-4 by its own: one string of
 ``FIELD=VALUE`` :class:`~spgeo.vo.OdometryConfig` overrides per row, as
-``--set-grid`` of :mod:`spgeo.evaluation.vo_frontier` (which adds accuracy on
+``--set-grid`` of :mod:`spgeo.evaluation.vo.frontier` (which adds accuracy on
 real data and peak memory).
 
 Timings are wall-clock on whatever else the machine is doing; compare the
@@ -36,9 +36,9 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
-from spgeo.evaluation.vo_frontier import setting_config
+from spgeo.evaluation.vo.frontier import setting_config
 from spgeo.apps.vo_run import VORunConfig, blas_threads
-from spgeo.evaluation.vo_synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
+from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
 from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
 
 __all__ = ["bench_tracking", "main"]

@@ -12,7 +12,7 @@ with the fr1 calibration (the TUM reader's ``undistort=True``), cropped by
 576x448; :func:`crop_frame` shifts the principal point by the crop offsets),
 then resized to 160x120 (``cv2.INTER_AREA``; anisotropic: fx and fy scale
 differently, the camera follows).  Every method runs on the same prepared
-frames (:func:`spgeo.evaluation.vo_compare.compare_vo`): spgeo with the
+frames (:func:`spgeo.evaluation.vo.compare.compare_vo`): spgeo with the
 classical front-end (default), the OpenCV feature baseline and, optionally,
 the COLMAP reference.  The metric is the per-frame ATE RMSE in metres after
 Sim(3) alignment (evo), averaged over the sequences that ran.
@@ -23,7 +23,7 @@ mean ATE over the eight sequences is printed as a reference
 
 Command line::
 
-    python -m spgeo.evaluation.tum_fr1 --root ROOT [--sequences desk xyz] \
+    python -m spgeo.evaluation.vo.tum_fr1 --root ROOT [--sequences desk xyz] \
         [--methods spgeo-classical feature colmap] [--max-frames N] [--out DIR] \
         [--workers N | --address ADDR]
 
@@ -50,10 +50,11 @@ from spgeo.cli.args import add_verbose_argument, setup_logging
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
-from .jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance, run_jobs,
-                   runner_config)
-from .vo_compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
-                         write_results)
+from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
+                                   run_jobs, runner_config)
+
+from .compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
+                      write_results)
 
 __all__ = ["FR1_SEQUENCES", "PAPER_MEAN_ATE_M", "FR1_METHODS", "FR1Config", "FR1SequenceResult",
            "FR1Report", "sequence_folder", "crop_camera", "crop_frame", "protocol_frames",
@@ -91,7 +92,7 @@ class FR1Config:
         max_frames: use only the first ``max_frames`` frames of each sequence;
             None (default) = all (the protocol).
         undistort: undistort with the fr1 calibration, default True (protocol).
-        compare: options of the methods (:class:`~.vo_compare.VOCompareConfig`;
+        compare: options of the methods (:class:`~.compare.VOCompareConfig`;
             its ``resolution`` is replaced by ``resolution``).
     """
 
@@ -172,7 +173,7 @@ def protocol_frames(frames, config: Optional[FR1Config] = None) -> Iterator[Fram
 # ================================================================= running
 @dataclass
 class FR1SequenceResult:
-    """One sequence: ``rows`` from :func:`~.vo_compare.compare_vo`, or
+    """One sequence: ``rows`` from :func:`~.compare.compare_vo`, or
     ``skipped`` with the reason (missing folder, unreadable data...)."""
 
     name: str
@@ -405,11 +406,11 @@ def format_fr1_table(report: FR1Report) -> str:
 
 # ===================================================================== CLI
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.tum_fr1``: run the fr1 protocol and print the
+    """``python -m spgeo.evaluation.vo.tum_fr1``: run the fr1 protocol and print the
     table.  Returns 0 when at least one sequence was evaluated, 1 when all were
     skipped, 2 for bad arguments."""
     parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.tum_fr1",
+        prog="python -m spgeo.evaluation.vo.tum_fr1",
         description="TUM RGB-D fr1 monocular VO protocol (undistort, crop 16/32 px, "
                     "160x120, RGB only): per-frame Sim(3) ATE per sequence and mean.")
     parser.add_argument("--root", required=True,

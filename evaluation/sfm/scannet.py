@@ -39,8 +39,8 @@ from spgeo.geometry import relative_pose, rotation_angle_deg
 from spgeo.jsonio import json_default
 from spgeo.sfm import SfMConfig, few_view_sfm
 
-from .metrics import depth_metrics
-from .pose_metrics import relative_pose_errors
+from spgeo.evaluation.metrics import depth_metrics
+from spgeo.evaluation.pose_metrics import relative_pose_errors
 
 __all__ = [
     "ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
@@ -439,7 +439,7 @@ def run_scannet_sfm(root: PathLike, scenes: Optional[Sequence[str]] = None,
 
 # ================================================================= script
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.scannet ROOT [--scenes ...] [--max-views 3]
+    """``python -m spgeo.evaluation.sfm.scannet ROOT [--scenes ...] [--max-views 3]
     [--stride 200] [--frontend classical] [--max-samples N]``: print the table."""
     import argparse
 

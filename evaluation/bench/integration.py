@@ -10,7 +10,7 @@ factor's memory as the solver reports it, the peak of Python-visible
 allocations of one call (tracemalloc), and the accuracy (median relative depth
 error after one scale per mask).
 
-    python -m spgeo.evaluation.bench_integration [--runs 20] [--masks 200] [--grid 320x240]
+    python -m spgeo.evaluation.bench.integration [--runs 20] [--masks 200] [--grid 320x240]
 """
 from __future__ import annotations
 

@@ -11,9 +11,10 @@ import numpy as np
 
 from spgeo.trajectory import FrameStatus, Trajectory
 
+from spgeo.evaluation.trajectory import (AteResult, TrajectoryResult, ate_per_frame_and_keyframes,
+                                         status_path_for)
+
 from .feature_vo_frontend import FeatureVOConfig
-from .trajectory import (AteResult, TrajectoryResult, ate_per_frame_and_keyframes,
-                         status_path_for)
 
 __all__ = ["STATUSES", "FeatureVOFrame", "FeatureVOResult"]
 
@@ -112,7 +113,7 @@ class FeatureVOResult(TrajectoryResult):
 
     def ate(self, gt_timestamps: Sequence[float], gt_poses: Sequence[np.ndarray],
             max_time_diff: float = 0.02) -> Dict[str, Optional[AteResult]]:
-        """Sim(3) ATE, per-frame and keyframe-only (see :mod:`.trajectory`)."""
+        """Sim(3) ATE, per-frame and keyframe-only (see :mod:`spgeo.evaluation.trajectory`)."""
         return ate_per_frame_and_keyframes((self.timestamps, self.poses),
                                            (gt_timestamps, gt_poses), self.is_keyframe,
                                            max_time_diff=max_time_diff)

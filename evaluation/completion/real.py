@@ -2,7 +2,7 @@
 
 For every frame, ``n_points`` (150) sparse depths are taken from the sensor
 depth at FAST keypoints of the colour image
-(:func:`spgeo.evaluation.void.keypoint_sparse_depth`, no added noise, seed =
+(:func:`spgeo.evaluation.completion.void.keypoint_sparse_depth`, no added noise, seed =
 frame index), completed by each method and scored against the same depth with
 the VOID protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
 iRMSE in 1/km, means over frames).  Data sets (``/work/shared/data`` layout):
@@ -20,7 +20,7 @@ Rows:
   the front-end runs once per frame and its time is included in every row
   that uses it;
 * ``linear``, ``ip_basic``, ``colorization``: the baselines of
-  :mod:`spgeo.evaluation.baselines_depth`.
+  :mod:`spgeo.evaluation.references.depth_completion`.
 
 The last columns give the relative MAE / iMAE improvement of each row over the
 best of the three baselines on that data set (positive: better).
@@ -45,9 +45,11 @@ import numpy as np
 
 from spgeo.completion import CompletionConfig, complete_depth, working_size_for
 
-from .baselines_depth import (colorization_completion, ip_basic_completion,
-                              linear_interpolation_completion)
-from .jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
+from spgeo.evaluation.jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
+from spgeo.evaluation.references.depth_completion import (colorization_completion,
+                                                          ip_basic_completion,
+                                                          linear_interpolation_completion)
+
 from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
 
 __all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames", "RealCompletionResult", "run_dataset",
@@ -75,7 +77,7 @@ SCALE_METHODS = ("median", "graph")
 
 def default_root() -> Path:
     """The shared sample data (:func:`spgeo.evaluation.shared_data.shared_data_root`)."""
-    from .shared_data import shared_data_root
+    from spgeo.evaluation.shared_data import shared_data_root
 
     return shared_data_root()
 

@@ -13,10 +13,10 @@ so ``T_world_cam = inv(cam_from_world)`` and
 ``T_ref_view = inv(T_world_ref) @ T_world_view``.
 
 :func:`colmap_estimator` wraps it as an estimator for
-:func:`~.colmap_compare.compare_on_dataset` (the comparison tables live in
-:mod:`.colmap_compare`); :func:`main` is the command line::
+:func:`~spgeo.evaluation.pose_compare.compare_on_dataset` (the comparison tables live in
+:mod:`spgeo.evaluation.pose_compare`); :func:`main` is the command line::
 
-    python -m spgeo.evaluation.colmap --dataset tum PATH --frames 0 4 8
+    python -m spgeo.evaluation.references.colmap --dataset tum PATH --frames 0 4 8
 
 Everything is deterministic: one thread, fixed RANSAC / mapper seeds, CPU
 SIFT and brute-force matching (shared helpers: :mod:`.colmap_common`).
@@ -40,10 +40,11 @@ from spgeo.cli.args import add_dataset_arguments, add_verbose_argument, setup_lo
 from spgeo.geometry import invert_pose, relative_pose
 from spgeo.jsonio import json_default
 
+from spgeo.evaluation.pose_compare import Estimator, compare_on_dataset, format_comparison
+
 from .colmap_common import (ColmapOptions, ImageInput, cam_from_world, extract_sift,
                             incremental_mapping, load_images, mapper_options, pose_from_rigid,
                             quiet, sift_matching_options, verification_options, workspace)
-from .colmap_compare import Estimator, compare_on_dataset, format_comparison
 
 __all__ = ["COLMAP_STATUSES", "ColmapConfig", "ColmapResult", "run_colmap_fewview",
            "colmap_estimator", "main"]
@@ -350,7 +351,7 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     need_fallback = config.fallback_two_view and any(T is None for T in result.T_ref_view)
     inconsistent = []
     if need_fallback or config.check_two_view:
-        from .pose_metrics import rotation_error_deg
+        from spgeo.evaluation.pose_metrics import rotation_error_deg
 
         t = time.perf_counter()
         with pycolmap.Database.open(db_path) as db:
@@ -426,7 +427,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     a reference + supporting frames of a data set; prints a table and optionally
     writes JSON.  Returns the exit status (0 on success, 1 if COLMAP posed no view)."""
     parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.colmap",
+        prog="python -m spgeo.evaluation.references.colmap",
         description="Relative-pose errors of COLMAP (pycolmap, SIFT, fixed intrinsics) on a "
                     "reference frame plus supporting frames, against ground truth.")
     add_dataset_arguments(parser, frames_nargs="+",

@@ -2,10 +2,10 @@
 absolute error of spgeo's offline completion and of linear interpolation,
 stratified by how many sparse points the primitive under each pixel holds.
 
-    python -m spgeo.evaluation.completion_strata [--datasets 7scenes tum icl]
+    python -m spgeo.evaluation.completion.strata [--datasets 7scenes tum icl]
         [--frontend classical] [--root DIR]
 
-Same frames, sparse points and reference as :mod:`spgeo.evaluation.completion_real`
+Same frames, sparse points and reference as :mod:`spgeo.evaluation.completion.real`
 (150 FAST keypoints, reference in 0.2-5 m).  Per data set and stratum (no
 primitive, 0, 1-2, 3+ points): the fraction of the reference pixels and the
 mean absolute error (mm) of both methods, pooled over the frames.
@@ -29,17 +29,18 @@ STRATA = (("no primitive", -1, 0), ("0 points", 0, 1), ("1-2 points", 1, 3),
 def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] = None,
                   frames: Optional[str] = None) -> Dict[str, Dict[str, float]]:
     """``{stratum: {"fraction", "spgeo_mm", "linear_mm"}}`` for data set ``name``
-    of :data:`spgeo.evaluation.completion_real.DATASETS` (``frames``: another
+    of :data:`spgeo.evaluation.completion.real.DATASETS` (``frames``: another
     ``A:B[:S]`` selection), with the default :class:`spgeo.completion.CompletionConfig`.
     Raises ``ValueError`` for an unknown name and ``FileNotFoundError`` when the
-    data set's folder is missing (:func:`~spgeo.evaluation.completion_real.open_sample`)."""
+    data set's folder is missing (:func:`~spgeo.evaluation.completion.real.open_sample`)."""
     import cv2
 
     from spgeo.completion import CompletionConfig, complete_depth, working_size_for
     from spgeo.frontend import FrontEndConfig, make_frontend
 
-    from .baselines_depth import linear_interpolation_completion
-    from .completion_real import open_sample, sparse_frames
+    from spgeo.evaluation.references.depth_completion import linear_interpolation_completion
+
+    from .real import open_sample, sparse_frames
 
     ds = open_sample(name, root, frames)
     cfg = CompletionConfig()

@@ -1,7 +1,7 @@
 """Scale drift of a monocular VO run, keyframe by keyframe: the median ratio of the
 sensor depth to each keyframe's primitive depth (after the run).
 
-    python -m spgeo.evaluation.vo_scale_drift --dataset 7scenes PATH [--frames 0:300]
+    python -m spgeo.evaluation.vo.scale_drift --dataset 7scenes PATH [--frames 0:300]
         [--frontend classical] [--set FIELD=VALUE ...]
 
 A monocular map has one unknown scale; if it held, the ratio would be the same for

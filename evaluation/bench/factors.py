@@ -2,7 +2,7 @@
 300 primitives x 4 target views at 240x320, i.e. 1200 PrimitivePhotometricFactors
 over all 76800 pixels per target, the size the issue asks about.
 
-    python -m spgeo.evaluation.bench_factors [--runs 5] [--primitives 300] [--targets 4]
+    python -m spgeo.evaluation.bench.factors [--runs 5] [--primitives 300] [--targets 4]
         [--chunk C] [--backends numpy numba] [--tracking 160x120 320x240]
 
 Reports, per photometric backend (``PhotometricConfig.backend``, the runs

@@ -45,7 +45,7 @@ posed frames of a new map after a failure); keyframes are flagged by
 
 Command line::
 
-    python -m spgeo.evaluation.feature_vo --dataset 7scenes PATH --frames 0:300 \
+    python -m spgeo.evaluation.references.feature_vo --dataset 7scenes PATH --frames 0:300 \
         --resolution 160x120 --out DIR
 """
 from __future__ import annotations
@@ -70,10 +70,11 @@ from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
+from spgeo.evaluation.trajectory import default_max_time_diff
+
 from .feature_vo_frontend import (FeatureGeometry, Features, FeatureVOConfig,
                                   fractional_velocity, gray_u8)
 from .feature_vo_result import STATUSES, FeatureVOFrame, FeatureVOResult
-from .trajectory import default_max_time_diff
 
 __all__ = ["FeatureVOConfig", "FeatureVO", "FeatureVOFrame", "FeatureVOResult",
            "run_feature_vo", "resize_frames", "STATUSES", "main"]
@@ -404,12 +405,12 @@ def resize_frames(frames: Sequence[Frame], width: int, height: int) -> List[Fram
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.feature_vo``: run the baseline on a data set,
+    """``python -m spgeo.evaluation.references.feature_vo``: run the baseline on a data set,
     write ``trajectory.txt`` (+ ``trajectory.status.txt``), ``keyframes.txt`` and
     ``report.json`` to ``--out``, and print the Sim(3) ATE when the data set has
     ground truth.  Returns 0, or 2 for bad arguments / unreadable data."""
     parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.feature_vo",
+        prog="python -m spgeo.evaluation.references.feature_vo",
         description="Feature-based monocular VO baseline (ORB + essential matrix + PnP).")
     add_dataset_arguments(parser)
     parser.add_argument("--resolution", default=None,

@@ -1,7 +1,7 @@
 """Few-view SfM shape ablation on real frames: front-end (shape prior) x shape model ->
 reference depth error after median scaling and rotation errors against ground truth.
 
-    python -m spgeo.evaluation.sfm_ablation [--root DIR] [--frontends classical manhattan depth]
+    python -m spgeo.evaluation.sfm.ablation [--root DIR] [--frontends classical manhattan depth]
         [--shape-models scaled planar] [--out DIR] [--workers N | --address ADDR]
 
 Cases (reference first, then two supporting views; ``--root``: the shared data,

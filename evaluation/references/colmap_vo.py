@@ -44,11 +44,11 @@ from spgeo.geometry import invert_pose
 from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
+from spgeo.evaluation.trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
+                                         default_max_time_diff)
 from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, incremental_mapping,
                             load_images, mapper_options, quiet, sift_matching_options,
                             verification_options, workspace)
-from .trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
-                         default_max_time_diff)
 
 __all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo",
            "check_resolution", "main"]
@@ -219,7 +219,7 @@ class ColmapVOResult(TrajectoryResult):
                 :class:`~spgeo.trajectory.Trajectory` is accepted too.
             gt_timestamps: see ``gt_poses``.
             max_time_diff: association tolerance, default
-                :func:`~.trajectory.default_max_time_diff` of the timestamps.
+                :func:`~spgeo.evaluation.trajectory.default_max_time_diff` of the timestamps.
         Raises ``ValueError`` when fewer than 3 registered frames have ground truth.
         """
         if hasattr(gt_poses, "timestamps") and hasattr(gt_poses, "poses"):
@@ -435,12 +435,12 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
 
 # ======================================================================= CLI
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.colmap_vo``: COLMAP reference trajectory of a
+    """``python -m spgeo.evaluation.references.colmap_vo``: COLMAP reference trajectory of a
     data-set range; prints registration and Sim(3) ATE, writes ``trajectory.txt``
     (+ status) and ``report.json`` to ``--out``.  Returns 0, 1 when nothing was
     registered, 2 for bad arguments / unreadable data."""
     parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.colmap_vo",
+        prog="python -m spgeo.evaluation.references.colmap_vo",
         description="COLMAP incremental SfM reference on the frames a VO run sees "
                     "(SIFT, sequential matching, fixed PINHOLE intrinsics).")
     add_dataset_arguments(parser)

@@ -28,8 +28,9 @@ from spgeo.datasets.void import (VOID_LIST_KINDS, VOID_SPLITS, VOIDDataset, VOID
                                  check_void_split, read_void_depth, write_void_depth)
 from spgeo.images import to_float_image, to_gray
 
-from .baselines_depth import IPBasicConfig, ip_basic_completion, linear_interpolation_completion
-from .metrics import depth_metrics
+from spgeo.evaluation.metrics import depth_metrics
+from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
+                                                          linear_interpolation_completion)
 
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
@@ -333,7 +334,7 @@ def write_synthetic_void(root: PathLike, splits: Sequence[Union[str, int]] = ("1
 
 # ----------------------------------------------------------------- script
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.void VOID_RELEASE [--split 150] [--max-images N]
+    """``python -m spgeo.evaluation.completion.void VOID_RELEASE [--split 150] [--max-images N]
     [--methods spgeo linear ip_basic]``: print the protocol table."""
     import argparse
 

@@ -1,6 +1,6 @@
 """Monocular VO on long synthetic hand-held sequences (ground truth for everything).
 
-    python -m spgeo.evaluation.vo_synthetic [--frames 150] [--seeds 0 1 2]
+    python -m spgeo.evaluation.vo.synthetic [--frames 150] [--seeds 0 1 2]
         [--runs depth classical classical:planar ...] [--rotation 90:120] [--out DIR]
         [--forward STEP] [--workers N | --address ADDR]
 

@@ -5,14 +5,14 @@ feature baseline and the COLMAP reference, with Sim(3)-aligned ATE.
 160x120; depth with nearest neighbour, only kept for an oracle method) and
 runs every requested method on exactly those frames:
 
-* ``spgeo-classical``: spgeo's VO (:func:`spgeo.evaluation.vo_run.run_vo`)
+* ``spgeo-classical``: spgeo's VO (:func:`spgeo.apps.vo_run.run_vo`)
   with the classical front-end (RGB only).
 * ``spgeo-depth``: the same with the ``depth`` front-end, which **reads the
   sensor depth (oracle)**; labelled so in every table.
 * ``feature``: the OpenCV feature VO baseline
-  (:func:`spgeo.evaluation.feature_vo.run_feature_vo`, RGB only).
+  (:func:`spgeo.evaluation.references.feature_vo.run_feature_vo`, RGB only).
 * ``colmap``: the pycolmap incremental-SfM reference
-  (:func:`spgeo.evaluation.colmap_vo.run_colmap_vo`): offline, all frames at
+  (:func:`spgeo.evaluation.references.colmap_vo.run_colmap_vo`): offline, all frames at
   once, so its FPS is not a VO frame rate.
 
 Each :class:`VOCompareRow` reports the tracked (posed) fraction of the
@@ -26,7 +26,7 @@ fraction.
 
 Command line::
 
-    python -m spgeo.evaluation.vo_compare --dataset 7scenes PATH --frames 0:300 \
+    python -m spgeo.evaluation.vo.compare --dataset 7scenes PATH --frames 0:300 \
         [--resolution 160x120] [--methods feature colmap ...] [--out DIR]
 
 prints a markdown table and, with ``--out``, writes ``<method>.txt`` (TUM,
@@ -54,10 +54,11 @@ from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_r
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
-from .colmap_vo import ColmapVOConfig, check_resolution, run_colmap_vo
-from .feature_vo import FeatureVOConfig, run_feature_vo
-from .trajectory import (AteResult, ate_per_frame_and_keyframes, default_max_time_diff,
-                         path_length, status_path_for, write_status, write_tum)
+from spgeo.evaluation.references.colmap_vo import ColmapVOConfig, check_resolution, run_colmap_vo
+from spgeo.evaluation.references.feature_vo import FeatureVOConfig, run_feature_vo
+from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
+                                         default_max_time_diff, path_length, status_path_for,
+                                         write_status, write_tum)
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "VOCompareConfig", "VOCompareRow",
            "prepare_frames", "compare_vo", "format_markdown_table", "write_results", "main"]
@@ -87,9 +88,9 @@ class VOCompareConfig:
         max_time_diff: ATE timestamp association tolerance; None (default):
             0.1 for frame-number timestamps, 0.02 s otherwise
             (:func:`~spgeo.evaluation.trajectory.default_max_time_diff`).
-        feature: :class:`~spgeo.evaluation.feature_vo.FeatureVOConfig` of the
+        feature: :class:`~spgeo.evaluation.references.feature_vo.FeatureVOConfig` of the
             baseline (default options).
-        colmap: :class:`~spgeo.evaluation.colmap_vo.ColmapVOConfig` (its
+        colmap: :class:`~spgeo.evaluation.references.colmap_vo.ColmapVOConfig` (its
             ``resolution`` is replaced by ``resolution``); default options.
         odometry: ``spgeo.odometry.OdometryConfig`` of the spgeo methods; None
             (default) = its defaults.
@@ -383,11 +384,11 @@ def write_results(rows: Sequence[VOCompareRow], out_dir: Union[str, Path],
 
 # ===================================================================== CLI
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.vo_compare``: compare VO methods on a data-set
+    """``python -m spgeo.evaluation.vo.compare``: compare VO methods on a data-set
     range; prints a markdown table, writes trajectories and ``results.json`` to
     ``--out``.  Returns 0, 1 when every method failed, 2 for bad arguments."""
     parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.vo_compare",
+        prog="python -m spgeo.evaluation.vo.compare",
         description="spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
                     "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
     add_dataset_arguments(parser)
@@ -424,7 +425,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         written = write_results(rows, args.out, {
             "dataset": kind, "path": str(path), "frames": args.frames,
             "resolution": res_txt, "methods": list(args.methods),
-            "command": "python -m spgeo.evaluation.vo_compare " + " ".join(
+            "command": "python -m spgeo.evaluation.vo.compare " + " ".join(
                 argv if argv is not None else sys.argv[1:])})
         print(f"wrote {len(written)} files to {args.out}")
     return 0 if any(r.error is None for r in rows) else 1

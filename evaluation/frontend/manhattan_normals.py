@@ -13,7 +13,7 @@ per region of the classical segmentation (``ManhattanNormals`` with a
 ``SharedSegmenter``), at ``--width`` x 3/4 width.  Also the run time of the
 VP normals relative to ``ClassicalSegmenter().segment`` on the same images.
 
-    python -m spgeo.evaluation.manhattan_normals [--step 30] [--width 320]
+    python -m spgeo.evaluation.frontend.manhattan_normals [--step 30] [--width 320]
 """
 from __future__ import annotations
 
@@ -70,7 +70,7 @@ class _Acc:
 def _real_frames(step: int, root: Optional[Path] = None):
     from spgeo.datasets import open_dataset
 
-    from .shared_data import shared_data_root
+    from spgeo.evaluation.shared_data import shared_data_root
 
     root = shared_data_root() if root is None else Path(root)
     sets = [("TUM fr1_desk", "tum", root / "tum_fr1_desk_9", None),

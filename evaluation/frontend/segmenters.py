@@ -17,7 +17,7 @@ Renders views of :mod:`spgeo.synthetic` scenes (exact per-surface ids), runs
 * ``cov``  fraction of pixels covered by a returned region;
 * ``nseg`` mean number of regions, ``ms`` mean time per ``segment`` call.
 
-Run ``python -m spgeo.evaluation.bench_segmenters`` (or the file directly);
+Run ``python -m spgeo.evaluation.frontend.segmenters`` (or the file directly);
 ``--help`` lists the options.  The library functions
 (:func:`segmentation_metrics`, :func:`render_views`, :func:`run_benchmark`,
 :func:`format_table`) can be used from notebooks.

@@ -1,7 +1,7 @@
 """Few-view SfM on real sample frames: spgeo vs COLMAP (pycolmap) vs SIFT two-view,
 relative rotation / translation-direction errors against ground truth.
 
-    python -m spgeo.evaluation.sfm_real [--shared ../shared/data] [--json OUT]
+    python -m spgeo.evaluation.sfm.real [--shared ../shared/data] [--json OUT]
 
 Cases (reference first): TUM fr1_desk frames 0, 4, 8 (the bundled 9-frame
 sample; ``../shared/data/tum_fr1_desk_9`` is the same data) and ICL-NUIM living
@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
-from spgeo.evaluation.colmap import colmap_estimator
-from spgeo.evaluation.colmap_compare import compare_on_dataset
+from spgeo.evaluation.references.colmap import colmap_estimator
+from spgeo.evaluation.pose_compare import compare_on_dataset
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
@@ -36,7 +36,7 @@ CASES = {
 
 def spgeo_estimator(frontend: str = "classical", config: SfMConfig = SfMConfig(marginals=False)
                     ) -> Callable:
-    """An estimator for :func:`spgeo.evaluation.colmap_compare.compare_on_dataset`."""
+    """An estimator for :func:`spgeo.evaluation.pose_compare.compare_on_dataset`."""
 
     def estimate(ref, views):
         fe = make_frontend(frontend, FrontEndConfig(working_size=(320, 240)))

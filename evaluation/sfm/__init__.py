@@ -1,0 +1,3 @@
+"""Few-view SfM protocols: real sample frames against COLMAP and SIFT two-view
+(:mod:`.real`), the front-end x shape-model ablation (:mod:`.ablation`) and the
+ScanNet protocol (:mod:`.scannet`)."""
