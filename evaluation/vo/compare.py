@@ -2,8 +2,9 @@
 feature baseline and the COLMAP reference, with Sim(3)-aligned ATE.
 
 :func:`compare_vo` resizes the frames once (``cv2.INTER_AREA``, default
-160x120; depth with nearest neighbour, only kept for an oracle method) and
-runs every requested method on exactly those frames:
+320x240 as ``spgeo vo``: :data:`DEFAULT_RESOLUTION`; depth with nearest
+neighbour, only kept for an oracle method) and runs every requested method on
+exactly those frames:
 
 * ``spgeo-classical``: spgeo's VO (:func:`spgeo.apps.vo_run.run_vo`)
   with the classical front-end (RGB only).
@@ -27,7 +28,7 @@ fraction.
 Command line::
 
     python -m spgeo.evaluation.vo.compare --dataset 7scenes PATH --frames 0:300 \
-        [--resolution 160x120] [--methods feature colmap ...] [--out DIR]
+        [--resolution 320x240] [--methods feature colmap ...] [--out DIR]
 
 prints a markdown table and, with ``--out``, writes ``<method>.txt`` (TUM,
 camera-to-world, posed frames), ``<method>.status.txt``,
@@ -49,6 +50,7 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 from tqdm import tqdm
 
+from spgeo.apps.vo_run import VORunConfig
 from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
                             setup_logging)
 from spgeo.frame import Frame, resize_frame
@@ -60,8 +62,8 @@ from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
                                          default_max_time_diff, path_length, status_path_for,
                                          write_status, write_tum)
 
-__all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "VOCompareConfig", "VOCompareRow",
-           "prepare_frames", "compare_vo", "format_markdown_table", "write_results", "main"]
+__all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "DEFAULT_RESOLUTION", "VOCompareConfig",
+           "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table", "write_results", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -76,6 +78,9 @@ METHOD_LABELS = {
 }
 #: Methods that read the sensor depth (not monocular: oracle).
 ORACLE_METHODS = ("spgeo-depth",)
+#: ``(width, height)`` every method sees by default: ``spgeo vo``'s processing
+#: resolution (:attr:`spgeo.apps.vo_run.VORunConfig.resolution`, 320x240).
+DEFAULT_RESOLUTION: Tuple[int, int] = tuple(VORunConfig.resolution)
 
 
 @dataclass
@@ -84,7 +89,7 @@ class VOCompareConfig:
 
     Attributes:
         resolution: ``(width, height)`` in pixels every method sees, default
-            (160, 120); None keeps the frames' size.
+            :data:`DEFAULT_RESOLUTION` (320, 240); None keeps the frames' size.
         max_time_diff: ATE timestamp association tolerance; None (default):
             0.1 for frame-number timestamps, 0.02 s otherwise
             (:func:`~spgeo.evaluation.trajectory.default_max_time_diff`).
@@ -97,7 +102,7 @@ class VOCompareConfig:
         progress: tqdm bars, default False.
     """
 
-    resolution: Optional[Tuple[int, int]] = (160, 120)
+    resolution: Optional[Tuple[int, int]] = DEFAULT_RESOLUTION
     max_time_diff: Optional[float] = None
     feature: FeatureVOConfig = field(default_factory=FeatureVOConfig)
     colmap: ColmapVOConfig = field(default_factory=ColmapVOConfig)
@@ -218,7 +223,7 @@ def _run_colmap(frames: List[Frame], config: VOCompareConfig):
 
 
 def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
-               resolution: Optional[Tuple[int, int]] = (160, 120),
+               resolution: Optional[Tuple[int, int]] = DEFAULT_RESOLUTION,
                config: Optional[VOCompareConfig] = None) -> List[VOCompareRow]:
     """Run VO methods on the same frames and evaluate them against ground truth.
 
@@ -392,8 +397,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         description="spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
                     "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
     add_dataset_arguments(parser)
-    parser.add_argument("--resolution", default="160x120",
-                        help="WIDTHxHEIGHT every method sees (default 160x120) or 'native'")
+    default_res = "x".join(str(v) for v in DEFAULT_RESOLUTION)
+    parser.add_argument("--resolution", default=default_res,
+                        help=f"WIDTHxHEIGHT every method sees (default {default_res}, the "
+                             f"processing resolution of spgeo vo) or 'native'")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                         help=f"methods to run (default: all: {' '.join(METHODS)})")
     parser.add_argument("--out", default=None, help="write trajectories and results.json here")
