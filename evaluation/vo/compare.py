@@ -63,7 +63,8 @@ from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
                                          write_status, write_tum)
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "DEFAULT_RESOLUTION", "VOCompareConfig",
-           "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table", "write_results", "main"]
+           "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table",
+           "write_results", "main"]
 
 logger = logging.getLogger(__name__)
 
