@@ -24,8 +24,9 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, check_convention_on_plane,
-                                 parse_convention, render_synthetic_room, signed_permutations)
+from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, RawNormalModel,
+                                 check_convention_on_plane, parse_convention, render_synthetic_room,
+                                 signed_permutations)
 from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_nodes,
                            open_session, resize_map, to_hwc, uncrop)
 
@@ -132,7 +133,7 @@ class NormalPrediction:
     confidence: Optional[np.ndarray] = None
 
 
-class NormalModel:
+class NormalModel(RawNormalModel):
     """:class:`~spgeo.frontend.base.NormalEstimator` running an ONNX normal network.
 
     The image is converted to the network's input (size, range, normalisation,
