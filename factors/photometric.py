@@ -46,6 +46,7 @@ import numpy as np
 import gtsam
 
 from spgeo.camera import PinholeCamera
+from spgeo.configs import config_repr
 
 from . import kernels
 
@@ -56,6 +57,7 @@ __all__ = [
 ]
 
 
+@config_repr
 @dataclass(frozen=True)
 class PhotometricConfig:
     """Options of :class:`PrimitivePhotometricFactor`.

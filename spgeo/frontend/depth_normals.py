@@ -22,6 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .base import config_with_overrides
 
 __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallelNormals",
@@ -30,6 +31,7 @@ __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallel
 logger = logging.getLogger(__name__)
 
 
+@config_repr
 @dataclass(frozen=True)
 class DepthNormalEstimatorConfig:
     """Configuration of :class:`DepthNormalEstimator`.

@@ -24,6 +24,7 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, RawNormalModel,
                                  check_convention_on_plane, parse_convention, render_synthetic_room,
                                  signed_permutations)
@@ -40,6 +41,7 @@ logger = logging.getLogger(__name__)
 
 
 # ----------------------------------------------------------------- config
+@config_repr
 @dataclass(frozen=True)
 class NormalOnnxConfig(ImageIOConfig):
     """The I/O contract and convention of a single-image normal network.
