@@ -71,33 +71,16 @@ def _huber_weight(r, huber, delta):
 
 
 @_njit
-def residual_pass(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b,
-                  ids, group_pixels, normalise, pixel_sigma, huber, delta, min_depth,
-                  behind_penalty, e, r_out, valid, behind, w_out, I_out, Y, g):
-    """Residual rows of the reference points ``X`` (K, 3) seen from the target.
-
-    Inputs: ``shape_valid`` (K,) bool or empty (all valid); ``R``, ``t``:
-    ``T_tgt_ref``; ``img`` (H, W) target image and its intrinsics; ``ref``
-    (K,) reference intensities; ``ea = exp(-a)``, ``b``: brightness; ``ids``
-    (K,) primitive of each row or empty (one primitive); ``group_pixels``
-    (n_groups,) ``|Omega|`` per primitive; ``normalise``: code of
-    :data:`NORMALISE_CODES`; Huber (``huber``, ``delta``), ``min_depth`` and
-    ``behind_penalty`` as in ``PhotometricConfig``.
-
-    Outputs (K,): ``e`` residual rows, ``r_out`` photometric error (0 where
-    invalid), ``valid``, ``behind``, ``w_out`` row weights, ``I_out`` sampled
-    target intensity (0 where invalid); (K, 3): ``Y`` target-frame points and
-    ``g = de/dY`` (weights held fixed).  Returns ``(|e|^2, number of valid rows)``.
-    """
+def _warp_and_sample(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b, ids, min_depth,
+                     counts, r_out, valid, behind, I_out, Y, inv_zs, gus, gvs):
+    """First pass of :func:`residual_pass`: per row the target-frame point ``Y``,
+    ``behind``, ``valid``, the sampled intensity ``I_out``, the photometric error
+    ``r_out`` and ``1 / z`` and the image gradient (``inv_zs``, ``gus``, ``gvs``);
+    ``counts`` the valid or behind rows per primitive."""
     K = X.shape[0]
     h, wd = img.shape
     has_shape_valid = shape_valid.shape[0] == K
     has_ids = ids.shape[0] == K
-    n_groups = group_pixels.shape[0]
-    counts = np.zeros(n_groups)
-    inv_zs = np.empty(K)
-    gus = np.empty(K)
-    gvs = np.empty(K)
     for k in range(K):
         x0 = X[k, 0]
         x1 = X[k, 1]
@@ -144,7 +127,12 @@ def residual_pass(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b,
         r_out[k] = ea * val + b - ref[k]
         if ok or bh:
             counts[ids[k] if has_ids else 0] += 1.0
-    pen_row = _huber_weight(behind_penalty, huber, delta) * behind_penalty
+
+
+@_njit
+def _group_scales(counts, group_pixels, normalise, pixel_sigma):
+    """Row scale per primitive for the ``normalise`` code (:data:`NORMALISE_CODES`)."""
+    n_groups = group_pixels.shape[0]
     scales = np.empty(n_groups)
     for i in range(n_groups):
         if normalise == 0:
@@ -153,6 +141,15 @@ def residual_pass(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b,
             scales[i] = 1.0 / pixel_sigma
         else:
             scales[i] = 1.0 / np.sqrt(group_pixels[i])
+    return scales
+
+
+@_njit
+def _weighted_rows(K, ids, scales, ea, fx, fy, huber, delta, pen_row, r_out, valid, behind,
+                   inv_zs, gus, gvs, Y, e, w_out, g):
+    """Second pass of :func:`residual_pass` over its ``K`` rows: Huber-weighted rows
+    ``e``, weights ``w_out`` and ``g = de/dY``; returns ``(|e|^2, number of valid rows)``."""
+    has_ids = ids.shape[0] == K
     sq = 0.0
     n_valid = 0
     for k in range(K):
@@ -179,6 +176,39 @@ def residual_pass(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b,
             g[k, 2] = 0.0
         sq += e[k] * e[k]
     return sq, n_valid
+
+
+@_njit
+def residual_pass(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b,
+                  ids, group_pixels, normalise, pixel_sigma, huber, delta, min_depth,
+                  behind_penalty, e, r_out, valid, behind, w_out, I_out, Y, g):
+    """Residual rows of the reference points ``X`` (K, 3) seen from the target.
+
+    Inputs: ``shape_valid`` (K,) bool or empty (all valid); ``R``, ``t``:
+    ``T_tgt_ref``; ``img`` (H, W) target image and its intrinsics; ``ref``
+    (K,) reference intensities; ``ea = exp(-a)``, ``b``: brightness; ``ids``
+    (K,) primitive of each row or empty (one primitive); ``group_pixels``
+    (n_groups,) ``|Omega|`` per primitive; ``normalise``: code of
+    :data:`NORMALISE_CODES`; Huber (``huber``, ``delta``), ``min_depth`` and
+    ``behind_penalty`` as in ``PhotometricConfig``.
+
+    Outputs (K,): ``e`` residual rows, ``r_out`` photometric error (0 where
+    invalid), ``valid``, ``behind``, ``w_out`` row weights, ``I_out`` sampled
+    target intensity (0 where invalid); (K, 3): ``Y`` target-frame points and
+    ``g = de/dY`` (weights held fixed).  Returns ``(|e|^2, number of valid rows)``.
+    """
+    K = X.shape[0]
+    n_groups = group_pixels.shape[0]
+    counts = np.zeros(n_groups)
+    inv_zs = np.empty(K)
+    gus = np.empty(K)
+    gvs = np.empty(K)
+    _warp_and_sample(X, shape_valid, R, t, img, fx, fy, cx, cy, ref, ea, b, ids, min_depth,
+                     counts, r_out, valid, behind, I_out, Y, inv_zs, gus, gvs)
+    pen_row = _huber_weight(behind_penalty, huber, delta) * behind_penalty
+    scales = _group_scales(counts, group_pixels, normalise, pixel_sigma)
+    return _weighted_rows(K, ids, scales, ea, fx, fy, huber, delta, pen_row, r_out, valid,
+                          behind, inv_zs, gus, gvs, Y, e, w_out, g)
 
 
 @_njit

@@ -46,6 +46,7 @@ import numpy as np
 import gtsam
 
 from spgeo.camera import PinholeCamera
+from spgeo.configs import config_repr
 
 from . import kernels
 
@@ -56,6 +57,7 @@ __all__ = [
 ]
 
 
+@config_repr
 @dataclass(frozen=True)
 class PhotometricConfig:
     """Options of :class:`PrimitivePhotometricFactor`.
@@ -208,6 +210,22 @@ def _sample_with_gradient(img: np.ndarray, u: np.ndarray, v: np.ndarray):
     return val, valid, gu, gv
 
 
+def _row_scale(config: PhotometricConfig, valid: np.ndarray, behind: np.ndarray,
+               ids: Optional[np.ndarray], n_groups: int, group_pixels: np.ndarray):
+    """Scale of each row (a scalar for one primitive) as ``config.normalise`` says:
+    ``1 / sqrt(|rows valid or behind|)`` per primitive ("valid"), ``1 / pixel_sigma``
+    ("none") or ``1 / sqrt(|Omega|)`` of the primitive ("all")."""
+    if config.normalise == "valid":
+        if ids is None:
+            return 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
+        cnt = np.bincount(ids, weights=(valid | behind), minlength=n_groups)
+        return (1.0 / np.sqrt(np.maximum(cnt, 1.0)))[ids]
+    if config.normalise == "none":
+        return 1.0 / config.pixel_sigma
+    per = 1.0 / np.sqrt(np.asarray(group_pixels, dtype=np.float64))
+    return per[0] if ids is None else per[ids]
+
+
 def photometric_rows_numpy(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarray,
                            T_world_ref: np.ndarray, T_world_tgt: np.ndarray,
                            target_image: np.ndarray, camera: PinholeCamera,
@@ -243,17 +261,7 @@ def photometric_rows_numpy(X: np.ndarray, dX: np.ndarray, shape_valid: np.ndarra
         a, b = 0.0, 0.0
     ea = np.exp(-a)
     r = ea * I_t + b - ref_intensity
-    if config.normalise == "valid":
-        if ids is None:
-            scale = 1.0 / np.sqrt(max(int(np.count_nonzero(valid | behind)), 1))
-        else:
-            cnt = np.bincount(ids, weights=(valid | behind), minlength=n_groups)
-            scale = (1.0 / np.sqrt(np.maximum(cnt, 1.0)))[ids]
-    elif config.normalise == "none":
-        scale = 1.0 / config.pixel_sigma
-    else:
-        per = 1.0 / np.sqrt(np.asarray(group_pixels, dtype=np.float64))
-        scale = per[0] if ids is None else per[ids]
+    scale = _row_scale(config, valid, behind, ids, n_groups, group_pixels)
     w = scale * robust_weights(r, config) * valid
     e = w * r
     if behind.any():

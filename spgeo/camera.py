@@ -15,7 +15,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .validation import InputError, check_intrinsics
+from .checks import InputError, check_intrinsics
 
 __all__ = ["PinholeCamera"]
 

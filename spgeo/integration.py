@@ -44,6 +44,7 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
 from .camera import PinholeCamera
+from .configs import config_repr
 from .validation import InputError, check_camera, check_mask_stack, check_normals
 
 __all__ = ["IntegrationConfig", "IntegrationResult", "integrate_normals",
@@ -52,6 +53,7 @@ __all__ = ["IntegrationConfig", "IntegrationResult", "integrate_normals",
 log = logging.getLogger(__name__)
 
 
+@config_repr
 @dataclass(frozen=True)
 class IntegrationConfig:
     """Options of the batched normal integration.
@@ -297,6 +299,160 @@ def _solve(P: np.ndarray, Q: np.ndarray, wgt: np.ndarray, diag: np.ndarray, b: n
     return x
 
 
+def _stack_regions(regions: Sequence[np.ndarray], sizes: np.ndarray, npix: int):
+    """Validated, stacked regions: ``(pix, rid, key, lookup)`` per entry (region
+    ``rid``, flat pixel ``pix``, sort key ``rid * npix + pix``); ``lookup``: entry of
+    each pixel, None when regions overlap (neighbours are then found by binary search)."""
+    n = len(regions)
+    pix = np.concatenate([np.asarray(r, dtype=np.int64) for r in regions])
+    if pix.min() < 0 or pix.max() >= npix:
+        raise InputError("integrate_normals: region pixel index outside the image")
+    rid = np.repeat(np.arange(n, dtype=np.int64), sizes)
+    key = rid * npix + pix
+    if np.any(np.diff(key) <= 0):
+        raise InputError("integrate_normals: each region's pixels must be sorted and unique")
+    entries = np.arange(pix.size)
+    lookup = np.full(npix, -1, dtype=np.int64)
+    lookup[pix] = entries
+    if np.any(lookup[pix] != entries):
+        lookup = None   # regions overlap: neighbours by binary search
+    return pix, rid, key, lookup
+
+
+def _entry_coefficients(normals: np.ndarray, pix: np.ndarray, camera: PinholeCamera,
+                        config: IntegrationConfig):
+    """Per-entry coefficients ``(known, m, a_u, a_v, u, v)``: m = n . r (at most
+    ``-config.min_abs_m``), a_u = nx / fx, a_v = ny / fy; unknown normals count as 0."""
+    w = camera.shape[1]
+    nrm = np.take(normals.reshape(-1, 3), pix, axis=0)
+    known = np.isfinite(nrm[:, 0])
+    if not bool(known.all()):
+        nrm = np.where(known[:, None], nrm, 0.0)
+    pu = pix % w
+    pv = pix // w
+    m = nrm[:, 0] * ((pu - camera.cx) / camera.fx) + nrm[:, 1] * ((pv - camera.cy) / camera.fy)
+    m += nrm[:, 2]
+    np.minimum(m, -config.min_abs_m, out=m)
+    au = nrm[:, 0] / camera.fx
+    av = nrm[:, 1] / camera.fy
+    return known, m, au, av, pu, pv
+
+
+def _edge_pairs(key, pix, pu, pv, lookup, w: int, h: int) -> list:
+    """``(p, q)`` entry pairs per direction of :data:`_DIRECTIONS`: right and down
+    always, diagonals only where the 4-neighbour path is missing."""
+    m_tot = pix.size
+    pairs = [_edges(key, pix, pu, pv, lookup, w, h, du, dv) for du, dv in _DIRECTIONS]
+    (p_r, q_r), (p_d, _) = pairs[0], pairs[1]
+    has_r = np.zeros(m_tot, bool)
+    has_r[p_r] = True
+    has_d = np.zeros(m_tot, bool)
+    has_d[p_d] = True
+    has_l = np.zeros(m_tot, bool)  # left neighbour exists  <=> some p_r points here
+    has_l[q_r] = True
+    # p -> p+(1,1) is linked through p's right or lower neighbour, p -> p+(-1,1)
+    # through p's left or lower neighbour
+    for k, side in ((2, has_r), (3, has_l)):
+        p, q = pairs[k]
+        keep = ~(side[p] | has_d[p])
+        pairs[k] = (p[keep], q[keep])
+    return pairs
+
+
+def _edge_terms(pairs: list, known, m, au, av, config: IntegrationConfig):
+    """``(P, Q, c, t)``: the edges and their terms ``c (x_q - x_p) + t``; with unknown
+    normals ("fill") an unknown normal borrows its partner's coefficients on that edge."""
+    P = np.concatenate([p for p, _ in pairs])
+    Q = np.concatenate([q for _, q in pairs])
+    # per edge: du * (a_u[P] + a_u[Q]) + dv * (a_v[P] + a_v[Q])
+    slope = (au, av, au + av, av - au)
+    tsum = np.concatenate([s[p] + s[q] for s, (p, q) in zip(slope, pairs)])
+    if bool(known.all()):
+        c = 0.5 * (m[P] + m[Q])
+        t = 0.5 * tsum
+    else:
+        # "fill": an unknown normal borrows its partner's coefficients on that edge
+        cnt = known[P].astype(np.float64) + known[Q]
+        sel = cnt > 0 if config.unknown_normals == "fill" else cnt == 2
+        mk = np.where(known, m, 0.0)
+        P, Q, cnt, tsum = P[sel], Q[sel], cnt[sel], tsum[sel]
+        c = (mk[P] + mk[Q]) / cnt
+        t = tsum / cnt
+    return P, Q, c, t
+
+
+def _anchor_entries(anchors, pix, offsets, key, n: int, npix: int) -> np.ndarray:
+    """Entry of each region's anchor pixel (default: its first pixel); InputError for an
+    anchor outside its region."""
+    m_tot = pix.size
+    if anchors is None:
+        anchor_pix = pix[offsets[:-1]]
+    else:
+        anchor_pix = np.asarray(anchors, dtype=np.int64).reshape(-1)
+        if anchor_pix.shape != (n,):
+            raise InputError(f"integrate_normals: {anchor_pix.size} anchors for {n} regions")
+    akey = np.arange(n) * npix + anchor_pix
+    apos = np.searchsorted(key, akey)
+    apos_c = np.minimum(apos, m_tot - 1)
+    if not np.all((apos < m_tot) & (key[apos_c] == akey)):
+        bad = np.flatnonzero(~((apos < m_tot) & (key[apos_c] == akey)))[:5]
+        raise InputError(f"integrate_normals: anchor outside its region for regions {bad.tolist()}")
+    return apos_c
+
+
+def _pins(comp: np.ndarray, n_comp: int, apos_c: np.ndarray):
+    """``(first_of_comp, pin)``: the first entry of every component; the pinned entry of
+    each: the anchor in its component, the first entry of every other component."""
+    first_of_comp = np.full(n_comp, -1, dtype=np.int64)
+    order = np.arange(comp.size)[::-1]
+    first_of_comp[comp[order]] = order
+    pin = first_of_comp.copy()
+    pin[comp[apos_c]] = apos_c
+    return first_of_comp, pin
+
+
+def _solve_active(P, Q, wgt, diag, b, comp, n_comp: int, colour, config: IntegrationConfig,
+                  info: dict) -> np.ndarray:
+    """Solve the components whose right-hand side is not zero; the others (e.g.
+    fronto-parallel normals) have the exact solution 0."""
+    m_tot = b.size
+    active = np.zeros(n_comp, dtype=bool)
+    active[comp[b != 0.0]] = True
+    info["n_solved_components"] = int(active.sum())
+    if active.all():
+        return _solve(P, Q, wgt, diag, b, comp, n_comp, colour, config, info)
+    x = np.zeros(m_tot)
+    if active.any():
+        sub = active[comp]
+        idx = np.flatnonzero(sub)
+        new_pos = np.cumsum(sub) - 1
+        e_sub = sub[P]
+        new_comp = np.cumsum(active) - 1
+        x[idx] = _solve(new_pos[P[e_sub]], new_pos[Q[e_sub]], wgt[e_sub], diag[idx], b[idx],
+                        new_comp[comp[idx]], int(active.sum()), colour[idx], config, info)
+    else:
+        info["iterations"] = 0
+    return x
+
+
+def _fix_constants(x, comp, n_comp: int, known, rid, first_of_comp, apos_c, n: int,
+                   config: IntegrationConfig):
+    """``(x, n_components)``: per component mean or anchor; unlinked parts at equal mean;
+    values for the "valid" entries only (the known ones with "nan", else all)."""
+    valid = known if config.unknown_normals == "nan" else np.ones(x.size, bool)
+    comp_sum = np.bincount(comp, weights=x, minlength=n_comp)
+    comp_cnt = np.bincount(comp, minlength=n_comp)
+    comp_mean = comp_sum / comp_cnt
+    x = x - comp_mean[comp]  # every component now has zero mean
+    comp_region = rid[first_of_comp[np.flatnonzero(valid[first_of_comp])]]
+    n_components = np.bincount(comp_region, minlength=n).astype(np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):   # regions with no valid entry
+        rmean = (np.bincount(rid, weights=np.where(valid, x, 0.0), minlength=n)
+                 / np.bincount(rid, weights=valid, minlength=n))
+    ref = np.where(valid[apos_c], x[apos_c], rmean) if config.constant == "anchor" else rmean
+    return np.where(valid, x - ref[rid], np.nan), n_components
+
+
 def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray],
                               camera: PinholeCamera, anchors: Optional[Sequence[int]] = None,
                               config: IntegrationConfig = IntegrationConfig()
@@ -332,65 +488,11 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     if n == 0:
         return IntegrationResult(np.zeros(0), offsets, np.zeros(0, np.int64), 0, {})
-    pix = np.concatenate([np.asarray(r, dtype=np.int64) for r in regions])
-    if pix.min() < 0 or pix.max() >= npix:
-        raise InputError("integrate_normals: region pixel index outside the image")
-    rid = np.repeat(np.arange(n, dtype=np.int64), sizes)
-    key = rid * npix + pix
-    if np.any(np.diff(key) <= 0):
-        raise InputError("integrate_normals: each region's pixels must be sorted and unique")
+    pix, rid, key, lookup = _stack_regions(regions, sizes, npix)
     m_tot = pix.size
-    entries = np.arange(m_tot)
-    lookup = np.full(npix, -1, dtype=np.int64)
-    lookup[pix] = entries
-    if np.any(lookup[pix] != entries):
-        lookup = None   # regions overlap: neighbours by binary search
-
-    # Per-entry coefficients: m = n . r, a_u = nx / fx, a_v = ny / fy.
-    nrm = np.take(normals.reshape(-1, 3), pix, axis=0)
-    known = np.isfinite(nrm[:, 0])
-    all_known = bool(known.all())
-    if not all_known:
-        nrm = np.where(known[:, None], nrm, 0.0)
-    pu = pix % w
-    pv = pix // w
-    m = nrm[:, 0] * ((pu - camera.cx) / camera.fx) + nrm[:, 1] * ((pv - camera.cy) / camera.fy)
-    m += nrm[:, 2]
-    np.minimum(m, -config.min_abs_m, out=m)
-    au = nrm[:, 0] / camera.fx
-    av = nrm[:, 1] / camera.fy
-
-    # Edges: right, down always; diagonals only where the 4-neighbour path is missing.
-    pairs = [_edges(key, pix, pu, pv, lookup, w, h, du, dv) for du, dv in _DIRECTIONS]
-    (p_r, q_r), (p_d, _) = pairs[0], pairs[1]
-    has_r = np.zeros(m_tot, bool)
-    has_r[p_r] = True
-    has_d = np.zeros(m_tot, bool)
-    has_d[p_d] = True
-    has_l = np.zeros(m_tot, bool)  # left neighbour exists  <=> some p_r points here
-    has_l[q_r] = True
-    # p -> p+(1,1) is linked through p's right or lower neighbour, p -> p+(-1,1)
-    # through p's left or lower neighbour
-    for k, side in ((2, has_r), (3, has_l)):
-        p, q = pairs[k]
-        keep = ~(side[p] | has_d[p])
-        pairs[k] = (p[keep], q[keep])
-    P = np.concatenate([p for p, _ in pairs])
-    Q = np.concatenate([q for _, q in pairs])
-    # per edge: du * (a_u[P] + a_u[Q]) + dv * (a_v[P] + a_v[Q])
-    slope = (au, av, au + av, av - au)
-    tsum = np.concatenate([s[p] + s[q] for s, (p, q) in zip(slope, pairs)])
-    if all_known:
-        c = 0.5 * (m[P] + m[Q])
-        t = 0.5 * tsum
-    else:
-        # "fill": an unknown normal borrows its partner's coefficients on that edge
-        cnt = known[P].astype(np.float64) + known[Q]
-        sel = cnt > 0 if config.unknown_normals == "fill" else cnt == 2
-        mk = np.where(known, m, 0.0)
-        P, Q, cnt, tsum = P[sel], Q[sel], cnt[sel], tsum[sel]
-        c = (mk[P] + mk[Q]) / cnt
-        t = tsum / cnt
+    known, m, au, av, pu, pv = _entry_coefficients(normals, pix, camera, config)
+    pairs = _edge_pairs(key, pix, pu, pv, lookup, w, h)
+    P, Q, c, t = _edge_terms(pairs, known, m, au, av, config)
     n_edges = int(P.size)
     t_build = time.perf_counter()
 
@@ -404,65 +506,18 @@ def integrate_normals_regions(normals: np.ndarray, regions: Sequence[np.ndarray]
     # Connected components of the edge graph (each needs one pinned value).
     graph = sp.csr_matrix((np.ones(n_edges, np.int8), (P, Q)), shape=(m_tot, m_tot))
     n_comp, comp = csgraph.connected_components(graph, directed=False)
-    if anchors is None:
-        anchor_pix = pix[offsets[:-1]]
-    else:
-        anchor_pix = np.asarray(anchors, dtype=np.int64).reshape(-1)
-        if anchor_pix.shape != (n,):
-            raise InputError(f"integrate_normals: {anchor_pix.size} anchors for {n} regions")
-    akey = np.arange(n) * npix + anchor_pix
-    apos = np.searchsorted(key, akey)
-    apos_c = np.minimum(apos, m_tot - 1)
-    if not np.all((apos < m_tot) & (key[apos_c] == akey)):
-        bad = np.flatnonzero(~((apos < m_tot) & (key[apos_c] == akey)))[:5]
-        raise InputError(f"integrate_normals: anchor outside its region for regions {bad.tolist()}")
-    # pin: the anchor in its component, the first entry of every other component
-    first_of_comp = np.full(n_comp, -1, dtype=np.int64)
-    order = entries[::-1]
-    first_of_comp[comp[order]] = order
-    pin = first_of_comp.copy()
-    pin[comp[apos_c]] = apos_c
+    apos_c = _anchor_entries(anchors, pix, offsets, key, n, npix)
+    first_of_comp, pin = _pins(comp, n_comp, apos_c)
     diag[pin] += 1.0
     colour = (pu + pv) % 2
     t_assemble = time.perf_counter()
 
     info: dict = {"solver": config.solver, "n_unknowns": m_tot, "n_edges": n_edges,
                   "n_components": int(n_comp)}
-    # a linked part whose right-hand side is zero (e.g. fronto-parallel
-    # normals) has the exact solution 0: only the others are solved
-    active = np.zeros(n_comp, dtype=bool)
-    active[comp[b != 0.0]] = True
-    info["n_solved_components"] = int(active.sum())
-    if active.all():
-        x = _solve(P, Q, wgt, diag, b, comp, n_comp, colour, config, info)
-    else:
-        x = np.zeros(m_tot)
-        if active.any():
-            sub = active[comp]
-            idx = np.flatnonzero(sub)
-            new_pos = np.cumsum(sub) - 1
-            e_sub = sub[P]
-            new_comp = np.cumsum(active) - 1
-            x[idx] = _solve(new_pos[P[e_sub]], new_pos[Q[e_sub]], wgt[e_sub], diag[idx], b[idx],
-                            new_comp[comp[idx]], int(active.sum()), colour[idx], config, info)
-        else:
-            info["iterations"] = 0
+    x = _solve_active(P, Q, wgt, diag, b, comp, n_comp, colour, config, info)
     t_solve = time.perf_counter()
-
-    # Fix constants: per component mean or anchor; unlinked parts at equal mean;
-    # values for the "valid" entries only (the known ones with "nan", else all)
-    valid = known if config.unknown_normals == "nan" else np.ones(m_tot, bool)
-    comp_sum = np.bincount(comp, weights=x, minlength=n_comp)
-    comp_cnt = np.bincount(comp, minlength=n_comp)
-    comp_mean = comp_sum / comp_cnt
-    x = x - comp_mean[comp]  # every component now has zero mean
-    comp_region = rid[first_of_comp[np.flatnonzero(valid[first_of_comp])]]
-    n_components = np.bincount(comp_region, minlength=n).astype(np.int64)
-    with np.errstate(invalid="ignore", divide="ignore"):   # regions with no valid entry
-        rmean = (np.bincount(rid, weights=np.where(valid, x, 0.0), minlength=n)
-                 / np.bincount(rid, weights=valid, minlength=n))
-    ref = np.where(valid[apos_c], x[apos_c], rmean) if config.constant == "anchor" else rmean
-    x = np.where(valid, x - ref[rid], np.nan)
+    x, n_components = _fix_constants(x, comp, n_comp, known, rid, first_of_comp, apos_c, n,
+                                     config)
     t_end = time.perf_counter()
     info.update(t_build=t_build - t0, t_assemble=t_assemble - t_build, t_solve=t_solve - t_assemble,
                 t_finish=t_end - t_solve, t_total=t_end - t0, n_unknown=int((~known).sum()))

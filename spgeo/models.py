@@ -234,6 +234,48 @@ def _record_hash(path: Path, sha: str) -> None:
 
 
 # ------------------------------------------------------------------ fetch
+def _open_url(url: str, timeout: float, manual: str):
+    """The response of ``url``; :class:`ModelDownloadError` (saying ``manual``) without one."""
+    request = urllib.request.Request(url, headers={"User-Agent": "spgeo"})
+    try:
+        return urllib.request.urlopen(request, timeout=timeout)
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ModelDownloadError(f"no network / could not download {url} ({reason}); "
+                                 f"{manual}") from exc
+
+
+def _copy_blocks(response, out, digest, bar, url: str, manual: str) -> int:
+    """Copy ``response`` into ``out`` block by block, updating ``digest`` and the
+    progress ``bar``; returns the number of bytes."""
+    n_bytes = 0
+    while True:
+        try:
+            block = response.read(_CHUNK)
+        except OSError as exc:
+            raise ModelDownloadError(f"download of {url} stopped after "
+                                     f"{n_bytes} bytes ({exc}); {manual}") from exc
+        if not block:
+            break
+        out.write(block)
+        digest.update(block)
+        n_bytes += len(block)
+        bar.update(len(block))
+    return n_bytes
+
+
+def _check_download(name: str, entry: ModelEntry, n_bytes: int, digest) -> str:
+    """The download's sha256; ``ValueError`` when its size or sha256 is not the entry's."""
+    if entry.size is not None and n_bytes != entry.size:
+        raise ValueError(f"download of {name!r} from {entry.url} has {n_bytes} bytes, "
+                         f"expected {entry.size}; discarded")
+    sha = digest.hexdigest()
+    if entry.sha256 is not None and sha != entry.sha256:
+        raise ValueError(f"sha256 mismatch for {name!r} from {entry.url}: expected "
+                         f"{entry.sha256}, got {sha}; discarded")
+    return sha
+
+
 def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
                 progress: bool = True, registry: Optional[Mapping[str, ModelEntry]] = None,
                 timeout: float = 60.0) -> Path:
@@ -273,15 +315,8 @@ def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
                                     dir=str(dest.parent))
     tmp = Path(tmp_name)
     digest = hashlib.sha256()
-    n_bytes = 0
     try:
-        request = urllib.request.Request(entry.url, headers={"User-Agent": "spgeo"})
-        try:
-            response = urllib.request.urlopen(request, timeout=timeout)
-        except (urllib.error.URLError, OSError, ValueError) as exc:
-            reason = getattr(exc, "reason", exc)
-            raise ModelDownloadError(f"no network / could not download {entry.url} ({reason}); "
-                                     f"{manual}") from exc
+        response = _open_url(entry.url, timeout, manual)
         from tqdm import tqdm
 
         with response, os.fdopen(fd, "wb") as out:
@@ -290,25 +325,8 @@ def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
             total = int(total) if total and total.isdigit() else entry.size
             with tqdm(total=total, unit="B", unit_scale=True, desc=entry.filename,
                       disable=not progress) as bar:
-                while True:
-                    try:
-                        block = response.read(_CHUNK)
-                    except OSError as exc:
-                        raise ModelDownloadError(f"download of {entry.url} stopped after "
-                                                 f"{n_bytes} bytes ({exc}); {manual}") from exc
-                    if not block:
-                        break
-                    out.write(block)
-                    digest.update(block)
-                    n_bytes += len(block)
-                    bar.update(len(block))
-        if entry.size is not None and n_bytes != entry.size:
-            raise ValueError(f"download of {name!r} from {entry.url} has {n_bytes} bytes, "
-                             f"expected {entry.size}; discarded")
-        sha = digest.hexdigest()
-        if entry.sha256 is not None and sha != entry.sha256:
-            raise ValueError(f"sha256 mismatch for {name!r} from {entry.url}: expected "
-                             f"{entry.sha256}, got {sha}; discarded")
+                n_bytes = _copy_blocks(response, out, digest, bar, entry.url, manual)
+        sha = _check_download(name, entry, n_bytes, digest)
         os.replace(tmp, dest)
     finally:
         if fd >= 0:

@@ -38,6 +38,8 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .configs import config_repr
+
 __all__ = ["RerunLoggerConfig", "RerunLogger", "RERUN_MODES"]
 
 log = logging.getLogger(__name__)
@@ -46,6 +48,7 @@ log = logging.getLogger(__name__)
 RERUN_MODES = ("spawn", "save", "connect", "none")
 
 
+@config_repr
 @dataclass(frozen=True)
 class RerunLoggerConfig:
     """Options of :class:`RerunLogger`.

@@ -4,7 +4,7 @@
 ``T_world_cam`` (NaN for a frame without a pose of its own), a
 :class:`FrameStatus` per frame, keyframe flags, map segments and optional extra
 per-frame columns.  :meth:`Trajectory.save` writes the TUM file plus the status
-file of :mod:`spgeo.io.tum`; :meth:`Trajectory.load` reads them back.
+file of :mod:`spgeo.tum_files`; :meth:`Trajectory.load` reads them back.
 """
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
+
+from .tum_files import read_status, read_tum_arrays, status_path_for, write_status, write_tum
 
 __all__ = ["FrameStatus", "Trajectory", "STATUSES"]
 
@@ -146,8 +148,6 @@ class Trajectory:
         """Write the posed frames (or keyframes) as a TUM file and, with
         ``status_file``, every frame's status, keyframe flag, segment and
         :attr:`columns` into ``<stem>.status.txt`` beside it.  Returns ``path``."""
-        from spgeo.io.tum import status_path_for, write_status, write_tum
-
         path = Path(path)
         mask = self.is_keyframe if keyframes_only else np.ones(len(self), dtype=bool)
         write_tum(path, self.timestamps[mask], list(self.poses[mask]), header=header)
@@ -167,9 +167,7 @@ class Trajectory:
         missing from the TUM file get NaN poses) and its keyframe / segment
         columns; without one, every pose line is an ``OK`` frame.
         """
-        from spgeo.io.tum import read_status, read_tum, status_path_for
-
-        traj = read_tum(path)
+        traj = Trajectory(*read_tum_arrays(path))
         spath = status_path_for(path)
         if not spath.is_file():
             return traj

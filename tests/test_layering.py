@@ -1,15 +1,26 @@
-"""Layering rules of docs/design.md §6.1, checked statically with ``ast``.
+"""Layering and size rules of docs/design.md §6.1, checked statically with ``ast``.
 
 * The core (all of ``spgeo/`` except ``spgeo/cli/`` and ``spgeo/apps/``, plus ``factors/``)
   never imports ``spgeo.evaluation``: not at module level, not inside functions, not through
   a relative import that resolves to it.
-* Modules of ``spgeo/``, ``factors/`` and ``evaluation/`` stay at 500 lines or less unless
-  their docstring opens with a reason (a line starting ``Longer than 500 lines because``).
+* Nothing below the command line imports ``spgeo.cli``: no module of ``spgeo/`` outside
+  ``spgeo/cli/``, of ``factors/`` or of ``evaluation/`` (anywhere in the module), except
+  ``spgeo/__main__.py``, the entry of ``python -m spgeo``.
+* The modules of ``spgeo/`` and ``factors/`` import each other without a cycle (imports run
+  when a module loads: module level and class bodies, not function bodies nor
+  ``if TYPE_CHECKING:`` blocks; importing ``a.b.c`` also loads the packages ``a.b`` and
+  ``a`` unless the importer lies inside them).  A failure lists every cycle found.
+* Every function of ``spgeo/`` and ``factors/`` (methods and nested functions included; a
+  nested function counts within its parent and on its own) has at most 60 lines of code:
+  lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
+  (decorated with numba's ``njit`` / ``jit`` / ...) may be longer when its docstring has a
+  line starting ``Longer than 60 lines because`` that gives the reason.
 """
 from __future__ import annotations
 
 import ast
 from pathlib import Path
+from typing import Dict, Iterator, List, Optional, Set
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -17,11 +28,15 @@ APPLICATION_DIRS = ("spgeo/cli", "spgeo/apps")
 # installed package name of each top-level source folder
 PACKAGE_OF_DIR = {"spgeo": "spgeo", "factors": "spgeo.factors", "evaluation": "spgeo.evaluation"}
 FORBIDDEN = "spgeo.evaluation"
-MAX_LINES = 500
-LONG_REASON = "Longer than 500 lines because"
+CLI = "spgeo.cli"
+CLI_ENTRY = "spgeo/__main__.py"  # the one module outside spgeo/cli/ that may import spgeo.cli
+MAX_FUNCTION_LINES = 60
+LONG_REASON = "Longer than 60 lines because"
+KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc"}
 
 
 def _python_files(folder: str) -> list[Path]:
+    # rglob does not descend into the symlinked folders of a development checkout
     return sorted(p for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts)
 
 
@@ -39,6 +54,61 @@ def module_package(path: Path) -> str:
     return ".".join(parts)
 
 
+def module_name(path: Path) -> str:
+    """Dotted name of the module in ``path`` once installed (a package for ``__init__.py``)."""
+    package = module_package(path)
+    return package if path.name == "__init__.py" else f"{package}.{path.stem}"
+
+
+# ------------------------------------------------------------------ import scanner
+def _is_type_checking(test: ast.expr) -> bool:
+    return ((isinstance(test, ast.Name) and test.id == "TYPE_CHECKING")
+            or (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"))
+
+
+def _import_nodes(tree: ast.AST, module_level: bool) -> Iterator[ast.stmt]:
+    """Import statements of ``tree``; with ``module_level`` only those that run when the
+    module loads (not in function bodies nor under ``if TYPE_CHECKING:``)."""
+    if not module_level:
+        yield from (n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
+        return
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            continue
+        elif isinstance(node, ast.If) and _is_type_checking(node.test):
+            todo.extend(node.orelse)
+        else:
+            todo.extend(ast.iter_child_nodes(node))
+
+
+def import_statements(source: str, package: str, module_level: bool = False
+                      ) -> list[tuple[int, str, Optional[list[str]]]]:
+    """``(line, absolute module, names)`` per import statement of ``source``.
+
+    ``names`` is the list of names of ``from X import a, b`` and ``None`` for
+    ``import X``; relative imports are resolved against ``package``, the package
+    holding the module.  With ``module_level`` only the imports that run when the
+    module loads are listed (see :func:`_import_nodes`).
+    """
+    found: list[tuple[int, str, Optional[list[str]]]] = []
+    for node in _import_nodes(ast.parse(source), module_level):
+        if isinstance(node, ast.Import):
+            found.extend((node.lineno, alias.name, None) for alias in node.names)
+            continue
+        if node.level:
+            parts = package.split(".")
+            parts = parts[: len(parts) - (node.level - 1)]
+            base = ".".join(parts + ([node.module] if node.module else []))
+        else:
+            base = node.module or ""
+        found.append((node.lineno, base, [alias.name for alias in node.names]))
+    return sorted(found)
+
+
 def imported_modules(source: str, package: str) -> list[tuple[int, str]]:
     """``(line, absolute module name)`` for every import statement anywhere in ``source``.
 
@@ -46,18 +116,9 @@ def imported_modules(source: str, package: str) -> list[tuple[int, str]]:
     relative imports are resolved against ``package``, the package holding the module.
     """
     found: list[tuple[int, str]] = []
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            found.extend((node.lineno, alias.name) for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                parts = package.split(".")
-                parts = parts[: len(parts) - (node.level - 1)]
-                base = ".".join(parts + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.append((node.lineno, base))
-            found.extend((node.lineno, f"{base}.{alias.name}") for alias in node.names)
+    for line, base, names in import_statements(source, package):
+        found.append((line, base))
+        found.extend((line, f"{base}.{name}") for name in names or ())
     return found
 
 
@@ -65,22 +126,169 @@ def is_forbidden(module: str) -> bool:
     return module == FORBIDDEN or module.startswith(FORBIDDEN + ".")
 
 
-def forbidden_import_lines(path: Path) -> list[int]:
-    """Sorted line numbers of ``path`` that import ``spgeo.evaluation`` or a part of it."""
+def is_cli(module: str) -> bool:
+    return module == CLI or module.startswith(CLI + ".")
+
+
+def import_lines(path: Path, predicate) -> list[int]:
+    """Sorted line numbers of ``path`` that import a module for which ``predicate`` holds."""
     source = path.read_text(encoding="utf-8")
     return sorted({line for line, module in imported_modules(source, module_package(path))
-                   if is_forbidden(module)})
+                   if predicate(module)})
 
 
+def forbidden_import_lines(path: Path) -> list[int]:
+    """Sorted line numbers of ``path`` that import ``spgeo.evaluation`` or a part of it."""
+    return import_lines(path, is_forbidden)
+
+
+# ------------------------------------------------------------------ import graph
+def _packages_loaded(module: str, importer: str) -> list[str]:
+    """The packages above ``module`` that importing it loads: all but those holding
+    ``importer`` (already loading when ``importer`` runs)."""
+    parts = module.split(".")
+    prefixes = [".".join(parts[:i]) for i in range(1, len(parts))]
+    return [p for p in prefixes if not (importer == p or importer.startswith(p + "."))]
+
+
+def module_dependencies(source: str, importer: str, package: str, modules: Set[str],
+                        known: Optional[Set[str]] = None) -> Set[str]:
+    """The modules of ``modules`` that loading ``importer`` (held by ``package``) runs.
+
+    ``from X import a`` needs ``X.a`` when that is a module (of ``known``, default
+    ``modules``), else ``X`` itself (even when ``X`` is a package holding ``importer``:
+    ``a`` must already be defined there).
+    """
+    known = modules if known is None else known
+    deps: Set[str] = set()
+    for _, base, names in import_statements(source, package, module_level=True):
+        if names is None:
+            needed = [base]
+        else:
+            needed = [f"{base}.{n}" if f"{base}.{n}" in known else base for n in names]
+        for module in needed:
+            deps.update(p for p in _packages_loaded(module, importer) if p in modules)
+            if module in modules:
+                deps.add(module)
+    deps.discard(importer)
+    return deps
+
+
+def import_graph(files: List[Path], known: Set[str]) -> Dict[str, Set[str]]:
+    """Module name -> the modules (among ``files``) it imports when it loads; ``known``:
+    every module name, to tell ``from X import module`` from ``from X import name``."""
+    names = {module_name(p): p for p in files}
+    return {name: module_dependencies(path.read_text(encoding="utf-8"), name,
+                                      module_package(path), set(names), known)
+            for name, path in names.items()}
+
+
+def import_cycles(graph: Dict[str, Set[str]]) -> List[List[str]]:
+    """One cycle ``[a, b, ..., a]`` per strongly connected group of ``graph`` (Tarjan)."""
+    index: Dict[str, int] = {}
+    low: Dict[str, int] = {}
+    stack: List[str] = []
+    groups: List[List[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(_cycle_in(group, graph) for group in groups)
+
+
+def _cycle_in(group: List[str], graph: Dict[str, Set[str]]) -> List[str]:
+    """A shortest cycle through the first module of a strongly connected ``group``."""
+    start, members = group[0], set(group)
+    paths = {start: [start]}
+    todo = [start]
+    while todo:
+        v = todo.pop(0)
+        for w in sorted(graph[v] & members):
+            if w == start:
+                return paths[v] + [start]
+            if w not in paths:
+                paths[w] = paths[v] + [w]
+                todo.append(w)
+    raise AssertionError(f"no cycle through {start}")
+
+
+# ------------------------------------------------------------------ function length
+def code_lines(lines: List[str], node: ast.AST) -> int:
+    """Lines of ``node`` that are neither blank nor comments, its docstring excluded."""
+    doc: Set[int] = set()
+    body = node.body
+    if (body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)):
+        doc = set(range(body[0].lineno, body[0].end_lineno + 1))
+    count = 0
+    for i in range(node.lineno, node.end_lineno + 1):
+        text = lines[i - 1].strip()
+        if i not in doc and text and not text.startswith("#"):
+            count += 1
+    return count
+
+
+def _decorator_name(node: ast.expr) -> str:
+    if isinstance(node, ast.Call):
+        node = node.func
+    if isinstance(node, ast.Attribute):
+        return node.attr
+    return node.id if isinstance(node, ast.Name) else ""
+
+
+def says_why_longer(node: ast.AST) -> bool:
+    """A compiled kernel whose docstring has a ``Longer than 60 lines because`` line."""
+    kernel = any(_decorator_name(d) in KERNEL_DECORATORS for d in node.decorator_list)
+    doc = ast.get_docstring(node) or ""
+    return kernel and any(line.strip().startswith(LONG_REASON) for line in doc.splitlines())
+
+
+def long_functions(path: Path) -> List[str]:
+    """``path:line name: N lines`` for each function of ``path`` over the limit."""
+    source = path.read_text(encoding="utf-8")
+    lines = source.splitlines()
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            n = code_lines(lines, node)
+            if n > MAX_FUNCTION_LINES and not says_why_longer(node):
+                found.append(f"{path.relative_to(ROOT).as_posix()}:{node.lineno} "
+                             f"{node.name}: {n} lines")
+    return found
+
+
+# ------------------------------------------------------------------ tests
 def test_core_file_list_is_sane():
     files = {p.relative_to(ROOT).as_posix() for p in core_files()}
     assert "spgeo/__init__.py" in files and "factors/__init__.py" in files
     assert not any(f.startswith(tuple(d + "/" for d in APPLICATION_DIRS)) for f in files)
+    assert not any(f.startswith(("spgeo/factors/", "spgeo/evaluation/")) for f in files)
 
 
 def test_import_scanner_resolves_relative_and_nested_imports():
     assert module_package(ROOT / "spgeo" / "frontend" / "base.py") == "spgeo.frontend"
     assert module_package(ROOT / "factors" / "photometric.py") == "spgeo.factors"
+    assert module_name(ROOT / "factors" / "__init__.py") == "spgeo.factors"
+    assert module_name(ROOT / "spgeo" / "io" / "tum.py") == "spgeo.io.tum"
     source = ("def f():\n    from ..evaluation import metrics\n"   # line 2, nested + relative
               "import spgeo.evaluation.trajectory as t\n"           # line 3
               "from spgeo import evaluation\n"                      # line 4
@@ -92,6 +300,30 @@ def test_import_scanner_resolves_relative_and_nested_imports():
     # factors/ installs as spgeo.factors: its ``..evaluation`` is spgeo.evaluation
     assert [is_forbidden(m) for _, m in imported_modules("from ..evaluation import x\n",
                                                          "spgeo.factors")] == [True, True]
+    assert [is_cli(m) for _, m in imported_modules("from .cli.args import x\n", "spgeo")] \
+        == [True, True]
+    assert not is_cli("spgeo.client") and not is_cli("spgeo.clipping")
+
+
+def test_module_level_imports_skip_functions_and_type_checking():
+    source = ("from typing import TYPE_CHECKING\n"
+              "from . import b\n"
+              "if TYPE_CHECKING:\n    from . import c\nelse:\n    from . import d\n"
+              "try:\n    from .e import E\nexcept ImportError:\n    E = None\n"
+              "class K:\n    from .f import F\n"
+              "def g():\n    from . import h\n")
+    modules = {f"p.{x}" for x in "abcdefgh"} | {"p"}
+    assert module_dependencies(source, "p.a", "p", modules) == {"p.b", "p.d", "p.e", "p.f"}
+    # importing p.q.r from p.a also loads the package p.q; ``from p import name`` needs p
+    assert module_dependencies("import p.q.r\nfrom p import name\n", "p.a", "p",
+                               modules | {"p.q", "p.q.r"}) == {"p.q", "p.q.r", "p"}
+
+
+def test_cycle_finder():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"f"}, "f": {"e"},
+             "g": {"a"}}
+    assert import_cycles(graph) == [["a", "b", "c", "a"], ["e", "f", "e"]]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []
 
 
 def test_core_never_imports_evaluation():
@@ -101,17 +333,27 @@ def test_core_never_imports_evaluation():
                            + "\n".join(offenders))
 
 
-def _opens_with_reason(path: Path) -> bool:
-    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
-    return any(line.strip().startswith(LONG_REASON) for line in doc.splitlines()[:5])
+def test_nothing_below_the_cli_imports_it():
+    cli = ROOT / "spgeo" / "cli"
+    files = [p for folder in PACKAGE_OF_DIR for p in _python_files(folder)
+             if not p.is_relative_to(cli) and p != ROOT / CLI_ENTRY]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}"
+                 for path in files for line in import_lines(path, is_cli)]
+    assert not offenders, ("only spgeo/cli/ and spgeo/__main__.py may import spgeo.cli "
+                           "(docs/design.md §6.1):\n" + "\n".join(offenders))
 
 
-def test_modules_at_most_500_lines_or_say_why():
-    too_long = []
-    for folder in PACKAGE_OF_DIR:
-        for path in _python_files(folder):
-            n = len(path.read_text(encoding="utf-8").splitlines())
-            if n > MAX_LINES and not _opens_with_reason(path):
-                too_long.append(f"{path.relative_to(ROOT).as_posix()}: {n} lines")
-    assert not too_long, (f"modules over {MAX_LINES} lines without a "
-                          f"'{LONG_REASON} ...' line in their docstring:\n" + "\n".join(too_long))
+def test_no_import_cycles():
+    files = _python_files("spgeo") + _python_files("factors")
+    known = {module_name(p) for folder in PACKAGE_OF_DIR for p in _python_files(folder)}
+    cycles = import_cycles(import_graph(files, known))
+    assert not cycles, ("import cycles among the modules of spgeo/ and factors/:\n"
+                        + "\n".join(" -> ".join(c) for c in cycles))
+
+
+def test_functions_at_most_60_lines_of_code():
+    too_long = [f for folder in ("spgeo", "factors") for path in _python_files(folder)
+                for f in long_functions(path)]
+    assert not too_long, (f"functions over {MAX_FUNCTION_LINES} lines of code (compiled kernels "
+                          f"may say why: a '{LONG_REASON} ...' line in their docstring):\n"
+                          + "\n".join(too_long))

@@ -36,7 +36,7 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli.args import add_dataset_arguments, add_verbose_argument, setup_logging
+from spgeo.apps.args import add_dataset_arguments, add_verbose_argument, setup_logging
 from spgeo.geometry import invert_pose, relative_pose
 from spgeo.jsonio import json_default
 

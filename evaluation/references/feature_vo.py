@@ -63,7 +63,7 @@ import cv2
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
+from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
                              setup_logging)
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose

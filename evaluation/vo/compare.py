@@ -51,8 +51,8 @@ import numpy as np
 from tqdm import tqdm
 
 from spgeo.apps.vo_run import VORunConfig
-from spgeo.cli.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
-                            setup_logging)
+from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
+                             setup_logging)
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 

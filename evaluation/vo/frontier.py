@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from spgeo.cli.args import parse_resolution
+from spgeo.apps.args import parse_resolution
 from spgeo.configs import apply_overrides, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_table, runner_config)

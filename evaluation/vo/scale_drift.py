@@ -65,7 +65,7 @@ def keyframe_baseline_ratios(run) -> Dict[int, float]:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     from spgeo.apps.vo_run import VORunConfig, run_dataset
-    from spgeo.cli.args import add_dataset_arguments
+    from spgeo.apps.args import add_dataset_arguments
     from spgeo.configs import parse_assignments, nest, apply_overrides
     from spgeo.datasets import open_dataset
 

@@ -46,7 +46,7 @@ from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.cli.args import add_verbose_argument, setup_logging
+from spgeo.apps.args import add_verbose_argument, setup_logging
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 

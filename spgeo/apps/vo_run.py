@@ -38,6 +38,7 @@ from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
+from ..configs import config_repr
 from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..vo import Odometry, OdometryConfig
@@ -54,6 +55,7 @@ FrameHook = Callable[[Frame, Any, Any], None]
 
 
 
+@config_repr
 @dataclass(frozen=True)
 class VORunConfig:
     """Options of :func:`run_odometry` / :func:`run_dataset`.

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 from typing import List, Optional, Sequence
 
@@ -31,6 +32,10 @@ __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_FAILED", "EXIT_BAD_INPUT", "
 _ERRORS = (ValueError, OSError, TypeError)
 
 log = logging.getLogger("spgeo.cli")
+
+#: options whose value may start with a minus sign (``fx,fy,cx,cy`` with a negative number)
+_SIGNED_VALUE_OPTIONS = ("--intrinsics",)
+_NEGATIVE_VALUE = re.compile(r"-\.?\d")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,6 +70,27 @@ def _split_eval(argv: Sequence[str]):
             return list(argv[:i + 2]), list(argv[i + 2:])
         break
     return list(argv), None
+
+
+def _join_signed_values(argv: Sequence[str]) -> List[str]:
+    """``--intrinsics -129.3,...`` -> ``--intrinsics=-129.3,...`` for the options of
+    :data:`_SIGNED_VALUE_OPTIONS`: argparse takes a value that starts with ``-`` and is
+    not a plain number for another option ("expected one argument"), so the negative
+    value would never reach the check that names it.  Tokens after ``--`` are left as they are."""
+    out: List[str] = []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok == "--":
+            return out + list(argv[i:])
+        if (tok in _SIGNED_VALUE_OPTIONS and i + 1 < len(argv)
+                and _NEGATIVE_VALUE.match(argv[i + 1])):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(tok)
+            i += 1
+    return out
 
 
 def _setup_logging(verbose: int) -> None:
@@ -103,7 +129,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     (module docstring)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     head, rest = _split_eval(argv)
-    args = build_parser().parse_args(head)
+    args = build_parser().parse_args(_join_signed_values(head))
     if rest is not None:
         from .eval import run_protocol
 

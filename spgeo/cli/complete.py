@@ -62,6 +62,8 @@ def _cmd_complete(args: argparse.Namespace) -> int:
 
 def add_complete_cli(subparsers) -> argparse.ArgumentParser:
     """Register ``spgeo complete`` on an argparse sub-parser collection."""
+    from ..completion import CompletionConfig
+
     p = subparsers.add_parser(
         "complete", help="zero-shot depth completion: image + sparse depth -> dense depth",
         description="Dense metric depth from one RGB image and sparse metric depth with "
@@ -75,7 +77,9 @@ def add_complete_cli(subparsers) -> argparse.ArgumentParser:
                    help="primitive front-end (default classical; onnx and onnx-depth need "
                         "'spgeo models fetch')")
     p.add_argument("--method", default=None, choices=("median", "joint"),
-                   help="per-primitive scale: robust median (default) or joint GTSAM solve")
+                   help="per-primitive scale: 'median' (robust median) or 'joint' (joint "
+                        "GTSAM solve); without it CompletionConfig.method decides (default "
+                        f"{CompletionConfig.method!r}; --config / --set may change it)")
     add_rerun_argument(p, "the image, sparse and completed depth, primitives and cloud")
     add_config_arguments(p, "CompletionConfig")
     p.set_defaults(func=_cmd_complete)

@@ -28,6 +28,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from ..frame import Frame
 from .common import FrameSelection, FrameSequence, check_camera, select_frames
 from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
@@ -61,6 +62,7 @@ def read_intrinsics_txt(path: PathLike, width: int, height: int) -> PinholeCamer
                      f"got {len(vals)} numbers")
 
 
+@config_repr
 @dataclass
 class FolderConfig:
     """Options of :class:`FolderSequence`.

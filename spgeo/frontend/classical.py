@@ -48,6 +48,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from ..images import to_float_image
 from .base import Segmentation, config_with_overrides
 
@@ -62,6 +63,7 @@ METHODS = ("slic", "slico", "mslic", "seeds", "lsc", "graph")
 _SLIC_ALGORITHMS = {"slic": "SLIC", "slico": "SLICO", "mslic": "MSLIC"}
 
 
+@config_repr
 @dataclass(frozen=True)
 class ClassicalSegmenterConfig:
     """Configuration of :class:`ClassicalSegmenter`.

@@ -22,6 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .base import config_with_overrides
 
 __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallelNormals",
@@ -30,6 +31,7 @@ __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallel
 logger = logging.getLogger(__name__)
 
 
+@config_repr
 @dataclass(frozen=True)
 class DepthNormalEstimatorConfig:
     """Configuration of :class:`DepthNormalEstimator`.
@@ -168,6 +170,105 @@ def _smallest_eigvec_sym3(a00, a11, a22, a01, a02, a12, min_planarity: float) ->
     return n
 
 
+def _box_moments(x: np.ndarray, y: np.ndarray, zz: np.ndarray, m: np.ndarray, k: int):
+    """``(count, [sx, sy, sz], [sxx, syy, szz, sxy, sxz, syz])``: sums over every
+    ``k`` x ``k`` window (``cv2.boxFilter``, zero outside the image)."""
+    import cv2
+
+    def box(a: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(a, cv2.CV_64F, (k, k), normalize=False,
+                             borderType=cv2.BORDER_CONSTANT)
+
+    cnt = box(m)
+    s = [box(x), box(y), box(zz)]
+    ss = [box(x * x), box(y * y), box(zz * zz), box(x * y), box(x * zz), box(y * zz)]
+    return cnt, s, ss
+
+
+def _near_depth_edges(z: np.ndarray, valid: np.ndarray, k: int, tan_max: Optional[float],
+                      camera: PinholeCamera) -> np.ndarray:
+    """Valid pixels whose window might hold a rejected neighbour (edge-aware path)."""
+    import cv2
+
+    if tan_max is None:
+        return np.zeros_like(valid)
+    kernel = np.ones((k, k), np.uint8)
+    z_lo = cv2.erode(np.where(valid, z, np.inf), kernel, borderType=cv2.BORDER_CONSTANT,
+                     borderValue=np.inf)
+    z_hi = cv2.dilate(np.where(valid, z, -np.inf), kernel, borderType=cv2.BORDER_CONSTANT,
+                      borderValue=-np.inf)
+    tol_min = tan_max * min(1.0 / camera.fx, 1.0 / camera.fy)
+    with np.errstate(invalid="ignore"):
+        return valid & ((z_hi - z > tol_min * z) | (z - z_lo > tol_min * z))
+
+
+def _central_covariance(cnt: np.ndarray, s: list, ss: list):
+    """``(cov, count)`` flat: the 6 entries xx, yy, zz, xy, xz, yz of each window's
+    central covariance E[XX^T] - E[X]E[X]^T (translation invariant) and its count."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c_safe = np.maximum(cnt, 1.0)
+        mean = [s[i] / c_safe for i in range(3)]
+        sec = [ss[i] / c_safe for i in range(6)]
+    cov = [sec[0] - mean[0] ** 2, sec[1] - mean[1] ** 2, sec[2] - mean[2] ** 2,
+           sec[3] - mean[0] * mean[1], sec[4] - mean[0] * mean[2], sec[5] - mean[1] * mean[2]]
+    return [c.ravel() for c in cov], cnt.ravel().copy()
+
+
+def _edge_aware_sums(idx: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                     valid: np.ndarray, r: int, tan_max: float,
+                     camera: PinholeCamera) -> np.ndarray:
+    """(10, len(idx)) sums over the accepted neighbours of the pixels ``idx``: count,
+    the offsets ``X_neighbour - X_centre`` (3) and their products (6), gathered from
+    padded flat arrays once per window offset."""
+    w = z.shape[1]
+    wp = w + 2 * r
+    pad = ((r, r), (r, r))
+    zp = np.pad(np.where(valid, z, np.nan), pad, constant_values=np.nan).ravel()
+    xp = np.pad(x, pad).ravel()
+    yp = np.pad(y, pad).ravel()
+    base = (idx // w + r) * wp + (idx % w + r)
+    zc, xc, yc = zp[base], xp[base], yp[base]
+    acc = np.zeros((10, idx.size))
+    for dv in range(-r, r + 1):
+        for du in range(-r, r + 1):
+            nb = base + dv * wp + du
+            dz = zp[nb] - zc
+            with np.errstate(invalid="ignore"):
+                if dv == 0 and du == 0:
+                    ok = np.isfinite(dz)
+                else:
+                    tol = tan_max * float(np.hypot(du / camera.fx, dv / camera.fy))
+                    ok = np.abs(dz) <= tol * zc
+            dz = np.where(ok, dz, 0.0)
+            dx = np.where(ok, xp[nb] - xc, 0.0)
+            dy = np.where(ok, yp[nb] - yc, 0.0)
+            acc[0] += ok
+            acc[1] += dx
+            acc[2] += dy
+            acc[3] += dz
+            acc[4] += dx * dx
+            acc[5] += dy * dy
+            acc[6] += dz * dz
+            acc[7] += dx * dy
+            acc[8] += dx * dz
+            acc[9] += dy * dz
+    return acc
+
+
+def _set_edge_aware_covariance(cov: list, cnt_flat: np.ndarray, idx: np.ndarray,
+                               acc: np.ndarray) -> None:
+    """Overwrite the covariance and count of the pixels ``idx`` with the edge-aware ones."""
+    c = acc[0]
+    mu = acc[1:4] / c
+    cnt_flat[idx] = c
+    cov[0][idx] = acc[4] / c - mu[0] ** 2
+    cov[1][idx] = acc[5] / c - mu[1] ** 2
+    cov[2][idx] = acc[6] / c - mu[2] ** 2
+    cov[3][idx] = acc[7] / c - mu[0] * mu[1]
+    cov[4][idx] = acc[8] / c - mu[0] * mu[2]
+    cov[5][idx] = acc[9] / c - mu[1] * mu[2]
+
+
 def _pca_normals(points: np.ndarray, z: np.ndarray, camera: PinholeCamera,
                  cfg: DepthNormalEstimatorConfig) -> np.ndarray:
     """Plane-fit normals from the covariance of the accepted window points.
@@ -183,8 +284,6 @@ def _pca_normals(points: np.ndarray, z: np.ndarray, camera: PinholeCamera,
       the accepted neighbours, gathered from padded flat arrays once per
       window offset.
     """
-    import cv2
-
     h, w = z.shape
     k = int(cfg.window)
     r = k // 2
@@ -195,80 +294,13 @@ def _pca_normals(points: np.ndarray, z: np.ndarray, camera: PinholeCamera,
     y = np.where(valid, points[..., 1], 0.0)
     zz = np.where(valid, z, 0.0)
     m = valid.astype(np.float64)
-
-    def box(a: np.ndarray) -> np.ndarray:
-        return cv2.boxFilter(a, cv2.CV_64F, (k, k), normalize=False,
-                             borderType=cv2.BORDER_CONSTANT)
-
-    cnt = box(m)
-    s = [box(x), box(y), box(zz)]
-    ss = [box(x * x), box(y * y), box(zz * zz), box(x * y), box(x * zz), box(y * zz)]
-
-    # pixels whose window might hold a rejected neighbour -> edge-aware path
-    if tan_max is not None:
-        kernel = np.ones((k, k), np.uint8)
-        z_lo = cv2.erode(np.where(valid, z, np.inf), kernel, borderType=cv2.BORDER_CONSTANT,
-                         borderValue=np.inf)
-        z_hi = cv2.dilate(np.where(valid, z, -np.inf), kernel, borderType=cv2.BORDER_CONSTANT,
-                          borderValue=-np.inf)
-        tol_min = tan_max * min(1.0 / camera.fx, 1.0 / camera.fy)
-        with np.errstate(invalid="ignore"):
-            slow = valid & ((z_hi - z > tol_min * z) | (z - z_lo > tol_min * z))
-    else:
-        slow = np.zeros_like(valid)
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c_safe = np.maximum(cnt, 1.0)
-        mean = [s[i] / c_safe for i in range(3)]
-        sec = [ss[i] / c_safe for i in range(6)]
-    # central covariance = E[XX^T] - E[X]E[X]^T (translation invariant)
-    cov = [sec[0] - mean[0] ** 2, sec[1] - mean[1] ** 2, sec[2] - mean[2] ** 2,
-           sec[3] - mean[0] * mean[1], sec[4] - mean[0] * mean[2], sec[5] - mean[1] * mean[2]]
-    cov = [c.ravel() for c in cov]
-    cnt_flat = cnt.ravel().copy()
-
+    cnt, s, ss = _box_moments(x, y, zz, m, k)
+    slow = _near_depth_edges(z, valid, k, tan_max, camera)
+    cov, cnt_flat = _central_covariance(cnt, s, ss)
     idx = np.flatnonzero(slow)
     if idx.size:
-        wp = w + 2 * r
-        pad = ((r, r), (r, r))
-        zp = np.pad(np.where(valid, z, np.nan), pad, constant_values=np.nan).ravel()
-        xp = np.pad(x, pad).ravel()
-        yp = np.pad(y, pad).ravel()
-        base = (idx // w + r) * wp + (idx % w + r)
-        zc, xc, yc = zp[base], xp[base], yp[base]
-        acc = np.zeros((10, idx.size))
-        for dv in range(-r, r + 1):
-            for du in range(-r, r + 1):
-                nb = base + dv * wp + du
-                dz = zp[nb] - zc
-                with np.errstate(invalid="ignore"):
-                    if dv == 0 and du == 0:
-                        ok = np.isfinite(dz)
-                    else:
-                        tol = tan_max * float(np.hypot(du / camera.fx, dv / camera.fy))
-                        ok = np.abs(dz) <= tol * zc
-                dz = np.where(ok, dz, 0.0)
-                dx = np.where(ok, xp[nb] - xc, 0.0)
-                dy = np.where(ok, yp[nb] - yc, 0.0)
-                acc[0] += ok
-                acc[1] += dx
-                acc[2] += dy
-                acc[3] += dz
-                acc[4] += dx * dx
-                acc[5] += dy * dy
-                acc[6] += dz * dz
-                acc[7] += dx * dy
-                acc[8] += dx * dz
-                acc[9] += dy * dz
-        c = acc[0]
-        mu = acc[1:4] / c
-        cnt_flat[idx] = c
-        cov[0][idx] = acc[4] / c - mu[0] ** 2
-        cov[1][idx] = acc[5] / c - mu[1] ** 2
-        cov[2][idx] = acc[6] / c - mu[2] ** 2
-        cov[3][idx] = acc[7] / c - mu[0] * mu[1]
-        cov[4][idx] = acc[8] / c - mu[0] * mu[2]
-        cov[5][idx] = acc[9] / c - mu[1] * mu[2]
+        acc = _edge_aware_sums(idx, x, y, z, valid, r, tan_max, camera)
+        _set_edge_aware_covariance(cov, cnt_flat, idx, acc)
 
     min_count = max(3.0, cfg.min_valid_fraction * k * k)
     good = np.flatnonzero(valid.ravel() & (cnt_flat >= min_count))

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from ..images import to_float_image
 from .base import Segmentation, Segmenter, config_with_overrides
 from .lines import LineDetectorConfig, LineSegments, detect_line_segments
@@ -51,6 +52,7 @@ logger = logging.getLogger(__name__)
 _FRONTO = np.array([0.0, 0.0, -1.0])
 
 
+@config_repr
 @dataclass(frozen=True)
 class ManhattanNormalsConfig:
     """Options of :class:`ManhattanNormals`.

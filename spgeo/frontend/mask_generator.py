@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .base import Segmentation
 
 if TYPE_CHECKING:  # annotations only: onnx_sam re-exports this module's names
@@ -79,6 +80,7 @@ def box_nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.n
 
 
 # ---------------------------------------------------------- mask generator
+@config_repr
 @dataclass(frozen=True)
 class SamMaskGeneratorConfig:
     """docs/design.md §3 segment generation.

@@ -12,17 +12,15 @@ import logging
 import re
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Callable, List, Mapping, Optional, Tuple, Union
+from typing import Callable, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
 from ..camera import PinholeCamera
 
-if TYPE_CHECKING:
-    from .onnx_normals import NormalModel
-
 __all__ = ["NORMAL_CONVENTIONS", "parse_convention", "signed_permutations",
-           "render_synthetic_room", "ConventionScore", "check_convention_on_plane"]
+           "render_synthetic_room", "ConventionScore", "RawNormalModel",
+           "check_convention_on_plane"]
 
 logger = logging.getLogger(__name__)
 
@@ -173,7 +171,19 @@ class ConventionScore:
     proper: bool
 
 
-def check_convention_on_plane(model: Union["NormalModel", Callable[[np.ndarray], np.ndarray]],
+class RawNormalModel:
+    """A normal model :func:`check_convention_on_plane` can query for its raw output.
+
+    :class:`~spgeo.frontend.onnx_normals.NormalModel` derives from it (the model
+    module builds on this one, not the other way round).
+    """
+
+    def predict_raw(self, image: np.ndarray):
+        """An object whose ``normals`` are the (H, W, 3) output in the MODEL's convention."""
+        raise NotImplementedError
+
+
+def check_convention_on_plane(model: Union[RawNormalModel, Callable[[np.ndarray], np.ndarray]],
                               camera: Optional[PinholeCamera] = None,
                               image: Optional[np.ndarray] = None,
                               normals_gt: Optional[np.ndarray] = None) -> List[ConventionScore]:
@@ -181,8 +191,9 @@ def check_convention_on_plane(model: Union["NormalModel", Callable[[np.ndarray],
     output onto the true normals of a synthetic scene.
 
     Args:
-        model: a :class:`NormalModel` (its raw, unconverted output is used) or
-            a callable ``image -> (H, W, 3)`` raw normals.
+        model: a :class:`RawNormalModel` such as
+            :class:`~spgeo.frontend.onnx_normals.NormalModel` (its raw, unconverted
+            output is used) or a callable ``image -> (H, W, 3)`` raw normals.
         camera: camera of the default synthetic room (640x480, f = 525).
         image, normals_gt: use this image and its true spgeo-convention normals
             instead of :func:`render_synthetic_room`.
@@ -194,11 +205,9 @@ def check_convention_on_plane(model: Union["NormalModel", Callable[[np.ndarray],
     """
     if (image is None) != (normals_gt is None):
         raise ValueError("check_convention_on_plane: give both image and normals_gt, or neither")
-    from .onnx_normals import NormalModel  # the model module builds on this one
-
     if image is None:
         image, normals_gt = render_synthetic_room(camera)
-    raw = model.predict_raw(image).normals if isinstance(model, NormalModel) else model(image)
+    raw = model.predict_raw(image).normals if isinstance(model, RawNormalModel) else model(image)
     raw = np.asarray(raw, dtype=np.float64)
     gt = np.asarray(normals_gt, dtype=np.float64)
     if raw.shape != gt.shape or raw.shape[-1] != 3:

@@ -43,6 +43,7 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .depth_normals import DepthNormalEstimatorConfig, normals_from_depth
 from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_nodes,
                            open_session, resize_map, to_hwc, uncrop)
@@ -56,6 +57,7 @@ DEPTH_OUTPUT_KINDS = ("depth", "inverse_depth", "disparity")
 _PERCENTILE = 99.0
 
 
+@config_repr
 @dataclass(frozen=True)
 class DepthOnnxConfig(ImageIOConfig):
     """The I/O contract of a single-image depth network and the depth -> normals step.

@@ -24,8 +24,10 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, check_convention_on_plane,
-                                 parse_convention, render_synthetic_room, signed_permutations)
+from ..configs import config_repr
+from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, RawNormalModel,
+                                 check_convention_on_plane, parse_convention, render_synthetic_room,
+                                 signed_permutations)
 from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_nodes,
                            open_session, resize_map, to_hwc, uncrop)
 
@@ -39,6 +41,7 @@ logger = logging.getLogger(__name__)
 
 
 # ----------------------------------------------------------------- config
+@config_repr
 @dataclass(frozen=True)
 class NormalOnnxConfig(ImageIOConfig):
     """The I/O contract and convention of a single-image normal network.
@@ -132,7 +135,7 @@ class NormalPrediction:
     confidence: Optional[np.ndarray] = None
 
 
-class NormalModel:
+class NormalModel(RawNormalModel):
     """:class:`~spgeo.frontend.base.NormalEstimator` running an ONNX normal network.
 
     The image is converted to the network's input (size, range, normalisation,

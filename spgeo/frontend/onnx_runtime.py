@@ -12,6 +12,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
+from ..configs import config_repr
 from ..images import to_float_image
 
 __all__ = ["open_session", "io_nodes", "np_type", "check_rank", "require_names", "check_size",
@@ -143,6 +144,7 @@ def as_rgb01(image: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------ dense image-to-map networks
+@config_repr
 @dataclass(frozen=True, kw_only=True)
 class ImageIOConfig:
     """Keyword-only I/O fields shared by the configs of dense image -> map networks

@@ -49,6 +49,7 @@ from typing import Mapping, Optional, Tuple
 
 import numpy as np
 
+from ..configs import config_repr
 from .mask_generator import (SamMaskGenerator, SamMaskGeneratorConfig, box_nms, mask_boxes,
                              stability_scores)
 from .onnx_runtime import (as_rgb01, check_rank, check_size, io_nodes, np_type, open_session,
@@ -71,6 +72,7 @@ EFFICIENTSAM_DECODER_OUTPUTS = ("output_masks", "iou_predictions")
 
 
 # --------------------------------------------------------------------------- config
+@config_repr
 @dataclass(frozen=True)
 class SamOnnxConfig:
     """The I/O contract of a SAM-style encoder/decoder pair.

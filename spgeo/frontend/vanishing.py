@@ -32,6 +32,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..configs import config_repr
 from .lines import LineSegments
 
 __all__ = ["VanishingConfig", "VanishingResult", "estimate_vanishing_directions",
@@ -40,6 +41,7 @@ __all__ = ["VanishingConfig", "VanishingResult", "estimate_vanishing_directions"
 logger = logging.getLogger(__name__)
 
 
+@config_repr
 @dataclass(frozen=True)
 class VanishingConfig:
     """Options of :func:`estimate_vanishing_directions`.

@@ -68,32 +68,37 @@ class SceneMesh:
     tri_surface: np.ndarray
 
 
-def tessellate(config: SceneConfig, objects: Sequence[ObjectSpec]) -> SceneMesh:
-    """Room (floor, ceiling, 4 walls: ids 0..5) then every object's surfaces, in order.
+class _MeshBuilder:
+    """Surfaces and triangle soup collected while tessellating, in order."""
 
-    Raises ``TypeError`` for an unsupported object.
-    """
-    X, Y, Z = (float(s) for s in config.room_size)
-    surfaces: List[Surface] = []
-    verts: List[np.ndarray] = []
-    tris: List[np.ndarray] = []
-    tri_sid: List[np.ndarray] = []
-    n_verts = 0
+    def __init__(self) -> None:
+        self.surfaces: List[Surface] = []
+        self.verts: List[np.ndarray] = []
+        self.tris: List[np.ndarray] = []
+        self.tri_sid: List[np.ndarray] = []
+        self.n_verts = 0
 
-    def add(v: np.ndarray, t: np.ndarray, sid: int) -> None:
-        nonlocal n_verts
-        verts.append(v)
-        tris.append(t + n_verts)
-        tri_sid.append(np.full(len(t), sid, np.int32))
-        n_verts += len(v)
+    def add(self, v: np.ndarray, t: np.ndarray, sid: int) -> None:
+        self.verts.append(v)
+        self.tris.append(t + self.n_verts)
+        self.tri_sid.append(np.full(len(t), sid, np.int32))
+        self.n_verts += len(v)
 
-    def new_surface(kind, name, obj, point, axis, radius=0.0) -> int:
-        sid = len(surfaces)
-        surfaces.append(Surface(sid, SurfaceKind(kind), name, obj,
-                                tuple(float(x) for x in point),
-                                tuple(float(x) for x in axis), float(radius)))
+    def new_surface(self, kind, name, obj, point, axis, radius=0.0) -> int:
+        sid = len(self.surfaces)
+        self.surfaces.append(Surface(sid, SurfaceKind(kind), name, obj,
+                                     tuple(float(x) for x in point),
+                                     tuple(float(x) for x in axis), float(radius)))
         return sid
 
+    def mesh(self) -> SceneMesh:
+        return SceneMesh(self.surfaces, np.concatenate(self.verts).astype(np.float32),
+                         np.concatenate(self.tris).astype(np.uint32), np.concatenate(self.tri_sid))
+
+
+def _add_room(mesh: _MeshBuilder, config: SceneConfig) -> None:
+    """Floor, ceiling and 4 walls (surface ids 0..5), overlapping by ``room_overlap``."""
+    X, Y, Z = (float(s) for s in config.room_size)
     hx, hy, m = X / 2, Y / 2, float(config.room_overlap)
     room = [  # name, point, inward normal, 4 corners
         ("floor", (0, 0, 0), (0, 0, 1),
@@ -110,9 +115,67 @@ def tessellate(config: SceneConfig, objects: Sequence[ObjectSpec]) -> SceneMesh:
          [(-hx - m, hy, -m), (hx + m, hy, -m), (hx + m, hy, Z + m), (-hx - m, hy, Z + m)]),
     ]
     for name, point, normal, corners in room:
-        sid = new_surface(SurfaceKind.PLANE, name, -1, point, normal)
-        add(*_quad(*corners), sid)
+        sid = mesh.new_surface(SurfaceKind.PLANE, name, -1, point, normal)
+        mesh.add(*_quad(*corners), sid)
 
+
+def _add_box(mesh: _MeshBuilder, obj: BoxSpec, name: str, oi: int) -> None:
+    c = np.asarray(obj.center, float)
+    half = np.asarray(obj.size, float) / 2
+    cy, sy = math.cos(obj.yaw), math.sin(obj.yaw)
+    R = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            n = R[:, axis] * sign
+            a1, a2 = [k for k in range(3) if k != axis]
+            e1, e2 = R[:, a1] * half[a1], R[:, a2] * half[a2]
+            fc = c + n * half[axis]
+            sid = mesh.new_surface(SurfaceKind.PLANE, f"{name}/{'+' if sign > 0 else '-'}"
+                                   f"{'xyz'[axis]}", oi, fc, n)
+            mesh.add(*_quad(fc - e1 - e2, fc + e1 - e2, fc + e1 + e2, fc - e1 + e2), sid)
+
+
+def _add_cylinder(mesh: _MeshBuilder, obj: CylinderSpec, name: str, oi: int, err: float) -> None:
+    b = np.asarray(obj.base_center, float)
+    r, h = float(obj.radius), float(obj.height)
+    top = b + np.array([0, 0, h])
+    nseg = _segments(r, err, 2 * np.pi)
+    ang = np.arange(nseg) * 2 * np.pi / nseg
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(nseg)], 1) * r
+    j = np.arange(nseg)
+    jn = (j + 1) % nseg
+    sid = mesh.new_surface(SurfaceKind.CYLINDER, f"{name}/side", oi, b, (0, 0, 1), r)
+    v = np.concatenate([b + ring, top + ring])
+    t = np.concatenate([np.stack([j, jn, nseg + jn], 1),
+                        np.stack([j, nseg + jn, nseg + j], 1)])
+    mesh.add(v, t, sid)
+    for cap, centre, normal in (("top", top, (0, 0, 1)), ("bottom", b, (0, 0, -1))):
+        sid = mesh.new_surface(SurfaceKind.PLANE, f"{name}/{cap}", oi, centre, normal)
+        v = np.concatenate([centre[None], centre + ring])
+        mesh.add(v, np.stack([np.zeros(nseg, int), 1 + j, 1 + jn], 1), sid)
+
+
+def _add_panel(mesh: _MeshBuilder, obj: PanelSpec, name: str, oi: int) -> None:
+    c = np.asarray(obj.center, float)
+    n = np.asarray(obj.normal, float)
+    n = n / np.linalg.norm(n)
+    u = np.cross([0.0, 0.0, 1.0], n)
+    u = np.array([1.0, 0.0, 0.0]) if np.linalg.norm(u) < 1e-9 else u / np.linalg.norm(u)
+    v = np.cross(n, u)
+    cs, ss = math.cos(obj.spin), math.sin(obj.spin)
+    u, v = cs * u + ss * v, -ss * u + cs * v
+    e1, e2 = u * obj.size[0] / 2, v * obj.size[1] / 2
+    sid = mesh.new_surface(SurfaceKind.PLANE, name, oi, c, n)
+    mesh.add(*_quad(c - e1 - e2, c + e1 - e2, c + e1 + e2, c - e1 + e2), sid)
+
+
+def tessellate(config: SceneConfig, objects: Sequence[ObjectSpec]) -> SceneMesh:
+    """Room (floor, ceiling, 4 walls: ids 0..5) then every object's surfaces, in order.
+
+    Raises ``TypeError`` for an unsupported object.
+    """
+    mesh = _MeshBuilder()
+    _add_room(mesh, config)
     err = float(config.max_chord_error)
     counters: Dict[str, int] = {}
     for oi, obj in enumerate(objects):
@@ -120,54 +183,14 @@ def tessellate(config: SceneConfig, objects: Sequence[ObjectSpec]) -> SceneMesh:
         name = f"{label}{counters.get(label, 0)}"
         counters[label] = counters.get(label, 0) + 1
         if isinstance(obj, BoxSpec):
-            c = np.asarray(obj.center, float)
-            half = np.asarray(obj.size, float) / 2
-            cy, sy = math.cos(obj.yaw), math.sin(obj.yaw)
-            R = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-            for axis in range(3):
-                for sign in (1.0, -1.0):
-                    n = R[:, axis] * sign
-                    a1, a2 = [k for k in range(3) if k != axis]
-                    e1, e2 = R[:, a1] * half[a1], R[:, a2] * half[a2]
-                    fc = c + n * half[axis]
-                    sid = new_surface(SurfaceKind.PLANE, f"{name}/{'+' if sign > 0 else '-'}"
-                                      f"{'xyz'[axis]}", oi, fc, n)
-                    add(*_quad(fc - e1 - e2, fc + e1 - e2, fc + e1 + e2, fc - e1 + e2), sid)
+            _add_box(mesh, obj, name, oi)
         elif isinstance(obj, CylinderSpec):
-            b = np.asarray(obj.base_center, float)
-            r, h = float(obj.radius), float(obj.height)
-            top = b + np.array([0, 0, h])
-            nseg = _segments(r, err, 2 * np.pi)
-            ang = np.arange(nseg) * 2 * np.pi / nseg
-            ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(nseg)], 1) * r
-            j = np.arange(nseg)
-            jn = (j + 1) % nseg
-            sid = new_surface(SurfaceKind.CYLINDER, f"{name}/side", oi, b, (0, 0, 1), r)
-            v = np.concatenate([b + ring, top + ring])
-            t = np.concatenate([np.stack([j, jn, nseg + jn], 1),
-                                np.stack([j, nseg + jn, nseg + j], 1)])
-            add(v, t, sid)
-            for cap, centre, normal in (("top", top, (0, 0, 1)), ("bottom", b, (0, 0, -1))):
-                sid = new_surface(SurfaceKind.PLANE, f"{name}/{cap}", oi, centre, normal)
-                v = np.concatenate([centre[None], centre + ring])
-                add(v, np.stack([np.zeros(nseg, int), 1 + j, 1 + jn], 1), sid)
+            _add_cylinder(mesh, obj, name, oi, err)
         elif isinstance(obj, SphereSpec):
-            sid = new_surface(SurfaceKind.SPHERE, name, oi, obj.center, (0, 0, 0), obj.radius)
-            add(*_sphere_mesh(obj.center, float(obj.radius), err), sid)
+            sid = mesh.new_surface(SurfaceKind.SPHERE, name, oi, obj.center, (0, 0, 0), obj.radius)
+            mesh.add(*_sphere_mesh(obj.center, float(obj.radius), err), sid)
         elif isinstance(obj, PanelSpec):
-            c = np.asarray(obj.center, float)
-            n = np.asarray(obj.normal, float)
-            n = n / np.linalg.norm(n)
-            u = np.cross([0.0, 0.0, 1.0], n)
-            u = np.array([1.0, 0.0, 0.0]) if np.linalg.norm(u) < 1e-9 else u / np.linalg.norm(u)
-            v = np.cross(n, u)
-            cs, ss = math.cos(obj.spin), math.sin(obj.spin)
-            u, v = cs * u + ss * v, -ss * u + cs * v
-            e1, e2 = u * obj.size[0] / 2, v * obj.size[1] / 2
-            sid = new_surface(SurfaceKind.PLANE, name, oi, c, n)
-            add(*_quad(c - e1 - e2, c + e1 - e2, c + e1 + e2, c - e1 + e2), sid)
+            _add_panel(mesh, obj, name, oi)
         else:
             raise TypeError(f"unsupported scene object {obj!r}")
-
-    return SceneMesh(surfaces, np.concatenate(verts).astype(np.float32),
-                     np.concatenate(tris).astype(np.uint32), np.concatenate(tri_sid))
+    return mesh.mesh()

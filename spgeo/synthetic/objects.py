@@ -135,39 +135,7 @@ def sample_objects(rng: np.random.Generator, cfg: SceneConfig) -> List[ObjectSpe
         for _ in range(max(1, cfg.placement_tries)):
             az = az0 + (i + rng.uniform(0.1, 0.9)) * sector
             direction = np.array([math.cos(az), math.sin(az)])
-            if kind == "box":
-                sx, sy = (float(v) for v in rng.uniform(*cfg.box_size, 2))
-                floating = rng.uniform() < cfg.floating_box_prob
-                if floating:
-                    sz = float(rng.uniform(0.2, 0.6))
-                    z0 = float(rng.uniform(0.6, max(0.6, min(1.8, Z - 0.1 - sz))))
-                else:
-                    sz, z0 = float(rng.uniform(*cfg.box_height)), 0.0
-                sz = min(sz, Z - z0 - 0.05)
-                yaw = float(rng.uniform(0, np.pi))
-                br = 0.5 * math.hypot(sx, sy)
-                make = lambda xy, sx=sx, sy=sy, sz=sz, z0=z0, yaw=yaw: BoxSpec(  # noqa: E731
-                    (xy[0], xy[1], z0 + sz / 2), (sx, sy, sz), yaw)
-            elif kind == "cylinder":
-                r = float(rng.uniform(*cfg.cylinder_radius))
-                hgt = min(float(rng.uniform(*cfg.cylinder_height)), Z - 0.05)
-                br = r
-                make = lambda xy, r=r, hgt=hgt: CylinderSpec((xy[0], xy[1], 0.0), r, hgt)  # noqa: E731
-            elif kind == "sphere":
-                r = float(rng.uniform(*cfg.sphere_radius))
-                zc = (r if rng.uniform() < 0.5
-                      else float(rng.uniform(max(0.6, r + 0.05), min(2.2, Z - r - 0.05))))
-                br = r
-                make = lambda xy, r=r, zc=zc: SphereSpec((xy[0], xy[1], zc), r)  # noqa: E731
-            else:
-                pw, ph = (float(v) for v in rng.uniform(*cfg.panel_size, 2))
-                tilt = np.radians(rng.uniform(*cfg.panel_tilt_deg)) * rng.choice([-1.0, 1.0])
-                turn = np.radians(rng.uniform(-35, 35))
-                zc = float(rng.uniform(0.7, 2.0))
-                zc = float(np.clip(zc, ph / 2 + 0.05, Z - ph / 2 - 0.05))
-                br = 0.5 * max(pw, ph)
-                make = lambda xy, pw=pw, ph=ph, tilt=tilt, turn=turn, zc=zc: PanelSpec(  # noqa: E731
-                    (xy[0], xy[1], zc), _panel_normal(xy, turn, tilt), (pw, ph), 0.0)
+            br, make = _draw_object(rng, kind, cfg, Z)
             r_min = cfg.free_zone_radius + br
             dist = rng.uniform(r_min, r_room)
             xy = direction * dist
@@ -181,6 +149,48 @@ def sample_objects(rng: np.random.Generator, cfg: SceneConfig) -> List[ObjectSpe
         else:
             logger.debug("synthetic scene: could not place a %s, skipped", kind)
     return objects
+
+
+def _draw_object(rng: np.random.Generator, kind: str, cfg: SceneConfig, Z: float):
+    """Draw the size (and height, tilt...) of one object of ``kind``: ``(bounding radius
+    in plan, make)`` where ``make((x, y))`` builds the object at that place."""
+    if kind == "box":
+        sx, sy = (float(v) for v in rng.uniform(*cfg.box_size, 2))
+        floating = rng.uniform() < cfg.floating_box_prob
+        if floating:
+            sz = float(rng.uniform(0.2, 0.6))
+            z0 = float(rng.uniform(0.6, max(0.6, min(1.8, Z - 0.1 - sz))))
+        else:
+            sz, z0 = float(rng.uniform(*cfg.box_height)), 0.0
+        sz = min(sz, Z - z0 - 0.05)
+        yaw = float(rng.uniform(0, np.pi))
+        br = 0.5 * math.hypot(sx, sy)
+        make = lambda xy, sx=sx, sy=sy, sz=sz, z0=z0, yaw=yaw: BoxSpec(  # noqa: E731
+            (xy[0], xy[1], z0 + sz / 2), (sx, sy, sz), yaw)
+        return br, make
+    if kind == "cylinder":
+        r = float(rng.uniform(*cfg.cylinder_radius))
+        hgt = min(float(rng.uniform(*cfg.cylinder_height)), Z - 0.05)
+        br = r
+        make = lambda xy, r=r, hgt=hgt: CylinderSpec((xy[0], xy[1], 0.0), r, hgt)  # noqa: E731
+        return br, make
+    if kind == "sphere":
+        r = float(rng.uniform(*cfg.sphere_radius))
+        zc = (r if rng.uniform() < 0.5
+              else float(rng.uniform(max(0.6, r + 0.05), min(2.2, Z - r - 0.05))))
+        br = r
+        make = lambda xy, r=r, zc=zc: SphereSpec((xy[0], xy[1], zc), r)  # noqa: E731
+        return br, make
+    # kind == "panel"
+    pw, ph = (float(v) for v in rng.uniform(*cfg.panel_size, 2))
+    tilt = np.radians(rng.uniform(*cfg.panel_tilt_deg)) * rng.choice([-1.0, 1.0])
+    turn = np.radians(rng.uniform(-35, 35))
+    zc = float(rng.uniform(0.7, 2.0))
+    zc = float(np.clip(zc, ph / 2 + 0.05, Z - ph / 2 - 0.05))
+    br = 0.5 * max(pw, ph)
+    make = lambda xy, pw=pw, ph=ph, tilt=tilt, turn=turn, zc=zc: PanelSpec(  # noqa: E731
+        (xy[0], xy[1], zc), _panel_normal(xy, turn, tilt), (pw, ph), 0.0)
+    return br, make
 
 
 def _panel_normal(xy, turn: float, tilt: float) -> Tuple[float, float, float]:

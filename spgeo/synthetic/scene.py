@@ -150,25 +150,8 @@ class SyntheticScene:
             t = num[safe] / (dx * nx + dy * ny + dz * nz)
             curved = np.flatnonzero(np.append(~planar, False)[safe])
             if curved.size:
-                sc = sid[curved]
-                dc = np.stack([dx[curved], dy[curved], dz[curved]], 1)
-                ax = self._axis[sc]  # zeros for spheres: the projection below is a no-op
-                wc = w[sc]
-                dp = dc - np.einsum("ij,ij->i", dc, ax)[:, None] * ax
-                wp = wc - np.einsum("ij,ij->i", wc, ax)[:, None] * ax
-                qa = np.einsum("ij,ij->i", dp, dp)
-                qb = 2.0 * np.einsum("ij,ij->i", dp, wp)
-                qc = np.einsum("ij,ij->i", wp, wp) - self._radius[sc] ** 2
-                sq = np.sqrt(np.maximum(qb * qb - 4.0 * qa * qc, 0.0))
-                t1 = (-qb - sq) / (2.0 * qa)
-                tc = np.where(t1 > 1e-9, t1, (-qb + sq) / (2.0 * qa))
-                tm = t_mesh[curved]
-                ok = np.isfinite(tc) & (tc > 0) & (np.abs(tc - tm) <= 0.05 + 0.02 * tm)
-                tc = np.where(ok, tc, tm)
-                radial = o + tc[:, None] * dc - self._point[sc]
-                radial -= np.einsum("ij,ij->i", radial, ax)[:, None] * ax
-                radial /= np.linalg.norm(radial, axis=1, keepdims=True)
-                radial[np.einsum("ij,ij->i", radial, dc) > 0] *= -1.0
+                tc, radial = self._curved_hits(o, w, sid[curved], dx[curved], dy[curved],
+                                               dz[curved], t_mesh[curved])
                 t[curved] = tc
                 nx[curved], ny[curved], nz[curved] = radial.T
             # trust the analytic distance unless it is far from the mesh hit
@@ -182,6 +165,30 @@ class SyntheticScene:
         if with_rgb:
             out["rgb"] = self._colour(safe, points, (nx, ny, nz))
         return out
+
+    def _curved_hits(self, o: np.ndarray, w: np.ndarray, sc: np.ndarray, dxc: np.ndarray,
+                     dyc: np.ndarray, dzc: np.ndarray, tm: np.ndarray):
+        """Analytic ``(t, unit normals facing the rays)`` of rays hitting cylinders and
+        spheres (surface ids ``sc``, mesh distances ``tm``, kept where the analytic one is
+        far from them); ``w``: the origin ``o`` minus each surface's point."""
+        dc = np.stack([dxc, dyc, dzc], 1)
+        ax = self._axis[sc]  # zeros for spheres: the projection below is a no-op
+        wc = w[sc]
+        dp = dc - np.einsum("ij,ij->i", dc, ax)[:, None] * ax
+        wp = wc - np.einsum("ij,ij->i", wc, ax)[:, None] * ax
+        qa = np.einsum("ij,ij->i", dp, dp)
+        qb = 2.0 * np.einsum("ij,ij->i", dp, wp)
+        qc = np.einsum("ij,ij->i", wp, wp) - self._radius[sc] ** 2
+        sq = np.sqrt(np.maximum(qb * qb - 4.0 * qa * qc, 0.0))
+        t1 = (-qb - sq) / (2.0 * qa)
+        tc = np.where(t1 > 1e-9, t1, (-qb + sq) / (2.0 * qa))
+        ok = np.isfinite(tc) & (tc > 0) & (np.abs(tc - tm) <= 0.05 + 0.02 * tm)
+        tc = np.where(ok, tc, tm)
+        radial = o + tc[:, None] * dc - self._point[sc]
+        radial -= np.einsum("ij,ij->i", radial, ax)[:, None] * ax
+        radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+        radial[np.einsum("ij,ij->i", radial, dc) > 0] *= -1.0
+        return tc, radial
 
     def _colour(self, safe: np.ndarray, points: Tuple[np.ndarray, ...],
                 normals: Tuple[np.ndarray, ...]) -> np.ndarray:

@@ -66,6 +66,36 @@ def test_sfm_implausible_intrinsics(images, tmp_path, capsys, intrinsics, fragme
     assert not out.exists()
 
 
+@pytest.mark.parametrize("command", ["sfm", "complete"])
+@pytest.mark.parametrize("joined", [False, True])
+def test_negative_focal_length_is_named(images, tmp_path, capsys, command, joined):
+    """``--intrinsics -fx,...`` (argparse would take the value for an option) and
+    ``--intrinsics=-fx,...`` both reach the check that names the negative focal length."""
+    folder, paths = images
+    value = f"{-CAM.fx},{CAM.fy},{CAM.cx},{CAM.cy}"
+    intrinsics = [f"--intrinsics={value}"] if joined else ["--intrinsics", value]
+    if command == "sfm":
+        out = tmp_path / "out"
+        argv = ["sfm", "--ref", paths[0], "--views", *paths[1:], *intrinsics, "--out", out]
+    else:
+        out = tmp_path / "d.png"
+        argv = ["complete", "--rgb", paths[0], "--sparse", folder / "sparse.npy", *intrinsics,
+                "--out", out]
+    rc, _, err = run(capsys, argv)
+    assert rc == 2 and err.startswith(f"spgeo {command}: error:")
+    assert f"fx must be finite and > 0, got {-CAM.fx!r}" in err
+    assert not out.exists()
+
+
+def test_complete_help_states_the_default_method(capsys):
+    from spgeo.completion import CompletionConfig
+
+    with pytest.raises(SystemExit):
+        main(["complete", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"(default {CompletionConfig.method!r};" in text and "median (default)" not in text
+
+
 @pytest.mark.parametrize("which, fragment", [
     ("missing", "not found"), ("folder", "is a folder"), ("truncated", "truncated or corrupt"),
 ])
