@@ -39,13 +39,15 @@ from .initialisation import InitialisationStage
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
-from .shape_propagation import propagate_shapes
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
+
+#: splat size (pixels) when rendering the window into a new keyframe
+RENDER_SPLAT = 2
 
 
 class Odometry(InitialisationStage):
@@ -185,10 +187,6 @@ class Odometry(InitialisationStage):
     @smoother.setter
     def smoother(self, value) -> None:
         self._mapper.smoother = value
-
-    def _depth_link(self, ref: MapKeyframe, tgt: MapKeyframe):
-        """:meth:`WindowMapper.depth_link` of two keyframes (current estimates)."""
-        return self._mapper.depth_link(ref, tgt)
 
     @property
     def keyframes(self) -> List[Keyframe]:
@@ -403,10 +401,8 @@ class Odometry(InitialisationStage):
         prims = self._primify(frame)
         window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
-                                  prims.camera, T_world, splat=cfg.render_splat,
+                                  prims.camera, T_world, splat=RENDER_SPLAT,
                                   tolerance=cfg.render_tolerance)
-        if cfg.propagate_shape and not self.frontend.uses_depth:
-            prims = propagate_shapes(prims, depth, cfg.propagate_min_coverage).primitives
         try:
             init = init_scales_from_render(prims, depth)
         except ValueError as exc:

@@ -1,8 +1,8 @@
 """Pose-only photometric tracking of a frame against a keyframe's primitives.
 
 The VO front-end (docs/design.md §5) aligns every new frame to the latest keyframe
-(:class:`~spgeo.vo.keyframe.Keyframe`: batched pixels per level, subsampling,
-pixel selection) with the keyframe's primitive scales held fixed, minimising
+(:class:`~spgeo.vo.keyframe.Keyframe`: batched pixels per level, pixel
+selection) with the keyframe's primitive scales held fixed, minimising
 the factor graph's photometric cost (:class:`~spgeo.vo.tracking_cost.TrackingCost`,
 whose module docstring states it) coarse to fine.  At each level the 8x8
 normal equations are solved with Levenberg-Marquardt damping; a step is taken
@@ -42,6 +42,18 @@ __all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame", "valid_fra
            "constant_velocity_guess", "TrackingCost"]
 
 log = logging.getLogger(__name__)
+
+#: initial LM damping (multiplies ``diag(H)``)
+LM_LAMBDA_INITIAL = 1e-4
+#: damping multiplier on a rejected step / divisor on an accepted one
+LM_LAMBDA_FACTOR = 10.0
+#: a level stops when the damping exceeds this (no step decreases the cost any more)
+LM_LAMBDA_MAX = 1e5
+#: a level stops when a step (accepted or rejected) turns by less than this (radians;
+#: 0.003 deg) and moves by less than ``TRANSLATION_TOL``
+ROTATION_TOL = 5e-5
+#: translation step threshold as a fraction of the keyframe's median depth (0.1 mm at 2 m)
+TRANSLATION_TOL = 5e-5
 
 
 @dataclass
@@ -131,7 +143,7 @@ def _levenberg_marquardt(fn: TrackingCost, T: np.ndarray, ab: np.ndarray, cur: d
     linearised after an accepted last step), tried steps, accepted steps,
     final damping)``."""
     nd = fn.dim
-    lam = config.lm_lambda_initial
+    lam = LM_LAMBDA_INITIAL
     its = accepted = 0
     while its < max_it and np.isfinite(cur["cost"]):
         H, g = cur["H"], cur["g"]
@@ -143,27 +155,27 @@ def _levenberg_marquardt(fn: TrackingCost, T: np.ndarray, ab: np.ndarray, cur: d
         except np.linalg.LinAlgError:
             delta = np.full(nd, np.nan)
         if not np.all(np.isfinite(delta)):
-            lam *= config.lm_lambda_factor
-            if lam > config.lm_lambda_max:
+            lam *= LM_LAMBDA_FACTOR
+            if lam > LM_LAMBDA_MAX:
                 break
             continue
         T_new = _retract(T, delta[:6])
         ab_new = ab + delta[6:] if config.brightness else ab
         new = fn.evaluate(T_new, ab_new, jacobians=False)
-        small = (np.linalg.norm(delta[:3]) < config.rotation_tol
+        small = (np.linalg.norm(delta[:3]) < ROTATION_TOL
                  and np.linalg.norm(delta[3:6]) < tr_tol)
         if np.isfinite(new["cost"]) and new["cost"] < cur["cost"]:
             rel = (cur["cost"] - new["cost"]) / max(cur["cost"], 1e-300)
             T, ab, cur = T_new, ab_new, new
             accepted += 1
-            lam = max(lam / config.lm_lambda_factor, 1e-12)
+            lam = max(lam / LM_LAMBDA_FACTOR, 1e-12)
             if rel < config.relative_cost_tol or small or its >= max_it:
                 break
             fn.linearise(cur)
         else:
             # a rejected step that was already negligible: converged
-            lam *= config.lm_lambda_factor
-            if small or lam > config.lm_lambda_max:
+            lam *= LM_LAMBDA_FACTOR
+            if small or lam > LM_LAMBDA_MAX:
                 break
     return T, ab, cur, its, accepted, lam
 
@@ -266,7 +278,7 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
     report: List[dict] = []
     iterations: List[int] = []
     levels: List[int] = []
-    tr_tol = config.translation_tol * keyframe.median_depth
+    tr_tol = TRANSLATION_TOL * keyframe.median_depth
     final: Optional[dict] = None
     final_cost_fn: Optional[TrackingCost] = None
     for lvl in reversed(range(n_levels)):
