@@ -273,12 +273,52 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
     if not config.brightness:
         ab = np.zeros(2)
     pyr = keyframe.frame_pyramid(image, config.levels)
-    n_levels = len(pyr)
     timings: Dict[str, float] = {"prepare": time.perf_counter() - t_start}
+    tr_tol = TRANSLATION_TOL * keyframe.median_depth
+    T, ab, final, final_cost_fn, iterations, levels, report = _coarse_to_fine(
+        keyframe, pyr, T, ab, config, tr_tol, timings)
+
+    # ---- assessment on the decision pixels
+    reason: Optional[str] = None
+    finite = bool(np.all(np.isfinite(T)) and np.all(np.isfinite(ab)))
+    dec = decision_stride(keyframe.camera.width, config.decision_width)
+    rel_cost, vfrac, decision_steps = float("nan"), 0.0, 0
+    if final is None:
+        reason = "no_pixels"
+        cost = photo = float("nan")
+        if finite:
+            vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, dec)
+    else:
+        cost, photo = float(final["cost"]), float(final["photometric_cost"])
+        if finite:
+            t0 = time.perf_counter()
+            T, ab, rel_cost, vfrac, decision_steps = _decision_quantities(
+                keyframe, pyr, dec, T, ab, config, final, final_cost_fn, tr_tol)
+
+            timings["decision"] = time.perf_counter() - t0
+    if reason is None:
+        reason = _lost_reason(finite, cost, vfrac, rel_cost, reference_cost, config)
+    if not finite:
+        vfrac = 0.0
+        T, ab = check_pose(np.asarray(T_world_init, dtype=np.float64)).copy(), np.zeros(2)
+    status = "ok" if reason is None else "lost"
+    timings["total"] = time.perf_counter() - t_start
+    if reason is not None:
+        log.info("tracking lost (%s): valid fraction %.2f, relative cost %.3g",
+                 reason, vfrac, rel_cost)
+    return TrackResult(T, ab.copy(), cost, photo, float(rel_cost), vfrac, iterations, levels,
+                       status, reason, timings, report, dec, decision_steps)
+
+
+def _coarse_to_fine(keyframe: Keyframe, pyr: Pyramid, T: np.ndarray, ab: np.ndarray,
+                    config: TrackerConfig, tr_tol: float, timings: Dict[str, float]):
+    """LM at every level of ``pyr``, coarsest first: ``(T, ab, final evaluation
+    (None without pixels), its TrackingCost, iterations, levels, report)``;
+    adds ``timings["level<l>"]``."""
+    n_levels = len(pyr)
     report: List[dict] = []
     iterations: List[int] = []
     levels: List[int] = []
-    tr_tol = TRANSLATION_TOL * keyframe.median_depth
     final: Optional[dict] = None
     final_cost_fn: Optional[TrackingCost] = None
     for lvl in reversed(range(n_levels)):
@@ -304,42 +344,19 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
                        "valid_fraction": cur["valid_fraction"], "seconds": dt})
         log.debug("tracking level %d: %d px, %d its (%d accepted), cost %.4g -> %.4g",
                   lvl, fn.n_pixels, its, accepted, cost0, cur["cost"])
+    return T, ab, final, final_cost_fn, iterations, levels, report
 
-    # ---- assessment on the decision pixels
-    reason: Optional[str] = None
-    finite = bool(np.all(np.isfinite(T)) and np.all(np.isfinite(ab)))
-    dec = decision_stride(keyframe.camera.width, config.decision_width)
-    rel_cost, vfrac, decision_steps = float("nan"), 0.0, 0
-    if final is None:
-        reason = "no_pixels"
-        cost = photo = float("nan")
-        if finite:
-            vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, dec)
-    else:
-        cost, photo = float(final["cost"]), float(final["photometric_cost"])
-        if finite:
-            t0 = time.perf_counter()
-            T, ab, rel_cost, vfrac, decision_steps = _decision_quantities(
-                keyframe, pyr, dec, T, ab, config, final, final_cost_fn, tr_tol)
 
-            timings["decision"] = time.perf_counter() - t0
-    if reason is None:
-        if not (finite and np.isfinite(cost)):
-            reason = "diverged"
-        elif vfrac < config.min_valid_fraction:
-            reason = "low_overlap"
-        elif not rel_cost <= config.max_relative_cost:
-            reason = "high_cost"
-        elif (reference_cost is not None and np.isfinite(reference_cost)
-              and cost > config.max_cost_increase * float(reference_cost)):
-            reason = "cost_increase"
-    if not finite:
-        vfrac = 0.0
-        T, ab = check_pose(np.asarray(T_world_init, dtype=np.float64)).copy(), np.zeros(2)
-    status = "ok" if reason is None else "lost"
-    timings["total"] = time.perf_counter() - t_start
-    if reason is not None:
-        log.info("tracking lost (%s): valid fraction %.2f, relative cost %.3g",
-                 reason, vfrac, rel_cost)
-    return TrackResult(T, ab.copy(), cost, photo, float(rel_cost), vfrac, iterations, levels,
-                       status, reason, timings, report, dec, decision_steps)
+def _lost_reason(finite: bool, cost: float, vfrac: float, rel_cost: float,
+                 reference_cost: Optional[float], config: TrackerConfig) -> Optional[str]:
+    """Why a tracked frame is ``"lost"`` (:class:`TrackResult`), or None."""
+    if not (finite and np.isfinite(cost)):
+        return "diverged"
+    if vfrac < config.min_valid_fraction:
+        return "low_overlap"
+    if not rel_cost <= config.max_relative_cost:
+        return "high_cost"
+    if (reference_cost is not None and np.isfinite(reference_cost)
+            and cost > config.max_cost_increase * float(reference_cost)):
+        return "cost_increase"
+    return None
