@@ -134,29 +134,6 @@ def test_fixed_lag_marginalises_old_keyframes(frames):
     assert ate.rmse_percent_of_length < 3.5
 
 
-def test_depth_link_measures_the_keyframe_depth_ratio(run):
-    """The optional depth-consistency factor between the mapped keyframes 0
-    and 1: many correspondences, near zero residual at the smoothed estimate,
-    and -log(1.1) when keyframe 1's depths are all 10 % too large."""
-    vo, _ = run
-    kf0, kf1 = (vo._kfs[k] for k in vo._seg_kfs[:2])
-    probe = Odometry(CAM, OdometryConfig(kf_depth_link_sigma=0.02), frontend())
-    link = probe._depth_link(kf0, kf1)
-    assert link is not None and link.n > 500
-    values = gtsam.Values()
-    for kf in (kf0, kf1):
-        values.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf))
-        for i, s in enumerate(kf.keyframe.primitives.log_scales):
-            values.insert(kf_scale_key(kf.index, i), np.array([s]))
-    r0 = link.factor.unwhitenedError(values)[0]
-    assert abs(r0) < 0.02
-    for i in range(len(kf1.keyframe.primitives)):
-        key = kf_scale_key(kf1.index, i)
-        values.update(key, values.atVector(key) + np.log(1.1))
-    assert link.factor.unwhitenedError(values)[0] - r0 == pytest.approx(-np.log(1.1), abs=1e-9)
-    assert Odometry(CAM, OdometryConfig(), frontend())._depth_link(kf0, kf1) is None  # default off
-
-
 def test_bad_input_raises(frames):
     vo = Odometry(CAM, OdometryConfig(), frontend())
     small = synthetic.default_camera(80, 60)
@@ -167,10 +144,7 @@ def test_bad_input_raises(frames):
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
     for bad in ({"map_pixel_fraction": 0.0}, {"init_min_gap": 0}, {"init_min_gap": 31},
-                {"init_extra_views": -1},
-                {"map_lambda_initial": 0.0}, {"render_prior_weight": 0.0},
-                {"kf_depth_link_sigma": -1.0}, {"kf_depth_link_primitives": 0},
-                {"kf_depth_link_tolerance": 0.0}):
+                {"init_extra_views": -1}, {"render_prior_weight": 0.0}):
         with pytest.raises(ValueError):
             OdometryConfig(**bad)
 

@@ -134,10 +134,11 @@ def test_keyframe_levels_use_the_selection(keyframe_pair):
 
 @pytest.mark.parametrize("level", [0, 1])
 def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level):
-    """With selection, the tracker's cost at a level equals the error of the
-    mapper's photometric factors (same level, same selected pixels)."""
+    """With the tracker's pixel selection on the keyframe, the tracker's cost on
+    all pixels of a level equals the error of the mapper's photometric factors
+    (same level, same pixels: mapping uses every pixel of ``map_level``)."""
     cam, image, prims, T_kf, T_f, frame = keyframe_pair
-    cfg = OdometryConfig(pixel_budget=600, map_pixel_budget=600, map_level=level)
+    cfg = OdometryConfig(pixel_budget=600, map_level=level)
     kf = Keyframe.build(image, prims, T_kf, cfg.levels, cfg.selection)
     mkf = MapKeyframe(0, 0, image, kf)
     mapper = WindowMapper(cfg)
@@ -154,9 +155,9 @@ def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level)
         values.insert(kf_scale_key(0, i), np.array([prims.log_scales[i]]))
     factor_cost = sum(f.error(values) for f in group.factors)
     tc = TrackingCost(kf, pyr.images[level], pyr.cameras[level], level,
-                      TrackerConfig(photometric=cfg.photometric))
+                      cfg.tracker, selection=None)
     out = tc.evaluate(T_f, ab, jacobians=False)
-    assert tc.n_pixels <= 600 + len(prims) * cfg.pixel_selection.min_per_primitive
+    assert tc.n_pixels == mapper._map_pixels(mkf)[0].size > 0
     np.testing.assert_allclose(out["photometric_cost"], factor_cost, rtol=1e-6)
 
 

@@ -9,7 +9,6 @@ import pytest
 import gtsam
 from spgeo import synthetic
 from spgeo.factors.photometric import PhotometricConfig
-from spgeo.factors.priors import brightness_prior
 from spgeo.frontend import make_frontend
 from spgeo.geometry import relative_pose, rotation_angle_deg, so3_exp
 from spgeo.sfm import SfMConfig, brightness_key, pose_key, scale_key
@@ -80,7 +79,7 @@ def test_cost_and_gradient_equal_the_factor_graph(seq, normalise):
     T_gt, img = seq["frames"][1]
     pyr = kf.frame_pyramid(img)
     pc = PhotometricConfig(normalise=normalise)
-    cfg = TrackerConfig(photometric=pc, brightness_prior_sigma=None)
+    cfg = TrackerConfig(photometric=pc)
     forward = np.eye(4)
     forward[2, 3] = 1.2 * np.percentile(kf.points[:, 2], 20)   # some points behind the frame
     cases = [(T_gt, (0.0, 0.0)), (kf.T_world_kf, (0.1, -0.03)),
@@ -99,23 +98,6 @@ def test_cost_and_gradient_equal_the_factor_graph(seq, normalise):
             saw_behind |= bool(out["behind"].any())
             saw_outside |= out["valid_fraction"] < 0.9
     assert saw_behind and saw_outside
-
-
-def test_brightness_prior_equals_graph_prior(seq):
-    kf = seq["kf"]
-    T_gt, img = seq["frames"][0]
-    pyr = kf.frame_pyramid(img)
-    cfg = TrackerConfig(brightness_prior_sigma=(0.3, 0.2))
-    fn = TrackingCost(kf, pyr.images[1], pyr.cameras[1], 1, cfg)
-    ab = np.array([0.2, -0.1])
-    out = fn.evaluate(T_gt, ab)
-    v = gtsam.Values()
-    v.insert(brightness_key(1), ab)
-    assert out["prior_cost"] == pytest.approx(brightness_prior(brightness_key(1), (0.3, 0.2)).error(v),
-                                              rel=1e-12)
-    no_prior = TrackingCost(kf, pyr.images[1], pyr.cameras[1], 1,
-                            TrackerConfig()).evaluate(T_gt, ab)
-    np.testing.assert_allclose(out["g"][6:] - no_prior["g"][6:], ab / np.array([0.09, 0.04]))
 
 
 def test_gradient_matches_finite_differences_without_robust_weights(seq):

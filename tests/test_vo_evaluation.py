@@ -224,16 +224,16 @@ def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
 def test_vo_synthetic_config_overrides():
     from spgeo.evaluation.vo.synthetic import odometry_config, parse_overrides
 
-    over = parse_overrides(["kf_depth_link_sigma=None", "render_prior_weight = 1e-5",
-                            "brightness_prior_sigma=(0.1, 0.2)", "tracker.relative_cost_tol=1e-4",
+    over = parse_overrides(["pixel_budget=None", "render_prior_weight = 1e-5",
+                            "tracker.iterations=(10, 5)", "tracker.relative_cost_tol=1e-4",
                             "tracker.photometric.huber_delta=0.05"])
-    assert over == {"kf_depth_link_sigma": None, "render_prior_weight": 1e-5,
-                    "brightness_prior_sigma": (0.1, 0.2),
-                    "tracker": {"relative_cost_tol": 1e-4, "photometric": {"huber_delta": 0.05}}}
+    assert over == {"pixel_budget": None, "render_prior_weight": 1e-5,
+                    "tracker": {"iterations": (10, 5), "relative_cost_tol": 1e-4,
+                                "photometric": {"huber_delta": 0.05}}}
     cfg = odometry_config(over)
     assert cfg.tracker.relative_cost_tol == 1e-4 and cfg.tracker.photometric.huber_delta == 0.05
     assert cfg.tracker.levels == 3 and cfg.render_prior_weight == 1e-5
-    for bad in (["kf_depth_link_sigma"], ["=1"], ["window=five"], ["a.=1"],
+    for bad in (["pixel_budget"], ["=1"], ["window=five"], ["a.=1"],
                 ["window=3", "window.x=1"]):
         with pytest.raises((ValueError, SyntaxError)):
             parse_overrides(bad)

@@ -214,7 +214,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          f"hand-held room (large inter-frame motion; at most {FORWARD_DRIVE_M} m)")
     ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
                     help="OdometryConfig overrides (Python literals), e.g. "
-                         "kf_depth_link_sigma=None render_prior_weight=1e-5")
+                         "window=7 render_prior_weight=1e-5")
     ap.add_argument("--out", default=None,
                     help="write results.md/.json/.csv (rewritten after each run) and the "
                          "trajectories here")

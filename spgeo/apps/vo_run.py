@@ -38,6 +38,7 @@ from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
+from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
@@ -197,6 +198,32 @@ def blas_threads(n: Optional[int]):
     return threadpool_limits(limits=int(n), user_api="blas")
 
 
+def _open_odometry(cam_in: PinholeCamera, size: Tuple[int, int], config: VORunConfig,
+                   fe: PrimitiveFrontEnd) -> Tuple[PinholeCamera, PinholeCamera, Odometry]:
+    """``(input camera, working camera, Odometry)`` from the first frame's camera."""
+    cam = cam_in.resized(*size)
+    ain, aout = cam_in.width / cam_in.height, size[0] / size[1]
+    if abs(ain / aout - 1.0) > 0.01:
+        log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
+                    "(fx and fy scale differently)", size[0], size[1],
+                    cam_in.width, cam_in.height)
+    return cam_in, cam, Odometry(cam, config.odometry, fe)
+
+
+def _checked_stamp(i: int, f: Frame, cam_in: PinholeCamera, stamps: List[float]) -> float:
+    """Frame ``i``'s timestamp, after checking its camera and that the
+    timestamp is finite and after the previous one (ValueError otherwise)."""
+    if f.camera.shape != cam_in.shape:
+        raise ValueError(f"frame {i} ({f.name!r}) is {f.camera.width}x{f.camera.height}, "
+                         f"the first frame {cam_in.width}x{cam_in.height}: all frames "
+                         "must share one camera")
+    ts = float(f.timestamp)
+    if not np.isfinite(ts) or (stamps and ts <= stamps[-1]):
+        raise ValueError(f"frame {i} ({f.name!r}): timestamp {ts} is not finite or not "
+                         f"after the previous one ({stamps[-1] if stamps else None})")
+    return ts
+
+
 def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
                   frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int],
                   on_frame: Optional[FrameHook] = None) -> VORun:
@@ -221,22 +248,8 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
     try:
         for i, f in enumerate(bar):
             if cam_in is None:
-                cam_in = f.camera
-                cam = cam_in.resized(*size)
-                ain, aout = cam_in.width / cam_in.height, size[0] / size[1]
-                if abs(ain / aout - 1.0) > 0.01:
-                    log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
-                                "(fx and fy scale differently)", size[0], size[1],
-                                cam_in.width, cam_in.height)
-                vo = Odometry(cam, config.odometry, fe)
-            elif f.camera.shape != cam_in.shape:
-                raise ValueError(f"frame {i} ({f.name!r}) is {f.camera.width}x{f.camera.height}, "
-                                 f"the first frame {cam_in.width}x{cam_in.height}: all frames "
-                                 "must share one camera")
-            ts = float(f.timestamp)
-            if not np.isfinite(ts) or (stamps and ts <= stamps[-1]):
-                raise ValueError(f"frame {i} ({f.name!r}): timestamp {ts} is not finite or not "
-                                 f"after the previous one ({stamps[-1] if stamps else None})")
+                cam_in, cam, vo = _open_odometry(f.camera, size, config, fe)
+            ts = _checked_stamp(i, f, cam_in, stamps)
             small = _resize_frame(f, cam, size, use_depth, i)
             r = vo.track(small)  # type: ignore[union-attr]
             gt.append(None if f.T_world_cam is None

@@ -16,6 +16,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
+from ..configs import config_repr
 from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
@@ -27,6 +28,7 @@ __all__ = ["FeatureRetryConfig", "FeatureRetry"]
 log = logging.getLogger(__name__)
 
 
+@config_repr
 @dataclass(frozen=True)
 class FeatureRetryConfig:
     """Parameters of :class:`FeatureRetry`.

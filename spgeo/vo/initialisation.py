@@ -1,8 +1,13 @@
 """The VO's map initialisation (docs/design.md §5.1, *Initialisation*): the
-stage of :class:`spgeo.vo.Odometry` that waits for keyframe 1 and solves
-keyframes 0 and 1 with few-view SfM (:class:`InitialisationStage`), the
-supporting views of that SfM, the check that its result may initialise a map
-and the bounded buffer of frames waiting for keyframe 1.
+:class:`Initialiser` that :class:`spgeo.vo.Odometry` owns (one per VO).  It
+holds its own state (the bounded buffer of frames waiting for keyframe 1, the
+retry gaps, why the last try failed, the SfM reports), solves keyframes 0 and 1
+with few-view SfM, and returns an :class:`InitDecision` for each frame of a
+segment that has only its keyframe 0 (wait, a failed SfM, or start the map with
+keyframe 0's solved primitives, keyframe 1's pose and the buffered frames
+re-tracked); ``Odometry`` applies it.  Also here: the supporting views of that
+SfM (:func:`init_views`), the check that its result may initialise a map
+(:func:`init_rejection`) and :func:`twoview_start`.
 
 A keyframe pair without parallax never initialises a map: the frames stay
 ``INIT`` (tracked against keyframe 0) or ``LOST`` and
@@ -13,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -20,16 +26,15 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..frame import Frame
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
 from ..sfm_init import twoview_initialisation
-from .mapping import MapKeyframe, SupportCandidate, apply_primitive_model
-from .result import FrameResult, FrameStatus
+from .config import OdometryConfig
+from .mapping import MapKeyframe, apply_primitive_model
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["InitialisationStage", "init_views", "init_rejection", "append_bounded",
+__all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection", "append_bounded",
            "twoview_start"]
 
 log = logging.getLogger(__name__)
@@ -133,38 +138,136 @@ def append_bounded(buffer: list, item, cap: int) -> None:
         buffer[:] = buffer[:-1][::2] + buffer[-1:]
 
 
-class InitialisationStage:
-    """The initialisation stage of :class:`spgeo.vo.Odometry` (a base class of
-    it, split out for length): :meth:`_initialise` handles one frame of a map
-    segment that has only its keyframe 0, on ``Odometry``'s state (its
-    keyframes, buffer, poses, configuration and front-end)."""
+#: :attr:`InitDecision.action` values
+WAIT, FAILED, START = "wait", "failed", "start"
 
-    def _init_pending(self, frame: Frame, idx: int, kf0: MapKeyframe, tr: TrackResult,
-                      T_kf0_f: np.ndarray) -> FrameResult:
-        """A frame waiting for keyframe 1: buffered; ``INIT`` at its pose tracked
-        against keyframe 0, or ``LOST`` at the last good pose."""
-        append_bounded(self._init_buffer, (idx, np.asarray(frame.image)),
-                       2 * self.config.init_max_gap)
-        if tr.ok:
-            self._rel[idx] = (kf0.index, T_kf0_f, kf0.keyframe.median_depth)
-        pose = tr.T_world_frame if tr.ok else self._last_good
-        return FrameResult(idx, float(frame.timestamp), pose.copy(),
-                           FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
 
-    def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        kf0 = self._kfs[self._seg_kfs[0]]
-        t = time.perf_counter()
-        tr = self._track_against(kf0.keyframe, frame.image)
-        timings["track"] = time.perf_counter() - t
+@dataclass
+class RetrackedFrame:
+    """A buffered frame re-tracked against the solved keyframe 0.
+
+    Attributes:
+        frame: frame number.
+        image: its image.
+        ok: whether it tracked.
+        T_world_frame: its re-tracked pose, or (not ``ok``) the last good pose
+            before it in the buffer.
+        T_kf0_frame: its pose in keyframe 0 (``ok`` only).
+        brightness: its tracked ``(a, b)`` (``ok`` only).
+    """
+
+    frame: int
+    image: np.ndarray
+    ok: bool
+    T_world_frame: np.ndarray
+    T_kf0_frame: Optional[np.ndarray] = None
+    brightness: Optional[np.ndarray] = None
+
+
+@dataclass
+class InitDecision:
+    """What :meth:`Initialiser.step` decided for one frame.
+
+    Attributes:
+        action: ``"wait"`` (the frame stays ``INIT`` at its pose tracked against
+            keyframe 0, or ``LOST``; it is buffered), ``"failed"`` (the SfM of
+            keyframes 0-1 failed: the frame is ``LOST`` and buffered) or
+            ``"start"`` (the frame becomes keyframe 1 of a new map).
+        T_kf0_frame: the frame's tracked pose in keyframe 0.
+        keyframe0: ``"start"``: keyframe 0 rebuilt with the SfM's primitives.
+        T_world_kf1: ``"start"``: keyframe 1's pose.
+        retracked: ``"start"``: the buffered frames re-tracked against
+            ``keyframe0``, in frame order.
+        T_world_last: ``"start"``: the last re-tracked good pose (keyframe 0's
+            when none tracked): the previous pose of the velocity model.
+    """
+
+    action: str
+    T_kf0_frame: np.ndarray
+    keyframe0: Optional[Keyframe] = None
+    T_world_kf1: Optional[np.ndarray] = None
+    retracked: List[RetrackedFrame] = field(default_factory=list)
+    T_world_last: Optional[np.ndarray] = None
+
+
+class Initialiser:
+    """The map initialisation of one :class:`spgeo.vo.Odometry` (module docstring).
+
+    Args:
+        config: the VO's :class:`OdometryConfig` (``init_*``, ``sfm``, ``levels``,
+            ``kf_*`` overlap thresholds, ``primitive_model``, ``tracker``).
+        camera: the frames' intrinsics.
+        uses_depth: whether the front-end uses depth (metric primitives).
+
+    Attributes:
+        failure: why the last keyframe-1 SfM was refused (None: none yet in
+            this segment).
+        wait_note: why the current wait goes on.
+        reports: one dict per SfM tried (all segments).
+    """
+
+    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool) -> None:
+        self.config = config
+        self.camera = camera
+        self.uses_depth = bool(uses_depth)
+        self.reports: List[dict] = []
+        self.reset()
+
+    def reset(self) -> None:
+        """A new segment: no buffered frame, no retry gap, no failure note."""
+        self.buffer: List[tuple] = []    # (frame index, image) before keyframe 1
+        self.retry_gap = 0    # a lost frame may end the wait from this gap on
+        self.wait_until = 0   # past init_max_gap, after a pair without parallax
+        self.failure: Optional[str] = None
+        self.wait_note: Optional[str] = None
+
+    def _buffer_frame(self, idx: int, image: np.ndarray) -> None:
+        append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init_max_gap)
+
+    def step(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
+             brightness: np.ndarray, segment: int,
+             timings: Dict[str, float]) -> InitDecision:
+        """Decide for frame ``idx`` (``image``) of a segment with only keyframe
+        ``kf0``, given ``tr``, its tracking against keyframe 0, and
+        ``brightness``, the VO's current brightness estimate (the re-tracking's
+        start).  Adds ``timings["init"]`` when an SfM runs."""
         T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
-        if tr.ok:
-            self._accept(tr)
-            self._n_lost = 0
-        else:
-            self._n_lost += 1
         parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
                     if tr.ok else 0.0)
         gap = idx - kf0.frame
+        early = not tr.ok and gap < self.config.init_max_gap
+        if self._waits(tr, T_kf0_f, parallax, gap, early):
+            self.wait_note = (
+                f"waiting for keyframe 1: {gap} frames after keyframe 0, " + (
+                    f"parallax {parallax:.3g} < init_min_parallax {self.config.init_min_parallax:g}"
+                    if tr.ok else f"frame lost against keyframe 0 ({tr.reason})"))
+            self._buffer_frame(idx, image)
+            return InitDecision(WAIT, T_kf0_f)
+        t = time.perf_counter()
+        sfm, n_views = self._solve(image, idx, kf0, tr, T_kf0_f)
+        timings["init"] = time.perf_counter() - t
+        failed, rejected = self._judge(sfm, tr, idx, segment, parallax, early, n_views)
+        if failed:
+            self.retry_gap = gap + max(1, gap // 2)
+            self.failure = f"frame {idx}: SfM of keyframes 0-1 {sfm.status}"
+            self._buffer_frame(idx, image)
+            return InitDecision(FAILED, T_kf0_f)
+        if rejected is not None:
+            # no baseline between keyframes 0 and 1: no map; wait for motion
+            self.wait_until = max(gap, self.config.init_max_gap) + max(1, gap // 2)
+            self.failure = f"frame {idx}: no map initialised from keyframes 0-1 ({rejected})"
+            log.warning("%s; waiting for camera motion", self.failure)
+            self._buffer_frame(idx, image)
+            return InitDecision(WAIT, T_kf0_f)
+        keyframe0, T_01 = self._solved_keyframe0(kf0, sfm, segment)
+        retracked, last = self._retrack(keyframe0, kf0.frame, idx, T_01, brightness)
+        self.buffer.clear()
+        return InitDecision(START, T_kf0_f, keyframe0, kf0.keyframe.T_world_kf @ T_01, retracked,
+                            last)
+
+    def _waits(self, tr: TrackResult, T_kf0_f: np.ndarray, parallax: float, gap: int,
+               early: bool) -> bool:
+        """Whether the frame waits for keyframe 1 (no SfM yet)."""
         cfg = self.config
         # keyframe 1 must still overlap keyframe 0: the overlap criteria of
         # keyframes (valid fraction, rotation) end the wait too
@@ -173,37 +276,38 @@ class InitialisationStage:
                                     or rot > cfg.kf_max_rotation_deg)
         # a frame lost against keyframe 0's unscaled shapes (large motion) ends
         # the wait too (retries spaced out); its SfM must then pass its own checks
-        early = not tr.ok and gap < cfg.init_max_gap
         wait = gap < cfg.init_max_gap and not overlap_ending and (
             (tr.ok and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
-            or (early and gap < self._init_retry_gap))
+            or (early and gap < self.retry_gap))
         # past init_max_gap after a keyframe pair without parallax: retries spaced out,
         # unless the tracked parallax is reached or keyframe 0's view is ending
-        wait = wait or (gap < self._init_wait_until and not overlap_ending
+        return wait or (gap < self.wait_until and not overlap_ending
                         and not (tr.ok and parallax >= cfg.init_min_parallax))
-        if wait:
-            self._init_wait_note = (
-                f"waiting for keyframe 1: {gap} frames after keyframe 0, " + (
-                    f"parallax {parallax:.3g} < init_min_parallax {cfg.init_min_parallax:g}"
-                    if tr.ok else f"frame lost against keyframe 0 ({tr.reason})"))
-            return self._init_pending(frame, idx, kf0, tr, T_kf0_f)
-        # ---- SfM: keyframe 0 of the segment (reference), this frame and extra views
-        t = time.perf_counter()
-        sfm_cfg = dataclasses.replace(self.config.sfm, reset_scales=not self.frontend.uses_depth)
+
+    def _solve(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
+               T_kf0_f: np.ndarray) -> Tuple[SfMResult, int]:
+        """The SfM of keyframe 0 (reference), this frame and extra views; its view count."""
+        cfg = self.config
+        sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=not self.uses_depth)
         prims0 = kf0.keyframe.primitives
         T_init = T_kf0_f if tr.ok else None
-        if tr.ok and cfg.init_method == "twoview" and not self.frontend.uses_depth:
-            tv = twoview_start(kf0.image, frame.image, self.camera, prims0)
+        if tr.ok and cfg.init_method == "twoview" and not self.uses_depth:
+            tv = twoview_start(kf0.image, image, self.camera, prims0)
             if tv is not None:
                 T_init, prims0 = tv
                 sfm_cfg = dataclasses.replace(sfm_cfg, reset_scales=False)
             else:
                 log.info("frame %d: no two-view estimate for keyframe 1; the SfM starts from "
                          "the tracked pose", idx)
-        views, init = init_views(frame.image, idx, kf0.frame, self._init_buffer,
-                                 cfg.init_extra_views, T_init)
+        views, init = init_views(image, idx, kf0.frame, self.buffer, cfg.init_extra_views, T_init)
         sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
-        timings["init"] = time.perf_counter() - t
+        return sfm, len(views)
+
+    def _judge(self, sfm: SfMResult, tr: TrackResult, idx: int, segment: int, parallax: float,
+               early: bool, n_views: int) -> Tuple[bool, Optional[str]]:
+        """``(failed, rejection)`` of the SfM (a failed one is retried later, a
+        rejected one waits for motion); appends its report."""
+        cfg = self.config
         finite = bool(np.all(np.isfinite(sfm.T_ref_view[0])))
         if not tr.ok and finite:  # the SfM's own baseline over its median depth
             parallax = float(np.linalg.norm(sfm.T_ref_view[0][:3, 3]) / np.median(
@@ -211,31 +315,24 @@ class InitialisationStage:
         failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
                                                          or parallax < cfg.init_min_parallax))
         rejected = None if failed else init_rejection(sfm, tr.ok)
-        self._sfm_reports.append({
-            "status": sfm.status, "frame": idx, "segment": self._segment, "parallax": parallax,
-            "sfm_parallax": (sfm.report.get("parallax") or [None])[0], "n_views": len(views),
+        self.reports.append({
+            "status": sfm.status, "frame": idx, "segment": segment, "parallax": parallax,
+            "sfm_parallax": (sfm.report.get("parallax") or [None])[0], "n_views": n_views,
             "accepted": not (failed or not finite or rejected), "rejected": rejected,
             **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
         if failed or not finite:
-            self._init_retry_gap = gap + max(1, gap // 2)
-            self._init_failure = f"frame {idx}: SfM of keyframes 0-1 {sfm.status}"
             log.warning("two-view initialisation failed at frame %d (SfM status %s, parallax "
                         "%.3g); retrying later", idx, sfm.status, parallax)
-            append_bounded(self._init_buffer, (idx, np.asarray(frame.image)), 2 * cfg.init_max_gap)
-            self._n_lost += 1
-            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST,
-                               track=tr)
-        if rejected is not None:
-            # no baseline between keyframes 0 and 1: no map; wait for motion
-            self._init_wait_until = max(gap, cfg.init_max_gap) + max(1, gap // 2)
-            self._init_failure = f"frame {idx}: no map initialised from keyframes 0-1 ({rejected})"
-            log.warning("%s; waiting for camera motion", self._init_failure)
-            return self._init_pending(frame, idx, kf0, tr, T_kf0_f)
+            return True, rejected
+        return False, rejected
+
+    def _solved_keyframe0(self, kf0: MapKeyframe, sfm: SfMResult,
+                          segment: int) -> Tuple[Keyframe, np.ndarray]:
+        """Keyframe 0 rebuilt with the SfM's primitives, and ``T_kf0_kf1``."""
         new_prims = sfm.primitives
         if self.config.primitive_model != "integrated":
             new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
-        T_w0 = kf0.keyframe.T_world_kf
-        if not self.frontend.uses_depth and self._segment > 0:
+        if not self.uses_depth and segment > 0:
             # a re-initialised monocular segment keeps the previous map's depth scale
             # (keyframe 0's primitives were set to it by Odometry._reinitialise)
             med = np.median(np.exp(kf0.keyframe.primitives.scaled_log_depth()))
@@ -246,38 +343,36 @@ class InitialisationStage:
             T_01[:3, 3] *= np.exp(c)
         else:
             T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
-        kf0.keyframe = Keyframe.build(kf0.image, new_prims, T_w0, self.config.levels,
-                                      self.config.selection)
-        T1 = T_w0 @ T_01
-        # re-track the buffered frames against the solved keyframe 0: from the
-        # constant-velocity guess, else from the pose interpolated between keyframes
-        # 0 and 1 at the frame's place in the gap (a failed frame leaves no velocity)
+        keyframe0 = Keyframe.build(kf0.image, new_prims, kf0.keyframe.T_world_kf,
+                                   self.config.levels, self.config.selection)
+        return keyframe0, T_01
+
+    def _retrack(self, keyframe0: Keyframe, frame0: int, idx: int, T_01: np.ndarray,
+                 brightness: np.ndarray) -> Tuple[List[RetrackedFrame], np.ndarray]:
+        """Re-track the buffered frames against the solved keyframe 0: from the
+        constant-velocity guess, else from the pose interpolated between keyframes
+        0 and 1 at the frame's place in the gap (a failed frame leaves no velocity).
+        Returns the frames and the last good pose."""
+        tracker = self.config.tracker
+        T_w0 = keyframe0.T_world_kf
         prev = None
         last = T_w0.copy()
         xi01 = gtsam.Pose3.Logmap(gtsam.Pose3(T_01))
-        for j, img in self._init_buffer:
-            tj = track_frame(kf0.keyframe, img, constant_velocity_guess(last, prev),
-                             self._brightness, self.config.tracker)
+        out: List[RetrackedFrame] = []
+        for j, img in self.buffer:
+            tj = track_frame(keyframe0, img, constant_velocity_guess(last, prev), brightness,
+                             tracker)
             if not tj.ok:
-                frac = (j - kf0.frame) / max(idx - kf0.frame, 1)
+                frac = (j - frame0) / max(idx - frame0, 1)
                 T_guess = T_w0 @ gtsam.Pose3.Expmap(frac * xi01).matrix()
-                tj2 = track_frame(kf0.keyframe, img, T_guess, self._brightness,
-                                  self.config.tracker)
+                tj2 = track_frame(keyframe0, img, T_guess, brightness, tracker)
                 if tj2.ok or tj2.photometric_cost < tj.photometric_cost:
                     tj = tj2
             if tj.ok:
                 prev, last = last, tj.T_world_frame
-                self._frames[j].T_world_cam = tj.T_world_frame.copy()
-                self._frames[j].status = FrameStatus.INIT
-                self._rel[j] = (kf0.index, invert_pose(T_w0) @ tj.T_world_frame,
-                                kf0.keyframe.median_depth)
-                self._candidates.append(SupportCandidate(j, img, self._rel[j][1],
-                                                   np.asarray(tj.brightness, float)))
+                out.append(RetrackedFrame(j, img, True, tj.T_world_frame.copy(),
+                                          invert_pose(T_w0) @ tj.T_world_frame,
+                                          np.asarray(tj.brightness, float)))
             else:
-                self._frames[j].status = FrameStatus.LOST
-                self._frames[j].T_world_cam = last.copy()
-                self._rel.pop(j, None)
-        self._init_buffer.clear()
-        self._last_good, self._prev_good = T1.copy(), last.copy()
-        self._n_lost = 0
-        return self._new_keyframe(frame, idx, T1, timings, track=tr)
+                out.append(RetrackedFrame(j, img, False, last.copy()))
+        return out, last

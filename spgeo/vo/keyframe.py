@@ -7,10 +7,9 @@ primitives' pixels per pyramid level (:meth:`Keyframe.level_data`): level
 from level ``l`` of the pyramid; primitives with fewer than
 ``min_level_pixels`` pixels at a level are left out.
 
-Pixel subsampling (``TrackerConfig.subsample``) keeps every ``s``-th lattice
-pixel along each axis at a level; it is a speed option that changes the cost
-(the per-primitive means are then taken over fewer pixels) and is off at the
-finest level by default.
+A ``subsample`` stride ``s`` of :meth:`Keyframe.level_data` keeps every
+``s``-th lattice pixel along each axis at a level (the tracker's decision
+pixels at resolutions above 160x120, :func:`spgeo.vo.tracking.decision_stride`).
 
 Pixel selection (``Keyframe.selection``, a
 :class:`~spgeo.vo.pixels.PixelSelectionConfig`) keeps, at each level, a budget

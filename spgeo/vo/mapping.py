@@ -6,8 +6,7 @@ poses.  Variables: keyframe poses, per-keyframe primitive shape variables
 (log-scales, or inverse-depth planes with ``primitive_model="planar"``),
 supporting-frame poses and an affine brightness per directed (reference,
 target) pair.  Each new keyframe is linked to the previous one by photometric
-factors in both directions (and to up to ``covisible_links`` older window
-keyframes that share enough of its view), and the previous keyframe to up to ``n_support``
+factors in both directions, and the previous keyframe to up to ``n_support``
 supporting non-keyframes tracked against it (evenly spaced; paper: 4), whose
 poses are optimised too.  One
 :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` per primitive
@@ -19,9 +18,7 @@ to its initial value; a new keyframe's primitives whose scale was rendered
 from the map (or, with a depth-using front-end, all of them) get the stronger
 ``render_prior_weight``: the render is a measurement of their scale (after a
 pure rotation the photometric factors between the two keyframes carry no
-parallax).  Optionally (``kf_depth_link_sigma``) a
-:class:`~spgeo.factors.depth_consistency.DepthConsistencyFactor` also ties the
-new keyframe's mean depth to where the previous keyframe's surface is.
+parallax).
 Smoother timestamps are keyframe indices (a supporting frame carries its
 keyframe's) and the lag keeps ``window`` keyframes: older keys are
 *marginalised* (their information stays as a linear prior), not dropped.
@@ -29,11 +26,15 @@ After each update the window's :class:`~spgeo.vo.tracking.Keyframe` objects
 are rebuilt from the smoother's estimate.
 
 With ``OdometryConfig.pixel_budget`` the keyframes entering the window take
-the tracker's pixel selection (:mod:`spgeo.vo.pixels`); with
-``map_pixel_budget`` the factors use the pixels of ``map_level`` selected
-with that budget (``Keyframe.level_data``, as the tracker's).  Primitives left
+the tracker's pixel selection (:mod:`spgeo.vo.pixels`); the factors use every
+pixel of ``map_level`` (``Keyframe.level_data`` without selection), or with
+``map_pixel_fraction < 1`` the strongest-gradient ones.  Primitives left
 without pixels have no photometric factor, are held by their priors and are
 counted in the report (``primitives_without_pixels``).
+
+The smoother's solver constants (``MAP_*``, ``GAUGE_SIGMA``,
+``PLANAR_SLOPE_SIGMA``, ``BRIGHTNESS_PRIOR_SIGMA``) are module constants:
+nothing overrides them.
 
 A failed update (a gtsam ``RuntimeError``, e.g. an indeterminant system)
 restarts the window from the last two keyframes once; if the restarted
@@ -44,21 +45,19 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 import gtsam
 
 from ..camera import PinholeCamera
-from ..factors.depth_consistency import DepthConsistencyFactor
 from ..factors.photometric import PhotometricFactorGroup, PlanarShape, ScaledShape
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
-from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
 from ..sfm_graph import gtsam_error_line
 from .config import PRIMITIVE_MODELS, OdometryConfig
-from .tracking import Keyframe, decision_stride, valid_fraction
+from .tracking import Keyframe
 
 __all__ = ["WindowMapper", "MapKeyframe", "SupportCandidate", "kf_pose_key", "kf_scale_key",
            "kf_brightness_key", "support_pose_key", "apply_primitive_model"]
@@ -66,6 +65,24 @@ __all__ = ["WindowMapper", "MapKeyframe", "SupportCandidate", "kf_pose_key", "kf
 log = logging.getLogger(__name__)
 
 _MAX_PRIMS = 1_000_000
+
+#: an update stops when an LM iteration lowers the window's cost by less than this
+#: fraction (1e-2: every keyframe stays in ``window`` updates; 1e-3 doubled the
+#: mapping time for the same ATE, docs/results.md)
+MAP_RELATIVE_TOL = 1e-2
+#: an LM iteration gives up when its damping exceeds this (each rejected trial costs a
+#: solve and a cost evaluation of the whole window, and near convergence gtsam keeps
+#: raising the damping until this bound)
+MAP_LAMBDA_MAX = 1e3
+#: initial LM damping of every window update (gtsam's)
+MAP_LAMBDA_INITIAL = 1e-5
+#: sigma of the first keyframe's pose prior (the gauge)
+GAUGE_SIGMA = 1e-6
+#: sigma of the planar model's slope prior (towards fronto-parallel; weak)
+PLANAR_SLOPE_SIGMA = 2.0
+#: sigmas of the priors of the brightness ``(a, b)`` variables (as the SfM graph's
+#: default ``SfMConfig.brightness_prior_sigma``)
+BRIGHTNESS_PRIOR_SIGMA: Tuple[float, float] = (0.3, 0.3)
 
 
 def kf_pose_key(k: int) -> int:
@@ -161,10 +178,10 @@ class WindowMapper:
         """An empty smoother with the configured LM parameters and lag."""
         p = gtsam.LevenbergMarquardtParams()
         p.setMaxIterations(int(self.config.map_iterations))
-        p.setRelativeErrorTol(float(self.config.map_relative_tol))
+        p.setRelativeErrorTol(float(MAP_RELATIVE_TOL))
         p.setAbsoluteErrorTol(1e-9)
-        p.setlambdaUpperBound(float(self.config.map_lambda_max))
-        p.setlambdaInitial(float(self.config.map_lambda_initial))
+        p.setlambdaUpperBound(float(MAP_LAMBDA_MAX))
+        p.setlambdaInitial(float(MAP_LAMBDA_INITIAL))
         return gtsam.BatchFixedLagSmoother(float(self.config.window) - 0.5, p)
 
     def reset(self) -> None:
@@ -191,68 +208,6 @@ class WindowMapper:
     def _shape_model(self, prims: PrimitiveSet, entries: np.ndarray, rays: np.ndarray):
         return PlanarShape(rays) if self._planar else ScaledShape(rays, prims.log_depth[entries])
 
-    def depth_link(self, ref: MapKeyframe, tgt: MapKeyframe) -> Optional[DepthConsistencyFactor]:
-        """Mean depth consistency of ``ref``'s mapping pixels with ``tgt``'s
-        primitives where they project (current estimates), or None (disabled,
-        or fewer than ``min_level_pixels`` consistent correspondences).
-        Correspondences whose log-ratio is more than ``kf_depth_link_tolerance``
-        from the median one are occlusions or disocclusions and are left out."""
-        cfg = self.config
-        if cfg.kf_depth_link_sigma is None:
-            return None
-        sel = self._map_pixels(ref)
-        if sel is None:
-            return None
-        entries = sel[0]
-        pr, pt = ref.keyframe.primitives, tgt.keyframe.primitives
-        cam = pt.camera
-        rays_all = cam.rays().reshape(-1, 3)
-        th_r, th_t = self._shape_values(ref), self._shape_values(tgt)
-        ref_ids = pr.primitive_ids[entries]
-        shape_r = self._shape_model(pr, entries, rays_all[pr.pixels[entries]])
-        X = shape_r.points(th_r[ref_ids])[0]
-        T = invert_pose(tgt.keyframe.T_world_kf) @ ref.keyframe.T_world_kf
-        Y = X @ T[:3, :3].T + T[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.rint(cam.fx * Y[:, 0] / Y[:, 2] + cam.cx)
-            v = np.rint(cam.fy * Y[:, 1] / Y[:, 2] + cam.cy)
-        ok = (Y[:, 2] > cfg.photometric.min_depth) & (u >= 0) & (u < cam.width) & (v >= 0) \
-            & (v < cam.height)
-        label = np.full(cam.width * cam.height, -1, dtype=np.int64)
-        label[pt.pixels] = np.arange(pt.pixels.size)
-        t_ent = np.full(ok.size, -1, dtype=np.int64)
-        t_ent[ok] = label[(v[ok] * cam.width + u[ok]).astype(np.int64)]
-        ok &= t_ent >= 0
-        if np.count_nonzero(ok) < cfg.min_level_pixels:
-            return None
-        t_ent, entries, ref_ids, z = t_ent[ok], entries[ok], ref_ids[ok], Y[ok, 2]
-        tgt_ids = pt.primitive_ids[t_ent]
-        shape_t = self._shape_model(pt, t_ent, rays_all[pt.pixels[t_ent]])
-        Xt, _, ok_t = shape_t.points(th_t[tgt_ids])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d = np.log(z) - np.log(Xt[:, 2])
-        ok = ok_t & np.isfinite(d)
-        if np.count_nonzero(ok) >= cfg.min_level_pixels:
-            ok &= np.abs(d - np.median(d[ok])) <= cfg.kf_depth_link_tolerance
-        # the factor joins all its shape variables in one dense block: keep the
-        # correspondences of the primitives with the most of them on both sides
-        m = cfg.kf_depth_link_primitives
-        for ids_side in (ref_ids, tgt_ids):
-            cnt = np.bincount(ids_side[ok], minlength=ids_side.max() + 1)
-            if np.count_nonzero(cnt) > m:
-                top = np.argsort(-cnt, kind="stable")[:m]
-                ok &= np.isin(ids_side, top)
-        if np.count_nonzero(ok) < cfg.min_level_pixels:
-            return None
-        entries, t_ent = entries[ok], t_ent[ok]
-        return DepthConsistencyFactor(
-            kf_pose_key(ref.index), kf_pose_key(tgt.index),
-            [kf_scale_key(ref.index, i) for i in range(len(pr))],
-            self._shape_model(pr, entries, rays_all[pr.pixels[entries]]), ref_ids[ok],
-            [kf_scale_key(tgt.index, i) for i in range(len(pt))],
-            self._shape_model(pt, t_ent, rays_all[pt.pixels[t_ent]]), tgt_ids[ok],
-            cfg.kf_depth_link_sigma, cfg.photometric.min_depth)
-
     def _group(self, ref: MapKeyframe, tgt_key: int, tgt_image: np.ndarray,
                tgt_camera: PinholeCamera, bkey: int) -> Optional[PhotometricFactorGroup]:
         """Photometric factors of ref's primitives observed in a target (map level)."""
@@ -269,41 +224,19 @@ class WindowMapper:
         keys = [kf_scale_key(ref.index, i) for i in prim_index]
         return PhotometricFactorGroup(kf_pose_key(ref.index), tgt_key, keys, shape, offsets,
                                       ref_int, tgt_image, tgt_camera, bkey,
-                                      cfg.photometric, n_pixels=counts.astype(float),
+                                      cfg.tracker.photometric, n_pixels=counts.astype(float),
                                       chunk=max(1, cfg.map_chunk // shape.dim))
-
-    def _covisible(self, older: Sequence[MapKeyframe], new: MapKeyframe) -> List[MapKeyframe]:
-        """Up to ``covisible_links`` of the ``older`` keyframes still in the
-        window whose primitive pixels project into ``new``'s image for at
-        least ``covisible_min_overlap`` of them, the largest overlap first."""
-        cfg = self.config
-        if cfg.covisible_links <= 0 or not older:
-            return []
-        est = self.estimate()
-        stride = decision_stride(new.keyframe.camera.width, cfg.tracker.decision_width)
-        scored = []
-        for kf in older[-cfg.window:]:
-            if not est.exists(kf_pose_key(kf.index)):
-                continue
-            frac = valid_fraction(kf.keyframe, new.keyframe.T_world_kf,
-                                  cfg.photometric.min_depth, stride)
-            if frac >= cfg.covisible_min_overlap:
-                scored.append((frac, kf.index, kf))
-        scored.sort(key=lambda x: (-x[0], -x[1]))
-        return [kf for _, _, kf in scored[:cfg.covisible_links]]
 
     def _map_pixels(self, ref: MapKeyframe):
         """Mapping pixels of a keyframe: ``(entries, compact ids, primitive
-        index, reference intensities)``: the map level's pixels (with
-        ``map_pixel_budget`` the selected ones); with ``map_pixel_fraction < 1`` the
+        index, reference intensities)``: the map level's pixels; with ``map_pixel_fraction < 1`` the
         highest-gradient fraction of the map level's pixels (at least
         ``min_level_pixels`` per primitive).  Cached per keyframe (mapping
         changes its scales and pose, never its pixels or image)."""
         cfg = self.config
         if ref.map_pixels is not None:
             return ref.map_pixels[0]
-        data = ref.keyframe.level_data(cfg.map_level, cfg.map_stride, cfg.min_level_pixels,
-                                       cfg.map_selection)
+        data = ref.keyframe.level_data(cfg.map_level, 1, cfg.tracker.min_level_pixels, None)
         out = None
         if data.prim_index.size:
             entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
@@ -321,7 +254,7 @@ class WindowMapper:
                 rank = np.empty(ids.size, dtype=np.int64)
                 starts = np.concatenate([[0], np.cumsum(np.bincount(ids))[:-1]])
                 rank[order] = np.arange(ids.size) - starts[ids[order]]
-                keep = (g >= thr) | (rank < cfg.min_level_pixels)
+                keep = (g >= thr) | (rank < cfg.tracker.min_level_pixels)
                 entries, ids, ref_int = entries[keep], ids[keep], ref_int[keep]
             out = (entries, ids, data.prim_index, ref_int)
         ref.map_pixels = (out,)
@@ -373,100 +306,101 @@ class WindowMapper:
                 segment: int) -> None:
         """One smoother update with the newest keyframe ``kfs[-1]``; raises
         :class:`_UpdateFailed` when gtsam raises."""
-        cfg = self.config
-        lvl = cfg.map_level
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-
-        def stamp(key: int, t: int) -> None:
-            stamps.insert((key, float(t)))
-
-        def add_kf(kf: MapKeyframe) -> None:
-            values.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf))
-            stamp(kf_pose_key(kf.index), kf.index)
-            th = self._shape_values(kf)
-            pw = (np.full(th.shape[0], cfg.scale_prior_weight) if kf.prior_weights is None
-                  else kf.prior_weights)
-            for i in range(th.shape[0]):
-                key = kf_scale_key(kf.index, i)
-                values.insert(key, th[i].copy())
-                stamp(key, kf.index)
-                if self._planar:
-                    graph.add(planar_slope_prior(key, float(th[i, 2]), cfg.planar_slope_sigma,
-                                                 1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
-                else:
-                    graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
-
-        def add_group(group: Optional[PhotometricFactorGroup], bkey: int, b0, t: int) -> int:
-            if group is None:
-                return 0
-            for f in group.factors:
-                graph.add(f)
-            self._groups.append(group)
-            values.insert(bkey, np.asarray(b0, dtype=float))
-            stamp(bkey, t)
-            graph.add(brightness_prior(bkey, cfg.brightness_prior_sigma))
-            return len(group)
-
         new, prev = kfs[-1], kfs[-2]
-        k = new.index
+        batch = _Batch()
         if len(kfs) == 2:
-            add_kf(prev)
-            graph.add(pose_gauge_prior(kf_pose_key(prev.index), prev.keyframe.T_world_kf,
-                                       cfg.gauge_sigma))
-        add_kf(new)
-        n_pair = n_cov = 0
+            self._add_keyframe(batch, prev)
+            batch.graph.add(pose_gauge_prior(kf_pose_key(prev.index), prev.keyframe.T_world_kf,
+                                             GAUGE_SIGMA))
+        self._add_keyframe(batch, new)
+        n_pair = self._link_keyframes(batch, prev, new)
+        sel_new = self._map_pixels(new)
+        n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
+        chosen = self._choose_support(candidates)
+        n_sup = self._add_support(batch, prev, chosen)
+        est, secs = self._solve(batch)
+        self._refresh(est, kfs)
+        self._groups = [g for g in self._groups if est.exists(g.ref_key) and est.exists(g.tgt_key)]
+        self.reports.append({"keyframe": new.index, "segment": segment,
+                             "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
+                             "support_frames": [c.frame for c in chosen],
+                             "primitives_without_pixels": int(n_empty),
+                             "seconds": secs, "keys_in_window": int(est.size())})
+        log.debug("mapping kf %d: %d + %d factors, %.2f s", new.index, n_pair, n_sup, secs)
+
+    def _add_keyframe(self, batch: "_Batch", kf: MapKeyframe) -> None:
+        """A keyframe's pose and shape variables, with the shapes' priors."""
+        cfg = self.config
+        batch.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
+        th = self._shape_values(kf)
+        pw = (np.full(th.shape[0], cfg.scale_prior_weight) if kf.prior_weights is None
+              else kf.prior_weights)
+        for i in range(th.shape[0]):
+            key = kf_scale_key(kf.index, i)
+            batch.insert(key, th[i].copy(), kf.index)
+            if self._planar:
+                batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
+                                                   1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
+            else:
+                batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
+
+    def _add_group(self, batch: "_Batch", group: Optional[PhotometricFactorGroup], bkey: int,
+                   b0, t: int) -> int:
+        """A factor group with its brightness variable and prior; its factor count."""
+        if group is None:
+            return 0
+        for f in group.factors:
+            batch.graph.add(f)
+        self._groups.append(group)
+        batch.insert(bkey, np.asarray(b0, dtype=float), t)
+        batch.graph.add(brightness_prior(bkey, BRIGHTNESS_PRIOR_SIGMA))
+        return len(group)
+
+    def _link_keyframes(self, batch: "_Batch", prev: MapKeyframe, new: MapKeyframe) -> int:
+        """Photometric factors of the new keyframe pair, both directions."""
+        lvl = self.config.map_level
+        n = 0
         for ref, tgt in ((prev, new), (new, prev)):
             bkey = kf_brightness_key(ref.index, tgt.index)
             g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
                             tgt.keyframe.pyramid.cameras[lvl], bkey)
-            n_pair += add_group(g, bkey, np.zeros(2), k)
-        for old in self._covisible(kfs[:-2], new):
-            for ref, tgt in ((old, new), (new, old)):
-                bkey = kf_brightness_key(ref.index, tgt.index)
-                g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
-                                tgt.keyframe.pyramid.cameras[lvl], bkey)
-                n_cov += add_group(g, bkey, np.zeros(2), k)
-        sel_new = self._map_pixels(new)
-        n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
-        link = self.depth_link(prev, new)
-        if link is not None:
-            graph.add(link.factor)
-        # supporting frames of the previous keyframe: evenly spaced among its tracked frames
-        chosen = []
-        if cfg.n_support > 0 and candidates:
+            n += self._add_group(batch, g, bkey, np.zeros(2), new.index)
+        return n
+
+    def _choose_support(self, candidates: Sequence[SupportCandidate]) -> List[SupportCandidate]:
+        """Supporting frames of the previous keyframe: evenly spaced among its tracked frames."""
+        n_support = self.config.n_support
+        if n_support > 0 and candidates:
             pick = np.unique(np.round(np.linspace(0, len(candidates) - 1,
-                                                  min(cfg.n_support, len(candidates)))).astype(int))
-            chosen = [candidates[i] for i in pick]
+                                                  min(n_support, len(candidates)))).astype(int))
+            return [candidates[i] for i in pick]
+        return []
+
+    def _add_support(self, batch: "_Batch", prev: MapKeyframe,
+                     chosen: Sequence[SupportCandidate]) -> int:
+        """The supporting frames' poses and their factors from ``prev``."""
+        lvl = self.config.map_level
         n_sup = 0
         for c in chosen:
             pkey = support_pose_key(c.frame)
             pyr = prev.keyframe.frame_pyramid(c.image, lvl + 1)
             T_w = prev.keyframe.T_world_kf @ c.T_kf_frame
-            values.insert(pkey, gtsam.Pose3(T_w))
-            stamp(pkey, prev.index)
+            batch.insert(pkey, gtsam.Pose3(T_w), prev.index)
             bkey = _support_brightness_key(c.frame)
             g = self._group(prev, pkey, pyr.images[lvl], pyr.cameras[lvl], bkey)
-            n_sup += add_group(g, bkey, c.brightness, prev.index)
+            n_sup += self._add_group(batch, g, bkey, c.brightness, prev.index)
             self._support_frames.append(c.frame)
+        return n_sup
+
+    def _solve(self, batch: "_Batch"):
+        """``(estimate, seconds)`` of the smoother update with ``batch``."""
         t = time.perf_counter()
         try:
-            self.smoother.update(graph, values, stamps)
+            self.smoother.update(batch.graph, batch.values, batch.stamps)
         except RuntimeError as exc:       # e.g. gtsam.IndeterminantLinearSystemException
             raise _UpdateFailed(gtsam_error_line(exc)) from exc
         est = self.smoother.calculateEstimate()
-        secs = time.perf_counter() - t
-        self._refresh(est, kfs)
-        self._groups = [g for g in self._groups if est.exists(g.ref_key) and est.exists(g.tgt_key)]
-        self.reports.append({"keyframe": k, "segment": segment,
-                             "factors_keyframe_pairs": n_pair, "factors_covisible": n_cov,
-                             "factors_support": n_sup,
-                             "depth_link_correspondences": 0 if link is None else link.n,
-                             "support_frames": [c.frame for c in chosen],
-                             "primitives_without_pixels": int(n_empty),
-                             "seconds": secs, "keys_in_window": int(est.size())})
-        log.debug("mapping kf %d: %d + %d factors, %.2f s", k, n_pair, n_sup, secs)
+        return est, time.perf_counter() - t
 
     def _refresh(self, est: gtsam.Values, kfs: List[MapKeyframe]) -> None:
         """Window keyframes and supporting frames from the smoother's estimate."""
@@ -492,6 +426,20 @@ class WindowMapper:
                 T = est.atPose3(key).matrix()
                 if np.all(np.isfinite(T)):
                     self.support_pose[f] = T
+
+
+class _Batch:
+    """The new factors, values and key timestamps of one smoother update."""
+
+    def __init__(self) -> None:
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.values = gtsam.Values()
+        self.stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+
+    def insert(self, key: int, value, t: int) -> None:
+        """A new variable and its smoother timestamp ``t`` (a keyframe index)."""
+        self.values.insert(key, value)
+        self.stamps.insert((key, float(t)))
 
 
 class _UpdateFailed(RuntimeError):

@@ -5,9 +5,11 @@ One thread, one call per frame (:meth:`Odometry.track`).  The states and
 their rules (initialisation, tracking with its retries, relocalisation,
 re-initialisation, keyframe decisions, the trajectory that
 :meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
-are :class:`~spgeo.vo.config.OdometryConfig`'s.  The initialisation stage is
-:class:`spgeo.vo.initialisation.InitialisationStage` (a base class): a keyframe
-pair without parallax never initialises a map (:attr:`Odometry.init_failure`).  Mapping is
+are :class:`~spgeo.vo.config.OdometryConfig`'s.  The initialisation is
+:class:`spgeo.vo.initialisation.Initialiser`'s (an owned object that returns an
+:class:`~spgeo.vo.initialisation.InitDecision` which ``Odometry`` applies): a
+keyframe pair without parallax never initialises a map
+(:attr:`Odometry.init_failure`).  Mapping is
 :class:`spgeo.vo.mapping.WindowMapper`'s (fixed-lag smoother over the last
 ``window`` keyframes and their supporting frames).
 
@@ -35,11 +37,10 @@ from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
-from .initialisation import InitialisationStage
+from .initialisation import FAILED, START, InitDecision, Initialiser
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
-from .shape_propagation import propagate_shapes
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
@@ -47,8 +48,11 @@ __all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
 
+#: splat size (pixels) when rendering the window into a new keyframe
+RENDER_SPLAT = 2
 
-class Odometry(InitialisationStage):
+
+class Odometry:
     """Streaming monocular VO (module docstring).
 
     Args:
@@ -74,11 +78,7 @@ class Odometry(InitialisationStage):
         # frame -> (kf, T_kf_frame, the keyframe's median depth when it was tracked)
         self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
         self._candidates: List[SupportCandidate] = []
-        self._init_buffer: List[tuple] = []   # (frame index, image) before keyframe 1
-        self._init_retry_gap = 0    # a lost frame may end the wait from this gap on
-        self._init_wait_until = 0   # past init_max_gap, after a pair without parallax
-        self._init_failure: Optional[str] = None   # why the last keyframe-1 SfM was refused
-        self._init_wait_note: Optional[str] = None  # why the current wait goes on
+        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
         self._segment = 0
         self._seg_kfs: List[int] = []          # keyframes of the current segment
         self._last_good: Optional[np.ndarray] = None
@@ -87,13 +87,21 @@ class Odometry(InitialisationStage):
         self._n_lost = 0
         self._mapper = WindowMapper(config)
         self._retry = FeatureRetry(camera, config.feature_retry)
-        self._sfm_reports: List[dict] = []
         self._scale_checks: List[dict] = []
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
         """Process the next frame (a :class:`~spgeo.frame.Frame`; its depth is
         read only by a depth-using front-end).
+
+        Returns the frame's online :class:`FrameResult` (also in :attr:`frames`),
+        final except for one case: a frame returned while its segment waits for
+        keyframe 1 (``INIT`` / ``LOST``, buffered by the
+        :class:`~spgeo.vo.initialisation.Initialiser`) gets its ``status``
+        (``INIT`` or ``LOST``) and ``T_world_cam`` rewritten once, in place, by
+        the call that creates keyframe 1 (it is re-tracked against the solved
+        keyframe 0); nothing else changes.  The trajectory's authority is
+        :meth:`result` (it follows the map's smoothed poses and scales).
 
         Raises:
             TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
@@ -186,10 +194,6 @@ class Odometry(InitialisationStage):
     def smoother(self, value) -> None:
         self._mapper.smoother = value
 
-    def _depth_link(self, ref: MapKeyframe, tgt: MapKeyframe):
-        """:meth:`WindowMapper.depth_link` of two keyframes (current estimates)."""
-        return self._mapper.depth_link(ref, tgt)
-
     @property
     def keyframes(self) -> List[Keyframe]:
         """All keyframes in creation order (the window's at their smoothed state)."""
@@ -211,7 +215,8 @@ class Odometry(InitialisationStage):
     def init_failure(self) -> Optional[str]:
         """Why the current segment is not initialised (None when it is, or
         before its second frame)."""
-        return None if self.initialised else (self._init_failure or self._init_wait_note)
+        init = self._initialiser
+        return None if self.initialised else (init.failure or init.wait_note)
 
     def keyframes_with_depth(self) -> List[int]:
         """Indices (as in :attr:`keyframes`) of the keyframes whose primitives
@@ -247,7 +252,7 @@ class Odometry(InitialisationStage):
             "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
-            "sfm": self._sfm_reports,
+            "sfm": self._initialiser.reports,
             "scale_checks": self._scale_checks,
             "mapping": self._mapper.reports,
             "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
@@ -288,9 +293,7 @@ class Odometry(InitialisationStage):
         self._kf_order.append(k)
         self._seg_kfs = [k]
         self._candidates.clear()
-        self._init_buffer.clear()
-        self._init_retry_gap = self._init_wait_until = 0
-        self._init_failure = self._init_wait_note = None
+        self._initialiser.reset()
         self._last_good, self._prev_good = np.array(T_world, dtype=float), None
         self._brightness = np.zeros(2)
         self._n_lost = 0
@@ -318,6 +321,51 @@ class Odometry(InitialisationStage):
             if tr.ok:
                 break
         return tr
+
+    def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        """A frame of a segment with only keyframe 0: tracked against it, then
+        the :class:`Initialiser`'s decision applied."""
+        kf0 = self._kfs[self._seg_kfs[0]]
+        t = time.perf_counter()
+        tr = self._track_against(kf0.keyframe, frame.image)
+        timings["track"] = time.perf_counter() - t
+        if tr.ok:
+            self._accept(tr)
+        self._n_lost = 0 if tr.ok else self._n_lost + 1
+        dec = self._initialiser.step(frame.image, idx, kf0, tr, self._brightness, self._segment,
+                                     timings)
+        if dec.action == START:
+            return self._start_map(frame, idx, kf0, dec, tr, timings)
+        if dec.action == FAILED:
+            self._n_lost += 1
+            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(),
+                               FrameStatus.LOST, track=tr)
+        if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
+            self._rel[idx] = (kf0.index, dec.T_kf0_frame, kf0.keyframe.median_depth)
+        pose = tr.T_world_frame if tr.ok else self._last_good
+        return FrameResult(idx, float(frame.timestamp), pose.copy(),
+                           FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
+
+    def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
+                   tr: TrackResult, timings: Dict[str, float]) -> FrameResult:
+        """Apply a ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
+        re-tracked frames' results their poses and statuses (:meth:`track`), and
+        this frame becomes keyframe 1."""
+        kf0.keyframe = dec.keyframe0
+        for r in dec.retracked:
+            res = self._frames[r.frame]
+            res.T_world_cam = r.T_world_frame
+            if r.ok:
+                res.status = FrameStatus.INIT
+                self._rel[r.frame] = (kf0.index, r.T_kf0_frame, kf0.keyframe.median_depth)
+                self._candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
+                                                         r.brightness))
+            else:
+                res.status = FrameStatus.LOST
+                self._rel.pop(r.frame, None)
+        self._last_good, self._prev_good = dec.T_world_kf1.copy(), dec.T_world_last.copy()
+        self._n_lost = 0
+        return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
 
     def _accept(self, tr: TrackResult) -> None:
         self._prev_good, self._last_good = self._last_good, tr.T_world_frame.copy()
@@ -403,10 +451,8 @@ class Odometry(InitialisationStage):
         prims = self._primify(frame)
         window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
-                                  prims.camera, T_world, splat=cfg.render_splat,
+                                  prims.camera, T_world, splat=RENDER_SPLAT,
                                   tolerance=cfg.render_tolerance)
-        if cfg.propagate_shape and not self.frontend.uses_depth:
-            prims = propagate_shapes(prims, depth, cfg.propagate_min_coverage).primitives
         try:
             init = init_scales_from_render(prims, depth)
         except ValueError as exc:

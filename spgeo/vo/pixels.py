@@ -37,6 +37,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from ..configs import config_repr
 from ..images import scharr_gradients
 
 __all__ = ["PixelSelectionConfig", "PixelSelection", "select_pixels", "gradient_magnitude"]
@@ -45,6 +46,7 @@ __all__ = ["PixelSelectionConfig", "PixelSelection", "select_pixels", "gradient_
 COARSE_MODES = ("select", "all")
 
 
+@config_repr
 @dataclass(frozen=True)
 class PixelSelectionConfig:
     """Options of :func:`select_pixels`.

@@ -37,8 +37,9 @@ class FrameResult:
         T_world_cam: 4x4 camera-to-world online pose (world = the first
             keyframe's camera); the last good pose for a ``LOST`` frame.
         status: a :class:`~spgeo.trajectory.FrameStatus` (equal to its
-            string): ``INIT`` (before keyframe 1 of a map segment; refined
-            once that keyframe exists), ``OK``, ``KEYFRAME``, ``LOST``,
+            string): ``INIT`` (before keyframe 1 of a map segment; with
+            ``T_world_cam`` rewritten, or turned ``LOST``, once that keyframe
+            exists: :meth:`spgeo.vo.Odometry.track`), ``OK``, ``KEYFRAME``, ``LOST``,
             ``RELOCALISED`` (first tracked frame after a loss, or tracked
             against an older keyframe), ``REINIT`` (started a new map segment).
         keyframe_index: the keyframe's index if this frame became one.

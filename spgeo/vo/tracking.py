@@ -1,8 +1,8 @@
 """Pose-only photometric tracking of a frame against a keyframe's primitives.
 
 The VO front-end (docs/design.md §5) aligns every new frame to the latest keyframe
-(:class:`~spgeo.vo.keyframe.Keyframe`: batched pixels per level, subsampling,
-pixel selection) with the keyframe's primitive scales held fixed, minimising
+(:class:`~spgeo.vo.keyframe.Keyframe`: batched pixels per level, pixel
+selection) with the keyframe's primitive scales held fixed, minimising
 the factor graph's photometric cost (:class:`~spgeo.vo.tracking_cost.TrackingCost`,
 whose module docstring states it) coarse to fine.  At each level the 8x8
 normal equations are solved with Levenberg-Marquardt damping; a step is taken
@@ -42,6 +42,18 @@ __all__ = ["TrackerConfig", "Keyframe", "TrackResult", "track_frame", "valid_fra
            "constant_velocity_guess", "TrackingCost"]
 
 log = logging.getLogger(__name__)
+
+#: initial LM damping (multiplies ``diag(H)``)
+LM_LAMBDA_INITIAL = 1e-4
+#: damping multiplier on a rejected step / divisor on an accepted one
+LM_LAMBDA_FACTOR = 10.0
+#: a level stops when the damping exceeds this (no step decreases the cost any more)
+LM_LAMBDA_MAX = 1e5
+#: a level stops when a step (accepted or rejected) turns by less than this (radians;
+#: 0.003 deg) and moves by less than ``TRANSLATION_TOL``
+ROTATION_TOL = 5e-5
+#: translation step threshold as a fraction of the keyframe's median depth (0.1 mm at 2 m)
+TRANSLATION_TOL = 5e-5
 
 
 @dataclass
@@ -131,7 +143,7 @@ def _levenberg_marquardt(fn: TrackingCost, T: np.ndarray, ab: np.ndarray, cur: d
     linearised after an accepted last step), tried steps, accepted steps,
     final damping)``."""
     nd = fn.dim
-    lam = config.lm_lambda_initial
+    lam = LM_LAMBDA_INITIAL
     its = accepted = 0
     while its < max_it and np.isfinite(cur["cost"]):
         H, g = cur["H"], cur["g"]
@@ -143,27 +155,27 @@ def _levenberg_marquardt(fn: TrackingCost, T: np.ndarray, ab: np.ndarray, cur: d
         except np.linalg.LinAlgError:
             delta = np.full(nd, np.nan)
         if not np.all(np.isfinite(delta)):
-            lam *= config.lm_lambda_factor
-            if lam > config.lm_lambda_max:
+            lam *= LM_LAMBDA_FACTOR
+            if lam > LM_LAMBDA_MAX:
                 break
             continue
         T_new = _retract(T, delta[:6])
         ab_new = ab + delta[6:] if config.brightness else ab
         new = fn.evaluate(T_new, ab_new, jacobians=False)
-        small = (np.linalg.norm(delta[:3]) < config.rotation_tol
+        small = (np.linalg.norm(delta[:3]) < ROTATION_TOL
                  and np.linalg.norm(delta[3:6]) < tr_tol)
         if np.isfinite(new["cost"]) and new["cost"] < cur["cost"]:
             rel = (cur["cost"] - new["cost"]) / max(cur["cost"], 1e-300)
             T, ab, cur = T_new, ab_new, new
             accepted += 1
-            lam = max(lam / config.lm_lambda_factor, 1e-12)
+            lam = max(lam / LM_LAMBDA_FACTOR, 1e-12)
             if rel < config.relative_cost_tol or small or its >= max_it:
                 break
             fn.linearise(cur)
         else:
             # a rejected step that was already negligible: converged
-            lam *= config.lm_lambda_factor
-            if small or lam > config.lm_lambda_max:
+            lam *= LM_LAMBDA_FACTOR
+            if small or lam > LM_LAMBDA_MAX:
                 break
     return T, ab, cur, its, accepted, lam
 
@@ -261,12 +273,52 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
     if not config.brightness:
         ab = np.zeros(2)
     pyr = keyframe.frame_pyramid(image, config.levels)
-    n_levels = len(pyr)
     timings: Dict[str, float] = {"prepare": time.perf_counter() - t_start}
+    tr_tol = TRANSLATION_TOL * keyframe.median_depth
+    T, ab, final, final_cost_fn, iterations, levels, report = _coarse_to_fine(
+        keyframe, pyr, T, ab, config, tr_tol, timings)
+
+    # ---- assessment on the decision pixels
+    reason: Optional[str] = None
+    finite = bool(np.all(np.isfinite(T)) and np.all(np.isfinite(ab)))
+    dec = decision_stride(keyframe.camera.width, config.decision_width)
+    rel_cost, vfrac, decision_steps = float("nan"), 0.0, 0
+    if final is None:
+        reason = "no_pixels"
+        cost = photo = float("nan")
+        if finite:
+            vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, dec)
+    else:
+        cost, photo = float(final["cost"]), float(final["photometric_cost"])
+        if finite:
+            t0 = time.perf_counter()
+            T, ab, rel_cost, vfrac, decision_steps = _decision_quantities(
+                keyframe, pyr, dec, T, ab, config, final, final_cost_fn, tr_tol)
+
+            timings["decision"] = time.perf_counter() - t0
+    if reason is None:
+        reason = _lost_reason(finite, cost, vfrac, rel_cost, reference_cost, config)
+    if not finite:
+        vfrac = 0.0
+        T, ab = check_pose(np.asarray(T_world_init, dtype=np.float64)).copy(), np.zeros(2)
+    status = "ok" if reason is None else "lost"
+    timings["total"] = time.perf_counter() - t_start
+    if reason is not None:
+        log.info("tracking lost (%s): valid fraction %.2f, relative cost %.3g",
+                 reason, vfrac, rel_cost)
+    return TrackResult(T, ab.copy(), cost, photo, float(rel_cost), vfrac, iterations, levels,
+                       status, reason, timings, report, dec, decision_steps)
+
+
+def _coarse_to_fine(keyframe: Keyframe, pyr: Pyramid, T: np.ndarray, ab: np.ndarray,
+                    config: TrackerConfig, tr_tol: float, timings: Dict[str, float]):
+    """LM at every level of ``pyr``, coarsest first: ``(T, ab, final evaluation
+    (None without pixels), its TrackingCost, iterations, levels, report)``;
+    adds ``timings["level<l>"]``."""
+    n_levels = len(pyr)
     report: List[dict] = []
     iterations: List[int] = []
     levels: List[int] = []
-    tr_tol = config.translation_tol * keyframe.median_depth
     final: Optional[dict] = None
     final_cost_fn: Optional[TrackingCost] = None
     for lvl in reversed(range(n_levels)):
@@ -292,42 +344,19 @@ def track_frame(keyframe: Keyframe, image: np.ndarray, T_world_init: np.ndarray,
                        "valid_fraction": cur["valid_fraction"], "seconds": dt})
         log.debug("tracking level %d: %d px, %d its (%d accepted), cost %.4g -> %.4g",
                   lvl, fn.n_pixels, its, accepted, cost0, cur["cost"])
+    return T, ab, final, final_cost_fn, iterations, levels, report
 
-    # ---- assessment on the decision pixels
-    reason: Optional[str] = None
-    finite = bool(np.all(np.isfinite(T)) and np.all(np.isfinite(ab)))
-    dec = decision_stride(keyframe.camera.width, config.decision_width)
-    rel_cost, vfrac, decision_steps = float("nan"), 0.0, 0
-    if final is None:
-        reason = "no_pixels"
-        cost = photo = float("nan")
-        if finite:
-            vfrac = valid_fraction(keyframe, T, config.photometric.min_depth, dec)
-    else:
-        cost, photo = float(final["cost"]), float(final["photometric_cost"])
-        if finite:
-            t0 = time.perf_counter()
-            T, ab, rel_cost, vfrac, decision_steps = _decision_quantities(
-                keyframe, pyr, dec, T, ab, config, final, final_cost_fn, tr_tol)
 
-            timings["decision"] = time.perf_counter() - t0
-    if reason is None:
-        if not (finite and np.isfinite(cost)):
-            reason = "diverged"
-        elif vfrac < config.min_valid_fraction:
-            reason = "low_overlap"
-        elif not rel_cost <= config.max_relative_cost:
-            reason = "high_cost"
-        elif (reference_cost is not None and np.isfinite(reference_cost)
-              and cost > config.max_cost_increase * float(reference_cost)):
-            reason = "cost_increase"
-    if not finite:
-        vfrac = 0.0
-        T, ab = check_pose(np.asarray(T_world_init, dtype=np.float64)).copy(), np.zeros(2)
-    status = "ok" if reason is None else "lost"
-    timings["total"] = time.perf_counter() - t_start
-    if reason is not None:
-        log.info("tracking lost (%s): valid fraction %.2f, relative cost %.3g",
-                 reason, vfrac, rel_cost)
-    return TrackResult(T, ab.copy(), cost, photo, float(rel_cost), vfrac, iterations, levels,
-                       status, reason, timings, report, dec, decision_steps)
+def _lost_reason(finite: bool, cost: float, vfrac: float, rel_cost: float,
+                 reference_cost: Optional[float], config: TrackerConfig) -> Optional[str]:
+    """Why a tracked frame is ``"lost"`` (:class:`TrackResult`), or None."""
+    if not (finite and np.isfinite(cost)):
+        return "diverged"
+    if vfrac < config.min_valid_fraction:
+        return "low_overlap"
+    if not rel_cost <= config.max_relative_cost:
+        return "high_cost"
+    if (reference_cost is not None and np.isfinite(reference_cost)
+            and cost > config.max_cost_increase * float(reference_cost)):
+        return "cost_increase"
+    return None

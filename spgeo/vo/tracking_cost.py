@@ -12,9 +12,8 @@ primitive ``i`` of the keyframe the
 target, constant penalty rows for points behind the frame's camera), built at
 each pyramid level exactly as :func:`spgeo.sfm_graph.build_graph` builds it,
 on the pixels of :meth:`spgeo.vo.keyframe.Keyframe.level_data` and the frame's
-level-``l`` image and camera.  Optionally a prior ``0.5 |(a, b) / sigma|^2`` on
-the brightness (the graph's :func:`spgeo.factors.priors.brightness_prior`) is
-added.
+level-``l`` image and camera.  The brightness has no prior
+(``TrackerConfig``'s docstring says why).
 
 Instead of one gtsam factor per primitive, all primitives' pixels are
 concatenated into one batch; residuals and the 8 columns of the Jacobian
@@ -42,10 +41,10 @@ __all__ = ["TrackingCost"]
 class TrackingCost:
     """The batched photometric cost of one pyramid level.
 
-    ``cost = sum_i 0.5 |e_i|^2 (+ 0.5 |(a, b) / sigma|^2)``: the sum of the
-    errors of the :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor`
-    of every keyframe primitive (built as :func:`spgeo.sfm_graph.build_graph` builds
-    them at this level) plus the optional brightness prior.
+    ``cost = sum_i 0.5 |e_i|^2``: the sum of the errors of the
+    :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` of every
+    keyframe primitive (built as :func:`spgeo.sfm_graph.build_graph` builds
+    them at this level).
 
     Args:
         keyframe: the :class:`Keyframe`.
@@ -54,16 +53,17 @@ class TrackingCost:
         camera: the camera of ``image``.
         level: pyramid level.
         config: :class:`TrackerConfig` (photometric options, brightness,
-            prior, subsampling, ``min_level_pixels``).
+            ``min_level_pixels``).
         selection: pixel selection (:meth:`Keyframe.level_data`; default the
             keyframe's own).
-        subsample: lattice stride on the level (default ``config.subsample``).
+        subsample: extra lattice stride on the level (default 1: every pixel
+            of the level's lattice).
     """
 
     def __init__(self, keyframe: Keyframe, image: np.ndarray, camera: PinholeCamera,
                  level: int, config: TrackerConfig = TrackerConfig(),
                  selection: Union[PixelSelectionConfig, None, str] = "keyframe",
-                 subsample: Optional[int] = None) -> None:
+                 subsample: int = 1) -> None:
         img = np.asarray(image)
         if img.ndim != 2 or img.shape != camera.shape:
             raise ValueError(f"TrackingCost: image must be (H, W) = {camera.shape}, got {img.shape}")
@@ -71,8 +71,6 @@ class TrackingCost:
         self.camera = camera
         self.level = int(level)
         self.config = config
-        if subsample is None:
-            subsample = config.subsample[min(self.level, len(config.subsample) - 1)]
         self.data = keyframe.level_data(self.level, int(subsample), config.min_level_pixels,
                                         selection)
         self.T_world_kf = keyframe.T_world_kf
@@ -80,10 +78,6 @@ class TrackingCost:
         pc = config.photometric
         self._pen_row = float(robust_weights(np.array([pc.behind_penalty]), pc)[0]
                               * pc.behind_penalty)
-        if config.brightness and config.brightness_prior_sigma is not None:
-            self._prior_info = 1.0 / np.asarray(config.brightness_prior_sigma, float) ** 2
-        else:
-            self._prior_info = None
 
     @property
     def n_pixels(self) -> int:
@@ -128,10 +122,10 @@ class TrackingCost:
         Returns a dict with ``e`` (K,) residual rows (the factors' rows,
         concatenated), ``r`` photometric errors (0 where invalid), ``valid``,
         ``behind``, ``ids`` (compact primitive id per row), ``photometric_cost``,
-        ``prior_cost``, ``cost`` (their sum), ``valid_fraction`` (rows valid in
-        the target); with ``jacobians``: ``J`` (K, 6|8) (frame pose in gtsam's
-        tangent ``(omega, v)``, then ``(a, b)``), ``H = J^T J (+ prior)`` and
-        ``g = J^T e (+ prior)``, the gradient of ``cost`` as the factors'
+        ``prior_cost`` (0: no brightness prior), ``cost`` (their sum),
+        ``valid_fraction`` (rows valid in the target); with ``jacobians``:
+        ``J`` (K, 6|8) (frame pose in gtsam's tangent ``(omega, v)``, then
+        ``(a, b)``), ``H = J^T J`` and ``g = J^T e``, the gradient of ``cost`` as the factors'
         linearisation gives it (weights held fixed: IRLS).
         """
         out = self._residuals(T_world_frame, brightness)
@@ -142,11 +136,8 @@ class TrackingCost:
     def _residuals(self, T_world_frame: np.ndarray, brightness: Sequence[float]) -> dict:
         """Residual pass: the factors' compiled kernel
         (:func:`spgeo.factors.photometric.residual_pass`), or with
-        ``photometric.backend="numpy"`` the numpy code below (mirrors
+        ``photometric.backend="numpy"`` :meth:`_residuals_numpy` (mirrors
         ``PrimitivePhotometricFactor.evaluate``)."""
-        pc = self.config.photometric
-        d = self.data
-        cam = self.camera
         T_wt = np.asarray(T_world_frame, dtype=np.float64)
         T_wr = self.T_world_kf
         R_wt, R_wr = T_wt[:3, :3], T_wr[:3, :3]
@@ -156,24 +147,31 @@ class TrackingCost:
             a, b = float(brightness[0]), float(brightness[1])
         else:
             a, b = 0.0, 0.0
-        ab = np.array([a, b])
-        prior = 0.0
-        if self._prior_info is not None:
-            prior = 0.5 * float(np.dot(self._prior_info * ab, ab))
-        if kernels.resolve_backend(pc.backend) == "numba":
-            group_pixels = d.n_pixels if pc.normalise == "all" else np.ones(d.n_primitives)
-            res = residual_pass(d.points_t.T, None, np.ascontiguousarray(R), t, self.image, cam,
-                                d.ref_intensity, a, b, pc, d.ids, group_pixels)
-            photo = 0.5 * res["sum_sq"]
-            return {"e": res["e"], "r": res["r"], "valid": res["valid"], "behind": res["behind"],
-                    "ids": d.ids, "photometric_cost": photo, "prior_cost": prior,
-                    "cost": photo + prior,
-                    "valid_fraction": res["n_valid"] / max(d.ids.size, 1),
-                    "_kernel": (res, ab)}
-        Y = R @ d.points_t
+        if kernels.resolve_backend(self.config.photometric.backend) == "numba":
+            return self._residuals_kernel(R, t, a, b)
+        return self._residuals_numpy(R, t, a, b)
+
+    def _residuals_kernel(self, R: np.ndarray, t: np.ndarray, a: float, b: float) -> dict:
+        """:meth:`_residuals` with the compiled kernel."""
+        pc = self.config.photometric
+        d = self.data
+        group_pixels = d.n_pixels if pc.normalise == "all" else np.ones(d.n_primitives)
+        res = residual_pass(d.points_t.T, None, np.ascontiguousarray(R), t, self.image,
+                            self.camera, d.ref_intensity, a, b, pc, d.ids, group_pixels)
+        photo = 0.5 * res["sum_sq"]
+        return {"e": res["e"], "r": res["r"], "valid": res["valid"], "behind": res["behind"],
+                "ids": d.ids, "photometric_cost": photo, "prior_cost": 0.0, "cost": photo,
+                "valid_fraction": res["n_valid"] / max(d.ids.size, 1),
+                "_kernel": (res, np.array([a, b]))}
+
+    def _project(self, R: np.ndarray, t: np.ndarray):
+        """``(Y, inv_z, u, v, behind, any_behind)`` of the level's points in the
+        frame (``inv_z`` 0 and ``u`` -1 behind the camera)."""
+        cam = self.camera
+        Y = R @ self.data.points_t
         Y += t[:, None]
         Yx, Yy, z = Y[0], Y[1], Y[2]
-        behind = z <= pc.min_depth
+        behind = z <= self.config.photometric.min_depth
         valid = ~behind
         any_behind = bool(behind.any())
         if any_behind:
@@ -184,13 +182,16 @@ class TrackingCost:
         if any_behind:
             u[behind] = -1.0
         v = cam.fy * Yy * inv_z + cam.cy
-        # bilinear sample + exact interpolant derivatives (as the factor's
-        # sampler; rows outside are left unzeroed: their weight is 0)
+        return Y, inv_z, u, v, behind, any_behind
+
+    def _sample(self, u: np.ndarray, v: np.ndarray):
+        """Bilinear sample + exact interpolant derivatives (as the factor's
+        sampler; rows outside are left unzeroed: their weight is 0):
+        ``(inside, I_t, d0, d1, bot - top, av)``."""
         img = self.image
         h, w = img.shape
         with np.errstate(invalid="ignore"):
             inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-        valid &= inside
         all_inside = bool(inside.all())
         uc = u if all_inside else np.where(inside, u, 0.0)
         vc = v if all_inside else np.where(inside, v, 0.0)
@@ -210,6 +211,16 @@ class TrackingCost:
         top = p00 + d0 * au
         bot = p10 + d1 * au
         I_t = top + (bot - top) * av
+        return inside, I_t, d0, d1, bot - top, av
+
+    def _residuals_numpy(self, R: np.ndarray, t: np.ndarray, a: float, b: float) -> dict:
+        """:meth:`_residuals` in numpy."""
+        pc = self.config.photometric
+        d = self.data
+        Y, inv_z, u, v, behind, any_behind = self._project(R, t)
+        inside, I_t, d0, d1, gv, av = self._sample(u, v)
+        valid = ~behind
+        valid &= inside
         ea = np.exp(-a)
         r = ea * I_t + b - d.ref_intensity
         scale = self._scale(valid | behind)
@@ -219,10 +230,9 @@ class TrackingCost:
             e = np.where(behind, scale * self._pen_row, e)
         photo = 0.5 * float(np.einsum("i,i->", e, e))
         return {"e": e, "r": np.where(valid, r, 0.0), "valid": valid, "behind": behind,
-                "ids": d.ids, "photometric_cost": photo, "prior_cost": prior,
-                "cost": photo + prior,
+                "ids": d.ids, "photometric_cost": photo, "prior_cost": 0.0, "cost": photo,
                 "valid_fraction": float(np.count_nonzero(valid)) / max(valid.size, 1),
-                "_lin": (Y, inv_z, w_, ea, I_t, d0, d1, bot - top, av, ab)}
+                "_lin": (Y, inv_z, w_, ea, I_t, d0, d1, gv, av, np.array([a, b]))}
 
     def linearise(self, out: dict) -> dict:
         """Add ``J``, ``H`` and ``g`` to a dict from :meth:`evaluate`."""
@@ -236,9 +246,6 @@ class TrackingCost:
             J = Jt.T
         else:
             J, H, g, ab = self._linearise_numpy(out)
-        if self._prior_info is not None:
-            H[6:, 6:] += np.diag(self._prior_info)
-            g[6:] += self._prior_info * ab
         out.update(J=J, H=H, g=g)
         return out
 
