@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import shared_data_dir
-from spgeo.evaluation import completion_real as cr
+from spgeo.evaluation.completion import real as cr
 
 
 @pytest.fixture(scope="module")

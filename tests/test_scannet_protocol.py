@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spgeo import synthetic
-from spgeo.evaluation import scannet as S
+from spgeo.evaluation.sfm import scannet as S
 from spgeo.geometry import so3_exp
 
 N_FRAMES, SKIP = 61, 10
