@@ -56,7 +56,7 @@ from ..factors.photometric import PhotometricFactorGroup, PlanarShape, ScaledSha
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
-from ..sfm_graph import gtsam_error_line
+from ..sfm.graph import gtsam_error_line
 from .config import PRIMITIVE_MODELS, OdometryConfig
 from .tracking import Keyframe, decision_stride, valid_fraction
 
@@ -495,4 +495,4 @@ class WindowMapper:
 
 
 class _UpdateFailed(RuntimeError):
-    """A smoother update raised (message: :func:`~spgeo.sfm_graph.gtsam_error_line`)."""
+    """A smoother update raised (message: :func:`~spgeo.sfm.graph.gtsam_error_line`)."""

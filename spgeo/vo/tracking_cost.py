@@ -10,7 +10,7 @@ primitive ``i`` of the keyframe the
 
 (Huber IRLS weight ``rho``, per-primitive mean over the pixels valid in the
 target, constant penalty rows for points behind the frame's camera), built at
-each pyramid level exactly as :func:`spgeo.sfm_graph.build_graph` builds it,
+each pyramid level exactly as :func:`spgeo.sfm.graph.build_graph` builds it,
 on the pixels of :meth:`spgeo.vo.keyframe.Keyframe.level_data` and the frame's
 level-``l`` image and camera.  Optionally a prior ``0.5 |(a, b) / sigma|^2`` on
 the brightness (the graph's :func:`spgeo.factors.priors.brightness_prior`) is
@@ -44,7 +44,7 @@ class TrackingCost:
 
     ``cost = sum_i 0.5 |e_i|^2 (+ 0.5 |(a, b) / sigma|^2)``: the sum of the
     errors of the :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor`
-    of every keyframe primitive (built as :func:`spgeo.sfm_graph.build_graph` builds
+    of every keyframe primitive (built as :func:`spgeo.sfm.graph.build_graph` builds
     them at this level) plus the optional brightness prior.
 
     Args:

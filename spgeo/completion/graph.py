@@ -32,10 +32,10 @@ from scipy import sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
-from .completion_planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, pixel_rays,
-                                apply_planes, primitive_adjacency)
-from .completion_scales import flat_primitives
-from .primitives import PrimitiveSet
+from ..primitives import PrimitiveSet
+from .planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, apply_planes, pixel_rays,
+                     primitive_adjacency)
+from .scales import flat_primitives
 
 __all__ = ["GraphScales", "solve_log_scales_graph", "solve_planes_graph"]
 
@@ -179,7 +179,7 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     with ``shape_model="plane"``).
 
     Each primitive has ``rho_i(u) = alpha_i rho0_i(u) + delta_i . r(u)``
-    (:mod:`spgeo.completion_planes`).  Terms, all relative inverse-depth
+    (:mod:`spgeo.completion.planes`).  Terms, all relative inverse-depth
     residuals with Cauchy losses (scale ``sigma``), IRLS on one sparse
     ``4N x 4N`` system:
 
@@ -194,9 +194,9 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
       knew no normal) use ``prior_flat`` instead when given.
 
     Primitives with NaN ``log_scales`` are left out (``MODE_NONE``); a model
-    failing :func:`spgeo.completion_planes.apply_planes`'s checks keeps the
+    failing :func:`spgeo.completion.planes.apply_planes`'s checks keeps the
     scale-only shape (``MODE_SCALE``).  Returns a
-    :class:`~spgeo.completion_planes.PlaneFit`.
+    :class:`~spgeo.completion.planes.PlaneFit`.
     """
     for name, v in (("sigma", sigma), ("edge_scale", edge_scale)):
         if not (np.isfinite(v) and v > 0):

@@ -23,7 +23,7 @@ depths ``d_k`` inside the primitive:
   of the primitive, or that moves the primitive's depth by more than
   ``max_ratio`` against the scale-only fit, is replaced by the scale-only fit.
 * fewer points (but at least one): only the scale (``delta = 0``), from the
-  caller's log-scales (the median of :mod:`spgeo.completion_scales`).
+  caller's log-scales (the median of :mod:`spgeo.completion.scales`).
 * no point: :func:`lend_across_weak_edges` lets an adjacent supported
   primitive whose shared boundary is a weak image edge (mean absolute colour
   difference of the pixel pairs across it below ``edge_threshold``) lend its
@@ -38,8 +38,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .completion_scales import grouped_median
-from .primitives import PrimitiveSet
+from ..primitives import PrimitiveSet
+from .scales import grouped_median
 
 __all__ = ["PlaneFit", "fit_primitive_planes", "apply_planes", "pixel_rays", "primitive_adjacency", "lend_across_weak_edges",
            "MODE_NONE", "MODE_SCALE", "MODE_PLANE", "MODE_LENT"]

@@ -19,124 +19,31 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Union
 
 import cv2
 import numpy as np
 
 import gtsam
 
-from .camera import PinholeCamera
-from .factors.photometric import PhotometricConfig, PlanarShape
-from .factors.photometric_group import PhotometricFactorGroup
-from .frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
-from .geometry import invert_pose, rotation_angle_deg
-from .images import gaussian_pyramid, to_float_image, to_gray
-from .primitives import PointCloud, PrimitiveSet
-from .sfm_graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
-                        hold_translation_and_shape, pose_key, scale_key)
-from .sfm_init import twoview_initialisation
-from .sfm_orientation import choose_planar_orientations
-from .validation import InputError, check_camera
+from ..camera import PinholeCamera
+from ..factors.photometric import PlanarShape
+from ..factors.photometric_group import PhotometricFactorGroup
+from ..frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from ..geometry import invert_pose, rotation_angle_deg
+from ..images import gaussian_pyramid, to_float_image, to_gray
+from ..primitives import PointCloud, PrimitiveSet
+from ..validation import InputError, check_camera
+from .config import SfMConfig
+from .graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
+                    hold_translation_and_shape, pose_key, scale_key)
+from .init import twoview_initialisation
+from .orientation import choose_planar_orientations
 
-__all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
+__all__ = ["SfMResult", "few_view_sfm"]
 
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class SfMConfig:
-    """Options of :func:`few_view_sfm` (defaults follow the paper where it says).
-
-    Attributes:
-        shape_model: ``"scaled"`` (1-DoF log-scale on the integrated shape, the
-            paper) or ``"planar"`` (3-DoF inverse-depth plane per primitive).
-        levels: pyramid levels (coarse-to-fine; 4 at 320x240 -> 40x30 coarsest).
-        max_iterations: LM iterations per level, coarsest first (the last
-            value repeats for extra levels).
-        relative_error_tol: LM stops at a level when the cost decreases by
-            less than this fraction.
-        photometric: per-pixel robust cost options.
-        brightness: estimate an affine brightness ``(a, b)`` per view.
-        brightness_prior_sigma: prior sigma of ``(a, b)`` towards 0.
-        scale_prior_weight: weight of the prior pulling each log-scale to its
-            initial value (paper: 1e-5); sigma = ``1 / sqrt(weight)``.
-        planar_prior_sigma: prior sigma pulling the plane's slopes ``(a, b)``
-            towards fronto-parallel, or towards the chosen orientation
-            (planar model only).
-        orientation_choice: planar model: after the coarse-to-fine solve from
-            fronto-parallel planes, each primitive takes its front-end shape's
-            orientation or one of the scene's dominant orientations where that
-            lowers its photometric cost at the solved poses, and the finest
-            level is solved once more (:mod:`spgeo.sfm_orientation`; default
-            True; no effect when every front-end shape is flat).
-        ref_prior_sigma: sigma of the gauge prior on the reference pose.
-        reset_scales: start every log-scale at 0 (paper) even if the front-end
-            fitted scales (depth-using front-ends do).
-        init: ``"identity"`` (the paper: poses at identity, log-scales 0) or
-            ``"twoview"`` (default): feature-based relative pose per view
-            (:func:`spgeo.twoview.estimate_relative_pose`, OpenCV SIFT +
-            essential matrix), inliers triangulated into a sparse reference
-            depth that sets each primitive's initial log-scale by robust median;
-            views whose two-view estimate fails start at identity
-            (:func:`spgeo.sfm_init.twoview_initialisation`).
-        rotation_first: when a view starts at identity, at the coarsest
-            level first solve the views' rotations and brightness with translations held at their initial
-            values (a tight translation prior) and scales fixed: rotational
-            alignment does not depend on depth, so the wrong initial depths
-            cannot pull it into a rotation/translation confusion.  Then all
-            variables are freed.
-        min_level_pixels: skip a primitive at a level where it has fewer pixels.
-        min_parallax: a view whose translation is below this fraction of the
-            median depth is flagged ``low_parallax``.
-        min_valid_fraction: a view in which fewer primitive pixels project
-            inside the image is flagged ``low_overlap``.
-        marginals: compute per-primitive scale stds and pose covariances.
-        max_log_scale_std: primitives whose gauge-free log-scale std exceeds
-            this (0.5: a factor 1.65 in depth) are unconstrained by the views
-            (e.g. textureless, or seen by no view): they are listed in
-            ``SfMResult.unconstrained`` and left out of ``depth`` instead of
-            reporting a depth the data does not support (needs ``marginals``).
-        lm_lambda_initial: initial LM damping.
-        chunk: primitives per gtsam factor (default 32; 1 = one factor per
-            primitive and view; the cost and its linear system are the same,
-            :class:`PhotometricFactorGroup`; timings in docs/results.md).
-    """
-
-    shape_model: str = "scaled"
-    levels: int = 4
-    max_iterations: Tuple[int, ...] = (30, 20, 15, 10)
-    relative_error_tol: float = 1e-4
-    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
-    brightness: bool = True
-    brightness_prior_sigma: Tuple[float, float] = (0.3, 0.3)
-    scale_prior_weight: float = 1e-5
-    planar_prior_sigma: float = 2.0
-    orientation_choice: bool = True
-    ref_prior_sigma: float = 1e-6
-    reset_scales: bool = True
-    min_level_pixels: int = 4
-    rotation_first: bool = True
-    init: str = "twoview"
-    min_parallax: float = 0.01
-    min_valid_fraction: float = 0.3
-    marginals: bool = True
-    max_log_scale_std: float = 0.5
-    lm_lambda_initial: float = 1e-3
-    chunk: int = 32
-
-    def __post_init__(self) -> None:
-        if self.shape_model not in ("scaled", "planar"):
-            raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
-        if self.levels < 1 or not self.max_iterations:
-            raise ValueError("levels must be >= 1 and max_iterations non-empty")
-        if self.init not in ("identity", "twoview"):
-            raise ValueError(f"init must be 'identity' or 'twoview', got {self.init!r}")
-        if self.scale_prior_weight <= 0:
-            raise ValueError("scale_prior_weight must be > 0 (it fixes the scale gauge)")
-        if self.chunk < 1:
-            raise ValueError(f"chunk must be >= 1, got {self.chunk}")
 
 
 @dataclass

@@ -14,15 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .twoview_geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .twoview import TwoViewConfig
+from ..camera import PinholeCamera
+from .config import TwoViewConfig
+from .geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
 
 __all__ = [
     "colmap_camera", "quiet_colmap", "opencv_features", "ratio_matches",
