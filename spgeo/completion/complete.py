@@ -292,6 +292,44 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
             primitives of another camera.
     """
     t0 = time.perf_counter()
+    image, sparse, uv, sd = _checked_inputs(image, sparse_depth, camera, config)
+    prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
+    t_fe = time.perf_counter()
+
+    n = len(prims)
+    fit = _fit_scales(image, prims, uv, sd, camera, config)
+    kept, sub = fit.kept, fit.sub
+    t_sc = time.perf_counter()
+
+    dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
+    covered = np.isfinite(dmap)
+    coverage = float(covered.mean())
+    fallback = coverage < config.min_coverage or kept.size == 0
+    t_re = time.perf_counter()
+    if fallback:
+        log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
+                    "back to linear interpolation of the %d sparse points", coverage,
+                    config.min_coverage, sd.size)
+        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
+                                 sparse)
+    else:
+        depth, conf = _filled_map(dmap, covered, prims, uv, sd, camera, config)
+    t_fi = time.perf_counter()
+    res = CompletionResult(
+        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
+        n_points=fit.counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
+        coverage=coverage, method=config.method, frontend=fe_name,
+        uses_depth=uses_depth, fallback=fallback,
+        timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
+                 "fill": t_fi - t_re, "total": time.perf_counter() - t0},
+        solver=fit.solver, modes=fit.modes)
+    log.info("%s", res.summary())
+    return res
+
+
+def _checked_inputs(image, sparse_depth, camera, config):
+    """:func:`complete_depth`'s input checks (its *Raises*); returns ``(image,
+    sparse depth map, (P, 2) pixel coordinates of the P sparse points, their depths)``."""
     check_camera(camera, "complete_depth: camera")
     if not isinstance(config, CompletionConfig):
         raise TypeError(f"config must be a CompletionConfig, got {type(config).__name__}")
@@ -301,10 +339,27 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
     sv, su = np.nonzero(sparse > 0)
     sd = sparse[sv, su]
     uv = np.stack([su, sv], 1).astype(np.float64)
+    return image, sparse, uv, sd
 
-    prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
-    t_fe = time.perf_counter()
 
+@dataclass
+class _ScaleFit:
+    """Output of :func:`_fit_scales`: the kept primitives with their fitted
+    depths (``sub``), their indices in the front-end's set, how each got its
+    depth (``MODE_*``), sparse points per primitive of the set, solver report."""
+
+    sub: PrimitiveSet
+    kept: np.ndarray
+    modes: np.ndarray
+    counts: np.ndarray
+    solver: Dict[str, float]
+
+
+def _fit_scales(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
+                camera: PinholeCamera, config: CompletionConfig) -> _ScaleFit:
+    """Steps 1-2 of the module docstring: log-scales by ``config.method`` (median,
+    joint or graph), primitives without support dropped, then the planar shapes
+    of ``shape_model="plane"``."""
     n = len(prims)
     point, prim, ldep = sparse_point_assignments(prims, uv, camera) if n else (
         np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -330,35 +385,18 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
                                         counts, kept, config, point_w)
     else:
         sub = prims.subset(kept).with_log_scales(s[kept])
-    t_sc = time.perf_counter()
+    return _ScaleFit(sub, kept, modes, counts, solver)
 
-    dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
-    covered = np.isfinite(dmap)
-    coverage = float(covered.mean())
-    fallback = coverage < config.min_coverage or kept.size == 0
-    t_re = time.perf_counter()
-    if fallback:
-        log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
-                    "back to linear interpolation of the %d sparse points", coverage,
-                    config.min_coverage, sd.size)
-        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
-                                 sparse)
-    else:
-        # holes are filled at the primitives' resolution, then the map is resized
-        depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera,
-                                                                    prims.camera))
-        depth, conf = upsample(depth_w, conf_w, camera)
-        if config.residual_clip:
-            depth = residual_correction(depth, uv, sd, config.residual_clip,
-                                        _shapeless_weight(prims, camera))
-    t_fi = time.perf_counter()
-    res = CompletionResult(
-        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
-        n_points=counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
-        coverage=coverage, method=config.method, frontend=fe_name,
-        uses_depth=uses_depth, fallback=fallback,
-        timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
-                 "fill": t_fi - t_re, "total": time.perf_counter() - t0},
-        solver=solver, modes=modes)
-    log.info("%s", res.summary())
-    return res
+
+def _filled_map(dmap: np.ndarray, covered: np.ndarray, prims: PrimitiveSet, uv: np.ndarray,
+                sd: np.ndarray, camera: PinholeCamera, config: CompletionConfig):
+    """Steps 4 and 6 of the module docstring: ``(depth, confidence)`` at the
+    input resolution from the rendered map ``dmap`` (finite where ``covered``):
+    holes filled at the primitives' resolution, resized, residual correction."""
+    # holes are filled at the primitives' resolution, then the map is resized
+    depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera, prims.camera))
+    depth, conf = upsample(depth_w, conf_w, camera)
+    if config.residual_clip:
+        depth = residual_correction(depth, uv, sd, config.residual_clip,
+                                    _shapeless_weight(prims, camera))
+    return depth, conf

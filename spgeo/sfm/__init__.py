@@ -3,8 +3,9 @@
 The method is described in :mod:`spgeo.sfm.solve`.  Modules, one job each:
 
 * :mod:`~spgeo.sfm.config`: :class:`SfMConfig` (the options).
-* :mod:`~spgeo.sfm.solve`: :func:`few_view_sfm` (coarse-to-fine Levenberg-Marquardt
-  over photometric factors, marginals, status) and :class:`SfMResult`.
+* :mod:`~spgeo.sfm.solve`: :func:`few_view_sfm`: coarse-to-fine Levenberg-Marquardt
+  over photometric factors, marginals.
+* :mod:`~spgeo.sfm.result`: :class:`SfMResult` and the status assessment of a solution.
 * :mod:`~spgeo.sfm.graph`: the factor graph: variable keys, one pyramid
   level's factors and priors, gauge-free scale stds.
 * :mod:`~spgeo.sfm.init`: initialisation from two-view geometry (poses,
@@ -14,6 +15,7 @@ The method is described in :mod:`spgeo.sfm.solve`.  Modules, one job each:
 """
 from .config import SfMConfig
 from .graph import brightness_key, pose_key, scale_key
-from .solve import SfMResult, few_view_sfm
+from .result import SfMResult
+from .solve import few_view_sfm
 
 __all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]

@@ -18,8 +18,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Union
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import cv2
 import numpy as np
@@ -30,101 +30,20 @@ from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape
 from ..factors.photometric_group import PhotometricFactorGroup
 from ..frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
-from ..geometry import invert_pose, rotation_angle_deg
 from ..images import gaussian_pyramid, to_float_image, to_gray
-from ..primitives import PointCloud, PrimitiveSet
+from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import SfMConfig
 from .graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
                     hold_translation_and_shape, pose_key, scale_key)
 from .init import twoview_initialisation
 from .orientation import choose_planar_orientations
+from .result import SfMResult, assess_result
 
-__all__ = ["SfMResult", "few_view_sfm"]
+__all__ = ["few_view_sfm"]
 
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class SfMResult:
-    """Output of :func:`few_view_sfm`.
-
-    Attributes:
-        status: ``"ok"`` or the first problem found, in this order:
-            ``"diverged"`` (non-finite result), ``"unverified"`` (the two-view
-            feature check found too few matches or a degenerate geometry for a
-            view, which then started at identity: often no overlap, and the
-            photometric result is not trusted), ``"low_parallax"``,
-            ``"low_overlap"``.
-        view_status: status per supporting view.
-        T_ref_view: 4x4 pose of each supporting view in the reference camera
-            (camera-to-reference), translation in the map's (unknown) scale.
-        primitives: the reference primitives with solved log-scales (planar
-            model: the planes' depths are baked into ``log_depth``).
-        depth: (H, W) reference depth (metres up to the global scale), NaN where
-            no reported primitive covers the pixel (see ``unconstrained``).
-        camera: the reference camera at the working resolution.
-        log_scale_std: (N,) gauge-free marginal std of each primitive's
-            log-scale: conditioned on the mean log-scale, since the global scale
-            is fixed only by the weak prior and its (large) variance is shared by
-            every primitive (scaled model; NaN otherwise or when marginals are
-            off/failed).
-        unconstrained: indices of primitives whose depth the views do not
-            support; they are in neither ``depth`` nor :meth:`point_cloud`.
-            These are: every primitive when no view has parallax (each
-            ``view_status`` is ``"low_parallax"`` or ``"diverged"``: the
-            structure is not observable), or when the status is not ``"ok"``
-            and the marginals failed (an indeterminate system:
-            ``report["marginals_error"]``); otherwise those whose log-scale
-            only the prior constrains (marginal std over half the prior's: no
-            view sees them usefully) or whose ``log_scale_std`` exceeds
-            ``config.max_log_scale_std`` (needs ``config.marginals``).
-            ``primitives`` keeps every primitive at its solved (for these:
-            unsupported) log-scale.
-        pose_covariances: 6x6 marginal covariance per view (rotation first,
-            gtsam tangent at the estimate), conditioned on the gauge priors.
-            Marginals use a per-pixel noise model whose sigma is the robust
-            (MAD) std of the photometric residuals at the solution
-            (``report["pixel_sigma"]``); pixels are treated as independent, so
-            the uncertainties are optimistic where residuals are correlated.
-        report: per-level iterations, costs, valid fractions, timings.
-    """
-
-    status: str
-    view_status: List[str]
-    T_ref_view: List[np.ndarray]
-    primitives: PrimitiveSet
-    depth: np.ndarray
-    camera: PinholeCamera
-    log_scale_std: np.ndarray
-    pose_covariances: List[Optional[np.ndarray]]
-    brightness: List[np.ndarray]
-    report: dict
-    unconstrained: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
-
-    @property
-    def supported_primitives(self) -> PrimitiveSet:
-        """The primitives that ``depth`` reports (all but ``unconstrained``, in
-        order): what a point cloud or a model export of this result may show."""
-        keep = np.setdiff1d(np.arange(len(self.primitives)), self.unconstrained)
-        return self.primitives.subset(keep)
-
-    def point_cloud(self, image: Optional[np.ndarray] = None) -> PointCloud:
-        """Reference-frame point cloud of the solved primitives that ``depth``
-        reports: those in ``unconstrained`` and non-finite points are left out
-        (an empty cloud when nothing is supported).  ``image``: colours, at
-        ``camera``'s size."""
-        cloud = self.primitives.point_cloud(image)
-        keep = np.all(np.isfinite(cloud.points), axis=1)
-        if self.unconstrained.size:
-            keep &= ~np.isin(cloud.primitive_ids, self.unconstrained)
-        return PointCloud(cloud.points[keep], None if cloud.colors is None else cloud.colors[keep],
-                          cloud.primitive_ids[keep], cloud.pixels[keep])
 
 
 def _checked_image(image: np.ndarray, camera: PinholeCamera, name: str) -> np.ndarray:
@@ -175,6 +94,222 @@ def _prepare_image(image: np.ndarray, camera: PinholeCamera, work_cam: PinholeCa
     return grey.astype(np.float32)
 
 
+@dataclass
+class _Problem:
+    """What every stage of :func:`few_view_sfm` reads: the reference primitives
+    (replaced once by the two-view initialisation), their working camera, the
+    grey pyramids of the reference and the views, and the primitives' pixel rays."""
+
+    prims: PrimitiveSet
+    cam: PinholeCamera
+    ref_pyr: list
+    view_pyrs: list
+    rays_all: np.ndarray
+
+    @property
+    def n_levels(self) -> int:
+        return len(self.ref_pyr)
+
+    @property
+    def n_views(self) -> int:
+        return len(self.view_pyrs)
+
+
+def _reference_primitives(ref_image, camera, frontend, config, ref_depth) -> PrimitiveSet:
+    """The reference's primitives: ``frontend`` itself when it is a set, else
+    the front-end's (``"classical"`` at 320x240 by default).  ``ValueError``
+    when there is none."""
+    if isinstance(frontend, PrimitiveSet):
+        prims = frontend
+    else:
+        fe = frontend if isinstance(frontend, PrimitiveFrontEnd) else make_frontend(
+            frontend or "classical", FrontEndConfig(working_size=(320, 240)))
+        prims = fe.primify(ref_image, camera, ref_depth if fe.uses_depth else None)
+    if len(prims) == 0:
+        raise ValueError("the front-end produced no primitive")
+    return prims
+
+
+def _problem(ref_image, views, camera, prims, cam, config) -> _Problem:
+    """:class:`_Problem` of ``prims`` (working camera ``cam``): images made grey at
+    ``cam``'s size, ``config.levels`` pyramid levels."""
+    ref_grey = _prepare_image(ref_image, camera, cam, "reference image")
+    view_greys = [_prepare_image(im, camera, cam, f"view {j + 1}") for j, im in enumerate(views)]
+    ref_pyr = gaussian_pyramid(ref_grey, cam, config.levels)
+    view_pyrs = [gaussian_pyramid(g, cam, config.levels) for g in view_greys]
+    rays_all = cam.rays().reshape(-1, 3)[prims.pixels]
+    return _Problem(prims, cam, ref_pyr, view_pyrs, rays_all)
+
+
+def _initial_values(prims: PrimitiveSet, n_views: int, init_T_ref_view, config) -> gtsam.Values:
+    """Start values: reference at identity, each view at its initial pose (identity
+    when none), brightness 0, log-scales (or fronto-parallel planes) from ``prims``."""
+    values = gtsam.Values()
+    values.insert(pose_key(0), gtsam.Pose3())
+    for j in range(n_views):
+        T0 = np.eye(4) if init_T_ref_view is None else np.asarray(init_T_ref_view[j], float)
+        values.insert(pose_key(j + 1), gtsam.Pose3(T0))
+        if config.brightness:
+            values.insert(brightness_key(j + 1), np.zeros(2))
+    if config.shape_model == "scaled":
+        for i in range(len(prims)):
+            values.insert(scale_key(i), np.array([prims.log_scales[i]]))
+    else:
+        for i in range(len(prims)):
+            values.insert(scale_key(i), PlanarShape.fronto_parallel(np.exp(prims.log_scales[i])))
+    return values
+
+
+def _solve_stage(graph, values: gtsam.Values, config: SfMConfig, lvl: int, n_levels: int,
+                 rotation_only: bool, report: dict) -> gtsam.Values:
+    """One Levenberg-Marquardt solve of ``graph`` at pyramid level ``lvl`` from
+    ``values``; appends the level's entry to ``report["levels"]``."""
+    params = gtsam.LevenbergMarquardtParams()
+    iters = config.max_iterations[min(n_levels - 1 - lvl, len(config.max_iterations) - 1)]
+    params.setMaxIterations(int(iters))
+    params.setlambdaInitial(config.lm_lambda_initial)
+    params.setRelativeErrorTol(config.relative_error_tol)
+    params.setAbsoluteErrorTol(1e-9)
+    t0 = time.perf_counter()
+    err0 = graph.error(values)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    values = opt.optimize()
+    err1 = graph.error(values)
+    report["levels"].append({"level": lvl, "rotation_only": rotation_only,
+                             "factors": graph.size(), "iterations": opt.iterations(),
+                             "initial_cost": err0, "final_cost": err1,
+                             "seconds": time.perf_counter() - t0})
+    log.debug("level %d%s: %d factors, %d its, cost %.4g -> %.4g", lvl,
+              " (rotation only)" if rotation_only else "", graph.size(),
+              opt.iterations(), err0, err1)
+    return values
+
+
+def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_T_ref_view,
+                    report: dict) -> Tuple[gtsam.Values, List[PhotometricFactorGroup]]:
+    """Solve level by level, coarsest first: a rotation-only stage first when a
+    view starts at identity (``config.rotation_first``), and once more at the
+    finest level after the planar orientation choice.  Returns the solved values
+    and the factor groups of the last stage."""
+    builders: List[PhotometricFactorGroup] = []
+    n_levels = pb.n_levels
+    stages = [(lvl, False) for lvl in reversed(range(n_levels))]
+    any_identity = init_T_ref_view is None or any(
+        np.allclose(T, np.eye(4)) for T in init_T_ref_view)
+    if config.rotation_first and any_identity:
+        stages.insert(0, (n_levels - 1, True))
+    orientations = None     # planar slope priors: fronto-parallel until a choice is made
+    for lvl, rotation_only in stages:
+        graph, builders = build_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
+                                      values, config, orientations)
+        if rotation_only:
+            hold_translation_and_shape(graph, values, pb.n_views, len(pb.prims))
+        values = _solve_stage(graph, values, config, lvl, n_levels, rotation_only, report)
+        if (lvl == 0 and not rotation_only and orientations is None
+                and config.shape_model == "planar" and config.orientation_choice):
+            values, orientations = choose_planar_orientations(pb.prims, builders, values, report)
+            if orientations is not None:
+                stages.append((0, False))      # refine once more with the chosen planes
+    return values, builders
+
+
+def _solved_primitives(pb: _Problem, values: gtsam.Values, config: SfMConfig) -> PrimitiveSet:
+    """The reference primitives at the solved log-scales; planar model: the
+    planes' depths baked into ``log_depth`` (a plane behind the camera keeps
+    its primitive's median depth there)."""
+    prims, cam, rays_all = pb.prims, pb.cam, pb.rays_all
+    if config.shape_model == "scaled":
+        s = np.array([values.atVector(scale_key(i))[0] for i in range(len(prims))])
+        return prims.with_log_scales(s)
+    thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
+    rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
+    bad = ~(rho > 1e-9)
+    rho = np.where(bad, np.nan, rho)
+    logz = -np.log(rho)
+    # primitives whose plane goes behind the camera keep their median depth there
+    med = np.array([np.nanmedian(logz[a:b]) if np.any(np.isfinite(logz[a:b])) else 0.0
+                    for a, b in zip(prims.offsets[:-1], prims.offsets[1:])])
+    logz = np.where(np.isfinite(logz), logz, med[prims.primitive_ids])
+    solved = PrimitiveSet(cam, prims.pixels, prims.offsets, logz, prims.anchors,
+                          scores=prims.scores, normals=prims.normals, meta=prims.meta)
+    anchor_ld = logz[np.searchsorted(prims.primitive_ids * cam.width * cam.height + prims.pixels,
+                                     np.arange(len(prims)) * cam.width * cam.height + prims.anchors)]
+    solved.log_scales = anchor_ld
+    return solved
+
+
+@dataclass
+class _Marginals:
+    """Output of :func:`_marginals`: per-primitive gauge-free log-scale stds and
+    whether only the prior constrains each scale, per-view pose covariances."""
+
+    log_std: np.ndarray
+    prior_only: np.ndarray
+    covs: List[Optional[np.ndarray]]
+
+
+def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[PhotometricFactorGroup],
+               config: SfMConfig, status: str, report: dict) -> _Marginals:
+    """Marginal uncertainties at the solution (``config.marginals``, not when
+    diverged) with a per-pixel noise model whose sigma is the residuals' robust
+    std (``report["pixel_sigma"]``); a failure is reported in
+    ``report["marginals_error"]``, not raised."""
+    prims = pb.prims
+    log_std = np.full(len(prims), np.nan)
+    prior_only = np.zeros(len(prims), dtype=bool)
+    covs: List[Optional[np.ndarray]] = [None] * pb.n_views
+    if config.marginals and status != "diverged":
+        try:
+            # per-pixel noise model with sigma from the residuals at the solution
+            # (robust MAD), so covariances are in physical units
+            res_pix = np.concatenate([g.evaluate_at(values)["r"] for g in builders]
+                                     ) if builders else np.zeros(0)
+            res_pix = res_pix[res_pix != 0]
+            sigma = float(1.4826 * np.median(np.abs(res_pix))) if res_pix.size else 0.02
+            sigma = max(sigma, 1e-3)
+            report["pixel_sigma"] = sigma
+            # the gauge prior keeps its strength relative to a median primitive
+            prior_w = config.scale_prior_weight * float(np.median(prims.sizes)) / sigma ** 2
+            pix_cfg = dataclasses.replace(config, scale_prior_weight=prior_w,
+                                          photometric=dataclasses.replace(
+                                              config.photometric, normalise="none",
+                                              pixel_sigma=sigma))
+            mgraph, _ = build_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0, values,
+                                    pix_cfg)
+            marg = gtsam.Marginals(mgraph, values)
+            for j in range(pb.n_views):
+                covs[j] = marg.marginalCovariance(pose_key(j + 1))
+            if config.shape_model == "scaled":
+                log_std, prior_only = gauge_free_scale_std(marg, len(prims),
+                                                            1.0 / np.sqrt(prior_w))
+        except RuntimeError as exc:  # indeterminant system: report, do not crash
+            report["marginals_error"] = gtsam_error_line(exc)
+            log.warning("marginals failed: %s", report["marginals_error"])
+    return _Marginals(log_std, prior_only, covs)
+
+
+def _unconstrained(solved: PrimitiveSet, marg: _Marginals, status: str,
+                   view_status: List[str], config: SfMConfig, report: dict) -> np.ndarray:
+    """Indices of the primitives whose depth the views do not support
+    (:attr:`SfMResult.unconstrained`)."""
+    unconstrained = np.flatnonzero(marg.prior_only | (marg.log_std > config.max_log_scale_std))
+    no_parallax = all(v in ("low_parallax", "diverged") for v in view_status)
+    if no_parallax or (status != "ok" and "marginals_error" in report):
+        unconstrained = np.arange(len(solved))    # the views support no depth
+    return unconstrained
+
+
+def _supported_depth(solved: PrimitiveSet, unconstrained: np.ndarray, status: str,
+                     config: SfMConfig) -> np.ndarray:
+    """Depth map of ``solved`` without the ``unconstrained`` primitives (NaN there)."""
+    keep = np.setdiff1d(np.arange(len(solved)), unconstrained)
+    depth = solved.subset(keep).depth_map() if keep.size else np.full(solved.camera.shape, np.nan)
+    log.info("%d of %d primitives unconstrained by the views (%s): not in the depth map",
+             unconstrained.size, len(solved), "status " + status if keep.size == 0
+             else f"log-scale std > {config.max_log_scale_std:.2f}")
+    return depth
+
+
 def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camera: PinholeCamera,
                  frontend: Union[None, str, PrimitiveFrontEnd, PrimitiveSet] = None,
                  config: SfMConfig = SfMConfig(), ref_depth: Optional[np.ndarray] = None,
@@ -208,199 +343,43 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     """
     t_start = time.perf_counter()
     views = _check_inputs(ref_image, view_images, camera, init_T_ref_view)
-    # ---- primitives of the reference
-    if isinstance(frontend, PrimitiveSet):
-        prims = frontend
-    else:
-        fe = frontend if isinstance(frontend, PrimitiveFrontEnd) else make_frontend(
-            frontend or "classical", FrontEndConfig(working_size=(320, 240)))
-        prims = fe.primify(ref_image, camera, ref_depth if fe.uses_depth else None)
-    if len(prims) == 0:
-        raise ValueError("the front-end produced no primitive")
+    prims = _reference_primitives(ref_image, camera, frontend, config, ref_depth)
     cam = prims.camera
     if config.reset_scales:
         prims = prims.with_log_scales(np.zeros(len(prims)))
     t_front = time.perf_counter()
-    ref_grey = _prepare_image(ref_image, camera, cam, "reference image")
-    view_greys = [_prepare_image(im, camera, cam, f"view {j + 1}") for j, im in enumerate(views)]
-    ref_pyr = gaussian_pyramid(ref_grey, cam, config.levels)
-    view_pyrs = [gaussian_pyramid(g, cam, config.levels) for g in view_greys]
-    n_levels = len(ref_pyr)
-    rays_all = cam.rays().reshape(-1, 3)[prims.pixels]
+    pb = _problem(ref_image, views, camera, prims, cam, config)
 
     # ---- initial values
     init_report: Dict[str, object] = {"method": "given" if init_T_ref_view is not None
                                       else config.init}
     if init_T_ref_view is None and config.init == "twoview":
-        init_T_ref_view, prims = twoview_initialisation(ref_image, views, camera, prims, init_report)
-    values = gtsam.Values()
-    values.insert(pose_key(0), gtsam.Pose3())
-    for j in range(len(views)):
-        T0 = np.eye(4) if init_T_ref_view is None else np.asarray(init_T_ref_view[j], float)
-        values.insert(pose_key(j + 1), gtsam.Pose3(T0))
-        if config.brightness:
-            values.insert(brightness_key(j + 1), np.zeros(2))
-    if config.shape_model == "scaled":
-        for i in range(len(prims)):
-            values.insert(scale_key(i), np.array([prims.log_scales[i]]))
-    else:
-        for i in range(len(prims)):
-            values.insert(scale_key(i), PlanarShape.fronto_parallel(np.exp(prims.log_scales[i])))
-
-    report: Dict[str, object] = {"levels": [], "n_primitives": len(prims),
+        init_T_ref_view, pb.prims = twoview_initialisation(ref_image, views, camera, pb.prims,
+                                                           init_report)
+    values = _initial_values(pb.prims, len(views), init_T_ref_view, config)
+    report: Dict[str, object] = {"levels": [], "n_primitives": len(pb.prims),
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}
-    builders: List[PhotometricFactorGroup] = []
-    stages = [(lvl, False) for lvl in reversed(range(n_levels))]
-    any_identity = init_T_ref_view is None or any(
-        np.allclose(T, np.eye(4)) for T in init_T_ref_view)
-    if config.rotation_first and any_identity:
-        stages.insert(0, (n_levels - 1, True))
-    orientations = None     # planar slope priors: fronto-parallel until a choice is made
-    for lvl, rotation_only in stages:
-        graph, builders = build_graph(prims, rays_all, ref_pyr, view_pyrs, lvl, values, config,
-                                      orientations)
-        if rotation_only:
-            hold_translation_and_shape(graph, values, len(views), len(prims))
-        params = gtsam.LevenbergMarquardtParams()
-        iters = config.max_iterations[min(n_levels - 1 - lvl, len(config.max_iterations) - 1)]
-        params.setMaxIterations(int(iters))
-        params.setlambdaInitial(config.lm_lambda_initial)
-        params.setRelativeErrorTol(config.relative_error_tol)
-        params.setAbsoluteErrorTol(1e-9)
-        t0 = time.perf_counter()
-        err0 = graph.error(values)
-        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        values = opt.optimize()
-        err1 = graph.error(values)
-        report["levels"].append({"level": lvl, "rotation_only": rotation_only,
-                                 "factors": graph.size(), "iterations": opt.iterations(),
-                                 "initial_cost": err0, "final_cost": err1,
-                                 "seconds": time.perf_counter() - t0})
-        log.debug("level %d%s: %d factors, %d its, cost %.4g -> %.4g", lvl,
-                  " (rotation only)" if rotation_only else "", graph.size(),
-                  opt.iterations(), err0, err1)
-        if (lvl == 0 and not rotation_only and orientations is None
-                and config.shape_model == "planar" and config.orientation_choice):
-            values, orientations = choose_planar_orientations(prims, builders, values, report)
-            if orientations is not None:
-                stages.append((0, False))      # refine once more with the chosen planes
+    values, builders = _coarse_to_fine(pb, values, config, init_T_ref_view, report)
     t_opt = time.perf_counter()
 
     # ---- results
     T_ref_view = [values.atPose3(pose_key(j + 1)).matrix() for j in range(len(views))]
     brightness = [values.atVector(brightness_key(j + 1)) if config.brightness else np.zeros(2)
                   for j in range(len(views))]
-    if config.shape_model == "scaled":
-        s = np.array([values.atVector(scale_key(i))[0] for i in range(len(prims))])
-        solved = prims.with_log_scales(s)
-    else:
-        thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
-        rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
-        bad = ~(rho > 1e-9)
-        rho = np.where(bad, np.nan, rho)
-        logz = -np.log(rho)
-        # primitives whose plane goes behind the camera keep their median depth there
-        med = np.array([np.nanmedian(logz[a:b]) if np.any(np.isfinite(logz[a:b])) else 0.0
-                        for a, b in zip(prims.offsets[:-1], prims.offsets[1:])])
-        logz = np.where(np.isfinite(logz), logz, med[prims.primitive_ids])
-        solved = PrimitiveSet(cam, prims.pixels, prims.offsets, logz, prims.anchors,
-                              scores=prims.scores, normals=prims.normals, meta=prims.meta)
-        anchor_ld = logz[np.searchsorted(prims.primitive_ids * cam.width * cam.height + prims.pixels,
-                                         np.arange(len(prims)) * cam.width * cam.height + prims.anchors)]
-        solved.log_scales = anchor_ld
+    solved = _solved_primitives(pb, values, config)
     depth = solved.depth_map()
 
-    status, view_status, valid_frac = _assess(solved, T_ref_view, config, report,
-                                              init_report.get("twoview_status"))
-    log_std = np.full(len(prims), np.nan)
-    prior_only = np.zeros(len(prims), dtype=bool)
-    covs: List[Optional[np.ndarray]] = [None] * len(views)
-    if config.marginals and status != "diverged":
-        try:
-            # per-pixel noise model with sigma from the residuals at the solution
-            # (robust MAD), so covariances are in physical units
-            res_pix = np.concatenate([g.evaluate_at(values)["r"] for g in builders]
-                                     ) if builders else np.zeros(0)
-            res_pix = res_pix[res_pix != 0]
-            sigma = float(1.4826 * np.median(np.abs(res_pix))) if res_pix.size else 0.02
-            sigma = max(sigma, 1e-3)
-            report["pixel_sigma"] = sigma
-            # the gauge prior keeps its strength relative to a median primitive
-            prior_w = config.scale_prior_weight * float(np.median(prims.sizes)) / sigma ** 2
-            pix_cfg = dataclasses.replace(config, scale_prior_weight=prior_w,
-                                          photometric=dataclasses.replace(
-                                              config.photometric, normalise="none",
-                                              pixel_sigma=sigma))
-            mgraph, _ = build_graph(prims, rays_all, ref_pyr, view_pyrs, 0, values, pix_cfg)
-            marg = gtsam.Marginals(mgraph, values)
-            for j in range(len(views)):
-                covs[j] = marg.marginalCovariance(pose_key(j + 1))
-            if config.shape_model == "scaled":
-                log_std, prior_only = gauge_free_scale_std(marg, len(prims),
-                                                            1.0 / np.sqrt(prior_w))
-        except RuntimeError as exc:  # indeterminant system: report, do not crash
-            report["marginals_error"] = gtsam_error_line(exc)
-            log.warning("marginals failed: %s", report["marginals_error"])
-    unconstrained = np.flatnonzero(prior_only | (log_std > config.max_log_scale_std))
-    no_parallax = all(v in ("low_parallax", "diverged") for v in view_status)
-    if no_parallax or (status != "ok" and "marginals_error" in report):
-        unconstrained = np.arange(len(solved))    # the views support no depth
+    status, view_status, valid_frac = assess_result(solved, T_ref_view, config, report,
+                                                    init_report.get("twoview_status"))
+    marg = _marginals(pb, values, builders, config, status, report)
+    unconstrained = _unconstrained(solved, marg, status, view_status, config, report)
     if unconstrained.size:
-        keep = np.setdiff1d(np.arange(len(solved)), unconstrained)
-        depth = solved.subset(keep).depth_map() if keep.size else np.full(cam.shape, np.nan)
-        log.info("%d of %d primitives unconstrained by the views (%s): not in the depth map",
-                 unconstrained.size, len(solved), "status " + status if keep.size == 0
-                 else f"log-scale std > {config.max_log_scale_std:.2f}")
+        depth = _supported_depth(solved, unconstrained, status, config)
     report["n_unconstrained"] = int(unconstrained.size)
     report.update({"valid_fraction": valid_frac, "seconds_frontend": t_front - t_start,
                    "seconds_optimise": t_opt - t_front,
                    "seconds_total": time.perf_counter() - t_start,
                    "final_cost": report["levels"][-1]["final_cost"] if report["levels"] else None})
-    return SfMResult(status, view_status, T_ref_view, solved, depth, cam, log_std, covs,
+    return SfMResult(status, view_status, T_ref_view, solved, depth, cam, marg.log_std, marg.covs,
                      brightness, report, unconstrained)
-
-
-def _assess(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: SfMConfig,
-            report: dict, twoview_status: Optional[Sequence[str]] = None):
-    """Status flags: diverged (non-finite), unverified, low parallax, low overlap.
-
-    A view the two-view feature check could not pose (too few matches /
-    degenerate) most likely shares little with the reference: photometric
-    alignment from identity can then "converge" to a wrong pose, so it is
-    ``unverified`` rather than ``ok``.
-    """
-    finite = all(np.all(np.isfinite(T)) for T in T_ref_view) and np.all(
-        np.isfinite(solved.log_scales))
-    cam = solved.camera
-    w = cam.width
-    uv = np.stack([solved.pixels % w, solved.pixels // w], -1).astype(float)
-    X = cam.unproject(uv, np.exp(solved.scaled_log_depth()))
-    med_depth = float(np.median(X[:, 2])) if finite else np.nan
-    view_status, valid_frac = [], []
-    for j, T in enumerate(T_ref_view):
-        if not finite:
-            view_status.append("diverged")
-            valid_frac.append(0.0)
-            continue
-        T_v_r = invert_pose(T)
-        Y = X @ T_v_r[:3, :3].T + T_v_r[:3, 3]
-        uvv, z = cam.project(Y)
-        frac = float(np.mean(cam.in_image(uvv) & (z > 0)))
-        valid_frac.append(frac)
-        parallax = np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)
-        if twoview_status is not None and twoview_status[j] in ("too_few_matches",
-                                                                 "degenerate"):
-            view_status.append("unverified")
-        elif parallax < config.min_parallax:
-            view_status.append("low_parallax")
-        elif frac < config.min_valid_fraction:
-            view_status.append("low_overlap")
-        else:
-            view_status.append("ok")
-    report["parallax"] = [float(np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)) if finite
-                          else None for T in T_ref_view]
-    report["rotation_deg"] = [rotation_angle_deg(T) if finite else None for T in T_ref_view]
-    order = ("diverged", "unverified", "low_parallax", "low_overlap")
-    status = next((s for s in order if s in view_status), "ok")
-    return status, view_status, valid_frac

@@ -158,6 +158,137 @@ def _check_camera_images(image_ref, image_tgt, camera: PinholeCamera) -> None:
     camera.check_image(np.asarray(image_tgt), "image_tgt")
 
 
+@dataclass
+class _Pair:
+    """The undistorted putative correspondences ``x1`` (reference) / ``x2``
+    (target) of one image pair, their camera, the options, the result being
+    filled and the time matching ended (the geometry timing starts there)."""
+
+    res: TwoViewResult
+    config: TwoViewConfig
+    cam: PinholeCamera
+    x1: np.ndarray
+    x2: np.ndarray
+    t_match: float
+
+
+def _putative_matches(g1: np.ndarray, g2: np.ndarray, config: TwoViewConfig,
+                      timings: Dict[str, float], t0: float):
+    """Features of both grey images and their putative matches, keypoints in
+    spgeo pixel coordinates; records the ``features`` and ``matching`` timings.
+    Returns ``(p1, p2, matches (M, 2) indices, time matching ended)``."""
+    if config.backend == "opencv":
+        import cv2
+
+        p1, d1 = opencv_features(g1, config)
+        p2, d2 = opencv_features(g2, config)
+        t_feat = time.perf_counter()
+        norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
+        matches = ratio_matches(d1, d2, config, norm)
+    else:
+        with quiet_colmap():
+            p1, p2, matches, t_feat = pycolmap_features_and_matches(g1, g2, config)
+        p1, p2 = p1 - 0.5, p2 - 0.5  # COLMAP pixel centres -> spgeo
+    t_match = time.perf_counter()
+    timings["features"] = t_feat - t0
+    timings["matching"] = t_match - t_feat
+    return p1, p2, matches, t_match
+
+
+def _finish(pair: _Pair, status: str, message: str = "") -> TwoViewResult:
+    """``pair.res`` with ``status``, ``message``, the inlier ratio and the
+    geometry timing set (a non-``"ok"`` status is logged)."""
+    res, config = pair.res, pair.config
+    res.status, res.message = status, message
+    res.inlier_ratio = res.num_inliers / res.num_matches if res.num_matches else 0.0
+    res.timings["geometry"] = time.perf_counter() - pair.t_match
+    if status != "ok":
+        logger.info("two-view (%s): %s: %s", config.backend, status, message)
+    return res
+
+
+def _low_parallax(pair: _Pair, mask: Optional[np.ndarray], message: str) -> TwoViewResult:
+    """``"low_parallax"``: the rotation-only fit of the matches in ``mask``
+    (all when None) with a zero translation."""
+    res, cam, x1, x2 = pair.res, pair.cam, pair.x1, pair.x2
+    sel = np.ones(len(x1), bool) if mask is None else mask
+    R, keep = rotation_only_fit(cam, x1[sel], x2[sel], max(2.0, pair.config.ransac_threshold_px))
+    res.T_ref_tgt = pose_from_tgt_ref(R, np.zeros(3))
+    res.points_ref, res.points_tgt = x1[sel][keep], x2[sel][keep]
+    res.num_inliers = int(keep.sum())
+    res.rotation_only_parallax_deg = float(np.median(
+        parallax_angles_deg(cam, res.points_ref, res.points_tgt, R))) if keep.any() else 0.0
+    if not np.isfinite(res.median_parallax_deg):  # no essential matrix was estimated
+        res.median_parallax_deg = res.rotation_only_parallax_deg
+    return _finish(pair, "low_parallax", message)
+
+
+def _geometry(pair: _Pair) -> TwoViewResult:
+    """Relative pose of the back-end and the checks on its inliers: too few,
+    panoramic, no pose; then :func:`_checked_pose`."""
+    res, config, cam, x1, x2 = pair.res, pair.config, pair.cam, pair.x1, pair.x2
+    if config.backend == "opencv":
+        R, t, inl, msg = opencv_geometry(cam, x1, x2, config)
+    else:
+        R, t, inl, msg = pycolmap_geometry(cam, x1, x2, config)
+    if inl is not None:
+        res.num_inliers = int(inl.sum())
+    if msg == "panoramic":
+        return _low_parallax(pair, inl, "COLMAP classified the pair as panoramic (pure rotation)")
+    if R is None:
+        if res.num_inliers and res.num_inliers < config.min_inliers:
+            return _finish(pair, "too_few_matches", f"{res.num_inliers} inliers < min_inliers = "
+                                                    f"{config.min_inliers} ({msg})")
+        return _finish(pair, "degenerate", msg or "no essential matrix found")
+    if res.num_inliers < config.min_inliers:
+        return _finish(pair, "too_few_matches", f"{res.num_inliers} geometric inliers < "
+                                                f"min_inliers = {config.min_inliers}")
+    return _checked_pose(pair, R, t, inl)
+
+
+def _checked_pose(pair: _Pair, R: np.ndarray, t: np.ndarray, inl: np.ndarray) -> TwoViewResult:
+    """The pose ``(R, t)`` (``x_tgt = R x_ref + t``) with inliers ``inl`` checked
+    for parallax (``"low_parallax"``), inlier ratio and translation-direction
+    uncertainty (``"degenerate"``); ``"ok"`` when it passes."""
+    res, config, cam = pair.res, pair.config, pair.cam
+    res.points_ref, res.points_tgt = pair.x1[inl], pair.x2[inl]
+    par = parallax_angles_deg(cam, res.points_ref, res.points_tgt, R)
+    res.median_parallax_deg = float(np.median(par))
+    # how much parallax is left by the best pure rotation (least squares on the
+    # inliers' rays): ~ the noise level for a rotation, even where the essential
+    # matrix has absorbed the noise into a spurious translation
+    R_rot = kabsch(bearings(cam, res.points_ref), bearings(cam, res.points_tgt))
+    res.rotation_only_parallax_deg = float(np.median(
+        parallax_angles_deg(cam, res.points_ref, res.points_tgt, R_rot)))
+    # a pure rotation explains the matches within twice the RANSAC threshold
+    rotation_tol_deg = math.degrees(math.atan(2.0 * config.ransac_threshold_px
+                                              / max(cam.fx, cam.fy)))
+    if res.median_parallax_deg < config.min_parallax_deg:
+        return _low_parallax(pair, inl, f"median parallax {res.median_parallax_deg:.3f} deg < "
+                                        f"min_parallax_deg = {config.min_parallax_deg}: "
+                                        "translation direction unobservable")
+    if res.rotation_only_parallax_deg < rotation_tol_deg:
+        return _low_parallax(pair, inl, f"a pure rotation leaves only "
+                                        f"{res.rotation_only_parallax_deg:.3f} deg of median "
+                                        f"parallax (< {rotation_tol_deg:.3f} deg, twice the "
+                                        "RANSAC threshold): translation direction unobservable")
+    res.T_ref_tgt = pose_from_tgt_ref(R, t)
+    res.rotation_std_deg, res.translation_std_deg = pose_std_deg(cam, R, t, res.points_ref,
+                                                                 res.points_tgt)
+    ratio = res.num_inliers / res.num_matches
+    if ratio < config.min_inlier_ratio:
+        res.T_ref_tgt = None
+        return _finish(pair, "degenerate", f"inlier ratio {ratio:.3f} < min_inlier_ratio = "
+                                           f"{config.min_inlier_ratio}")
+    if not res.translation_std_deg <= config.max_translation_std_deg:
+        res.T_ref_tgt = None
+        return _finish(pair, "degenerate", f"pose poorly constrained: translation-direction std "
+                                           f"{res.translation_std_deg:.2f} deg > "
+                                           f"max_translation_std_deg = "
+                                           f"{config.max_translation_std_deg}")
+    return _finish(pair, "ok")
+
+
 def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera: PinholeCamera,
                            config: Optional[TwoViewConfig] = None) -> TwoViewResult:
     """Relative pose ``T_ref_tgt`` of ``image_tgt`` w.r.t. ``image_ref`` from
@@ -184,21 +315,7 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
     res = TwoViewResult(status="degenerate", backend=config.backend, timings=timings)
 
     # ---- features and putative matches
-    if config.backend == "opencv":
-        import cv2
-
-        p1, d1 = opencv_features(g1, config)
-        p2, d2 = opencv_features(g2, config)
-        t_feat = time.perf_counter()
-        norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
-        matches = ratio_matches(d1, d2, config, norm)
-    else:
-        with quiet_colmap():
-            p1, p2, matches, t_feat = pycolmap_features_and_matches(g1, g2, config)
-        p1, p2 = p1 - 0.5, p2 - 0.5  # COLMAP pixel centres -> spgeo
-    t_match = time.perf_counter()
-    timings["features"] = t_feat - t0
-    timings["matching"] = t_match - t_feat
+    p1, p2, matches, t_match = _putative_matches(g1, g2, config, timings, t0)
     res.num_keypoints = (int(len(p1)), int(len(p2)))
     res.num_matches = int(len(matches))
     if res.num_matches < config.min_matches:
@@ -213,80 +330,10 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
     x2 = undistort_points(camera, p2[matches[:, 1]])
     cam = camera.undistorted()
     res.median_flow_px = float(np.median(np.linalg.norm(x2 - x1, axis=1)))
-
-    def finish(status: str, message: str = "") -> TwoViewResult:
-        res.status, res.message = status, message
-        res.inlier_ratio = res.num_inliers / res.num_matches if res.num_matches else 0.0
-        timings["geometry"] = time.perf_counter() - t_match
-        if status != "ok":
-            logger.info("two-view (%s): %s: %s", config.backend, status, message)
-        return res
-
-    def low_parallax(mask: Optional[np.ndarray], message: str) -> TwoViewResult:
-        sel = np.ones(len(x1), bool) if mask is None else mask
-        R, keep = rotation_only_fit(cam, x1[sel], x2[sel], max(2.0, config.ransac_threshold_px))
-        res.T_ref_tgt = pose_from_tgt_ref(R, np.zeros(3))
-        res.points_ref, res.points_tgt = x1[sel][keep], x2[sel][keep]
-        res.num_inliers = int(keep.sum())
-        res.rotation_only_parallax_deg = float(np.median(
-            parallax_angles_deg(cam, res.points_ref, res.points_tgt, R))) if keep.any() else 0.0
-        if not np.isfinite(res.median_parallax_deg):  # no essential matrix was estimated
-            res.median_parallax_deg = res.rotation_only_parallax_deg
-        return finish("low_parallax", message)
-
+    pair = _Pair(res, config, cam, x1, x2, t_match)
     if res.median_flow_px < config.min_flow_px:
-        return low_parallax(None, f"median image motion {res.median_flow_px:.3f} px < "
-                                  f"min_flow_px = {config.min_flow_px}: no motion")
+        return _low_parallax(pair, None, f"median image motion {res.median_flow_px:.3f} px < "
+                                         f"min_flow_px = {config.min_flow_px}: no motion")
 
     # ---- geometry
-    if config.backend == "opencv":
-        R, t, inl, msg = opencv_geometry(cam, x1, x2, config)
-    else:
-        R, t, inl, msg = pycolmap_geometry(cam, x1, x2, config)
-    if inl is not None:
-        res.num_inliers = int(inl.sum())
-    if msg == "panoramic":
-        return low_parallax(inl, "COLMAP classified the pair as panoramic (pure rotation)")
-    if R is None:
-        if res.num_inliers and res.num_inliers < config.min_inliers:
-            return finish("too_few_matches", f"{res.num_inliers} inliers < min_inliers = "
-                                             f"{config.min_inliers} ({msg})")
-        return finish("degenerate", msg or "no essential matrix found")
-    if res.num_inliers < config.min_inliers:
-        return finish("too_few_matches", f"{res.num_inliers} geometric inliers < min_inliers = "
-                                         f"{config.min_inliers}")
-    res.points_ref, res.points_tgt = x1[inl], x2[inl]
-    par = parallax_angles_deg(cam, res.points_ref, res.points_tgt, R)
-    res.median_parallax_deg = float(np.median(par))
-    # how much parallax is left by the best pure rotation (least squares on the
-    # inliers' rays): ~ the noise level for a rotation, even where the essential
-    # matrix has absorbed the noise into a spurious translation
-    R_rot = kabsch(bearings(cam, res.points_ref), bearings(cam, res.points_tgt))
-    res.rotation_only_parallax_deg = float(np.median(
-        parallax_angles_deg(cam, res.points_ref, res.points_tgt, R_rot)))
-    # a pure rotation explains the matches within twice the RANSAC threshold
-    rotation_tol_deg = math.degrees(math.atan(2.0 * config.ransac_threshold_px
-                                              / max(cam.fx, cam.fy)))
-    if res.median_parallax_deg < config.min_parallax_deg:
-        return low_parallax(inl, f"median parallax {res.median_parallax_deg:.3f} deg < "
-                                 f"min_parallax_deg = {config.min_parallax_deg}: translation "
-                                 "direction unobservable")
-    if res.rotation_only_parallax_deg < rotation_tol_deg:
-        return low_parallax(inl, f"a pure rotation leaves only {res.rotation_only_parallax_deg:.3f}"
-                                 f" deg of median parallax (< {rotation_tol_deg:.3f} deg, twice "
-                                 "the RANSAC threshold): translation direction unobservable")
-    res.T_ref_tgt = pose_from_tgt_ref(R, t)
-    res.rotation_std_deg, res.translation_std_deg = pose_std_deg(cam, R, t, res.points_ref,
-                                                                 res.points_tgt)
-    ratio = res.num_inliers / res.num_matches
-    if ratio < config.min_inlier_ratio:
-        res.T_ref_tgt = None
-        return finish("degenerate", f"inlier ratio {ratio:.3f} < min_inlier_ratio = "
-                                    f"{config.min_inlier_ratio}")
-    if not res.translation_std_deg <= config.max_translation_std_deg:
-        res.T_ref_tgt = None
-        return finish("degenerate", f"pose poorly constrained: translation-direction std "
-                                    f"{res.translation_std_deg:.2f} deg > "
-                                    f"max_translation_std_deg = {config.max_translation_std_deg}")
-    return finish("ok")
-
+    return _geometry(pair)
