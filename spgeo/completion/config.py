@@ -18,12 +18,13 @@ SHAPE_MODELS = ("scale", "plane")
 @config_repr
 @dataclass(frozen=True)
 class CompletionConfig:
-    """Options of :func:`complete_depth`.
+    """Options of :func:`spgeo.completion.complete_depth`.
 
     Attributes:
         method: ``"median"`` (the paper's per-primitive median of the
             log-depth ratios), ``"joint"`` (GTSAM Levenberg–Marquardt over
-            all log-scales with robust :class:`SparseDepthFactor` s) or
+            all log-scales with robust
+            :class:`~spgeo.factors.sparse_depth.SparseDepthFactor` s) or
             ``"graph"`` (default; :mod:`spgeo.completion.graph`: Cauchy-robust
             scales coupled across weak image edges; primitives without points
             get scales through the coupling, outlier points are down-weighted;

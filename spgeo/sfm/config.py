@@ -13,7 +13,7 @@ __all__ = ["SfMConfig"]
 @config_repr
 @dataclass(frozen=True)
 class SfMConfig:
-    """Options of :func:`few_view_sfm` (defaults follow the paper where it says).
+    """Options of :func:`spgeo.sfm.few_view_sfm` (defaults follow the paper where it says).
 
     Attributes:
         shape_model: ``"scaled"`` (1-DoF log-scale on the integrated shape, the

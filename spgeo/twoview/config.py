@@ -18,7 +18,7 @@ _FEATURES = ("sift", "orb")
 @config_repr
 @dataclass(frozen=True)
 class TwoViewConfig:
-    """Options of :func:`estimate_relative_pose`.
+    """Options of :func:`spgeo.twoview.estimate_relative_pose`.
 
     Attributes:
         backend: ``"opencv"`` (default) or ``"pycolmap"``.
