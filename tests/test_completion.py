@@ -13,7 +13,7 @@ from spgeo.camera import PinholeCamera
 from spgeo.completion import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
                               CompletionConfig, complete_depth, grouped_median,
                               sparse_point_assignments)
-from spgeo.completion_scales import flat_primitives
+from spgeo.completion.scales import flat_primitives
 from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
                                                           linear_interpolation_completion,
                                                           oracle_frontend)
@@ -164,7 +164,7 @@ def test_complete_depth_exact_on_exact_primitives_and_fills_holes():
 
 
 def test_residual_correction_interpolates_clipped_log_residuals():
-    from spgeo.completion_fill import residual_correction
+    from spgeo.completion.fill import residual_correction
 
     depth = np.full((48, 64), 2.0)
     uv = np.array([[0, 0], [63, 0], [0, 47], [63, 47], [30, 20]])

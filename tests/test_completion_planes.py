@@ -9,11 +9,11 @@ import pytest
 
 from spgeo.camera import PinholeCamera
 from spgeo.completion import CompletionConfig, complete_depth
-from spgeo.completion_graph import solve_log_scales_graph, solve_planes_graph
-from spgeo.completion_planes import (MODE_LENT, MODE_NONE, MODE_PLANE, MODE_SCALE,
+from spgeo.completion.graph import solve_log_scales_graph, solve_planes_graph
+from spgeo.completion.planes import (MODE_LENT, MODE_NONE, MODE_PLANE, MODE_SCALE,
                                      fit_primitive_planes, lend_across_weak_edges,
                                      pixel_rays, primitive_adjacency)
-from spgeo.completion_scales import grouped_median, sparse_point_assignments
+from spgeo.completion.scales import grouped_median, sparse_point_assignments
 from spgeo.evaluation.references.depth_completion import (ColorizationConfig,
                                                           colorization_completion,
                                                           linear_interpolation_completion)
@@ -144,7 +144,7 @@ def test_adjacency_and_lending_only_across_weak_edges():
     p, q, a, b = primitive_adjacency(prims, img)
     assert set(zip(a.tolist(), b.tolist())) == {(0, 1), (1, 0), (1, 2), (2, 1)}
     assert np.all(np.abs(p - q) == 1)
-    from spgeo.completion_planes import PlaneFit
+    from spgeo.completion.planes import PlaneFit
     L = prims.scaled_log_depth(np.array([np.log(2.0), 0.0, 0.0]))
     fit = PlaneFit(L, np.array([MODE_SCALE, MODE_NONE, MODE_NONE], np.int8), np.full(3, -1))
     out = lend_across_weak_edges(prims, fit, img, edge_threshold=0.1)

@@ -1,4 +1,4 @@
-"""Orientation hypotheses decided by the photometric cost (spgeo.sfm_orientation):
+"""Orientation hypotheses decided by the photometric cost (spgeo.sfm.orientation):
 the dominant orientations of a set of primitives, the plane of an orientation
 through a given depth, per-primitive costs, and the choice recovering true
 orientations from fronto-parallel planes at the true poses."""
@@ -11,8 +11,8 @@ from spgeo.frontend import make_frontend
 from spgeo.geometry import relative_pose
 from spgeo.images import gaussian_pyramid, to_gray
 from spgeo.sfm import SfMConfig, brightness_key, pose_key, scale_key
-from spgeo.sfm_graph import build_graph
-from spgeo.sfm_orientation import (centre_rays, choose_orientations, orientation_ratios,
+from spgeo.sfm.graph import build_graph
+from spgeo.sfm.orientation import (centre_rays, choose_orientations, orientation_ratios,
                                    planes_with_orientation, primitive_costs, scene_orientations)
 
 CAM = synthetic.default_camera(160, 120)

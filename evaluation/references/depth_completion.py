@@ -32,7 +32,7 @@ from scipy import sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from spgeo.completion import check_sparse_depth, nearest_fill
-from spgeo.completion_fill import scattered_fill
+from spgeo.completion.fill import scattered_fill
 
 __all__ = ["check_sparse_depth", "linear_interpolation_completion", "nearest_fill",
            "IPBasicConfig", "ip_basic_completion", "diamond_kernel",

@@ -13,7 +13,7 @@ trainers expect::
 Conventions: spgeo poses are camera-to-world ``T_world_cam``; COLMAP stores
 world-to-camera ``cam_from_world`` (its inverse).  spgeo pixel centres are at
 integer coordinates, COLMAP's at half-integers: the principal point and every
-2-D observation are shifted by +0.5 (:func:`spgeo.twoview_backends.colmap_camera`).
+2-D observation are shifted by +0.5 (:func:`spgeo.twoview.backends.colmap_camera`).
 Each 3-D point carries one track element, the pixel of the image it was
 unprojected from, so COLMAP's tools (which reject points without tracks)
 accept the model; its reprojection error is then zero by construction.
@@ -222,7 +222,7 @@ def _write_model(model_dir: Path, camera: PinholeCamera,
                  points: ColmapPoints, image_dir: Path) -> Tuple[int, int]:
     """Write the images and the binary model; returns (images, points) written."""
     pycolmap = _pycolmap()
-    from ..twoview_backends import colmap_camera
+    from ..twoview.backends import colmap_camera
     from ..viz import save_png
 
     n = len(T_world_cam)

@@ -21,7 +21,7 @@ from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
 from ..twoview import TwoViewConfig, to_gray_uint8
-from ..twoview_backends import opencv_features, ratio_matches
+from ..twoview.backends import opencv_features, ratio_matches
 
 __all__ = ["FeatureRetryConfig", "FeatureRetry"]
 

@@ -29,7 +29,7 @@ from ..camera import PinholeCamera
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
-from ..sfm_init import twoview_initialisation
+from ..sfm.init import twoview_initialisation
 from .config import OdometryConfig
 from .mapping import MapKeyframe, apply_primitive_model
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
@@ -73,7 +73,7 @@ def init_views(image: np.ndarray, idx: int, frame0: int, buffer: Sequence[tuple]
 def twoview_start(image0: np.ndarray, image1: np.ndarray, camera: PinholeCamera,
                   prims0: PrimitiveSet) -> Optional[Tuple[np.ndarray, PrimitiveSet]]:
     """Keyframe 1's pose and keyframe 0's log-scales from feature-based two-view
-    geometry (:func:`spgeo.sfm_init.twoview_initialisation`: essential matrix,
+    geometry (:func:`spgeo.sfm.init.twoview_initialisation`: essential matrix,
     triangulated inliers, a robust median per primitive), for a monocular
     front-end whose primitives have no scale yet.
 

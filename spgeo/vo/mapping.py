@@ -55,7 +55,7 @@ from ..camera import PinholeCamera
 from ..factors.photometric import PhotometricFactorGroup, PlanarShape, ScaledShape
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..primitives import PrimitiveSet
-from ..sfm_graph import gtsam_error_line
+from ..sfm.graph import gtsam_error_line
 from .config import PRIMITIVE_MODELS, OdometryConfig
 from .tracking import Keyframe
 
@@ -443,4 +443,4 @@ class _Batch:
 
 
 class _UpdateFailed(RuntimeError):
-    """A smoother update raised (message: :func:`~spgeo.sfm_graph.gtsam_error_line`)."""
+    """A smoother update raised (message: :func:`~spgeo.sfm.graph.gtsam_error_line`)."""

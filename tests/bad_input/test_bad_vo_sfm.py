@@ -16,8 +16,8 @@ from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes, ate_sim3
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
-from spgeo.sfm_graph import gtsam_error_line
-from spgeo.sfm_init import triangulate_depths
+from spgeo.sfm.graph import gtsam_error_line
+from spgeo.sfm.init import triangulate_depths
 from spgeo.validation import InputError
 from spgeo.vo import Odometry, OdometryConfig
 from spgeo.vo.initialisation import append_bounded

@@ -12,8 +12,8 @@ from typing import Tuple
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .geometry import so3_exp
+from ..camera import PinholeCamera
+from ..geometry import so3_exp
 
 __all__ = [
     "bearings", "parallax_angles_deg", "kabsch", "rotation_only_fit", "pose_from_tgt_ref",

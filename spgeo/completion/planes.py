@@ -23,7 +23,7 @@ depths ``d_k`` inside the primitive:
   of the primitive, or that moves the primitive's depth by more than
   ``max_ratio`` against the scale-only fit, is replaced by the scale-only fit.
 * fewer points (but at least one): only the scale (``delta = 0``), from the
-  caller's log-scales (the median of :mod:`spgeo.completion_scales`).
+  caller's log-scales (the median of :mod:`spgeo.completion.scales`).
 * no point: :func:`lend_across_weak_edges` lets an adjacent supported
   primitive whose shared boundary is a weak image edge (mean absolute colour
   difference of the pixel pairs across it below ``edge_threshold``) lend its
@@ -38,8 +38,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .completion_scales import grouped_median
-from .primitives import PrimitiveSet
+from ..primitives import PrimitiveSet
+from .scales import grouped_median
 
 __all__ = ["PlaneFit", "fit_primitive_planes", "apply_planes", "pixel_rays", "primitive_adjacency", "lend_across_weak_edges",
            "MODE_NONE", "MODE_SCALE", "MODE_PLANE", "MODE_LENT"]
@@ -134,22 +134,8 @@ def fit_primitive_planes(prims: PrimitiveSet, point_prim: np.ndarray, point_pix:
     n = len(prims)
     log_scales = np.asarray(log_scales, dtype=np.float64).reshape(-1)
     counts = np.asarray(counts).reshape(-1)
-    if log_scales.shape != (n,) or counts.shape != (n,):
-        raise ValueError(f"log_scales and counts must have shape ({n},)")
-    if int(min_points) < 3:
-        raise ValueError(f"min_points must be >= 3 (a plane), got {min_points}")
-    if not (prior >= 0 and np.isfinite(prior)) or not (huber > 0 and np.isfinite(huber)):
-        raise ValueError(f"prior must be >= 0 and huber > 0, got {prior}, {huber}")
-    if not max_ratio > 1:
-        raise ValueError(f"max_ratio must be > 1, got {max_ratio}")
-    pp = np.asarray(point_prim, dtype=np.int64).reshape(-1)
-    pix = np.asarray(point_pix, dtype=np.int64).reshape(-1)
-    d = np.asarray(point_d, dtype=np.float64).reshape(-1)
-    if not (pp.size == pix.size == d.size):
-        raise ValueError("point_prim, point_pix and point_d must have the same length")
-    if np.any(~np.isfinite(d) | (d <= 0)):
-        raise ValueError("point_d must be finite and > 0")
-
+    pp, pix, d = _checked_plane_inputs(n, log_scales, counts, min_points, prior, huber,
+                                       max_ratio, point_prim, point_pix, point_d)
     has = np.isfinite(log_scales)
     L = prims.scaled_log_depth(np.where(has, log_scales, 0.0))
     mode = np.where(has, MODE_SCALE, MODE_NONE).astype(np.int8)
@@ -169,6 +155,47 @@ def fit_primitive_planes(prims: PrimitiveSet, point_prim: np.ndarray, point_pix:
     rho_bar = np.exp(-grouped_median(ids, np.log(pd), n)[0])
     rho_bar = np.where(np.isfinite(rho_bar), rho_bar, 1.0)
 
+    shapes, hyp, anchor_r = _point_shapes(prims, hypotheses, ids, r_pt, ent)
+    best_x = _best_planes(shapes, ids, r_pt, pd, log_scales, cand, hyp_choice, prior, huber,
+                          iterations, rho_bar)
+
+    # evaluate on every pixel of the candidate primitives; guard against bad planes
+    rho0_all = _pixel_shapes(prims, hyp, hyp_choice, anchor_r)
+    L, good = apply_planes(prims, best_x, L, max_ratio, rho0_all)
+    mode[good] = MODE_PLANE
+    hyp_choice[~good] = -1
+    return PlaneFit(L, mode, hyp_choice)
+
+
+def _checked_plane_inputs(n, log_scales, counts, min_points, prior, huber, max_ratio,
+                          point_prim, point_pix, point_d):
+    """:func:`fit_primitive_planes`'s checks (its *Raises*); returns the points'
+    ``(primitive, flat pixel, depth)`` as flat int64 / int64 / float64 arrays."""
+    if log_scales.shape != (n,) or counts.shape != (n,):
+        raise ValueError(f"log_scales and counts must have shape ({n},)")
+    if int(min_points) < 3:
+        raise ValueError(f"min_points must be >= 3 (a plane), got {min_points}")
+    if not (prior >= 0 and np.isfinite(prior)) or not (huber > 0 and np.isfinite(huber)):
+        raise ValueError(f"prior must be >= 0 and huber > 0, got {prior}, {huber}")
+    if not max_ratio > 1:
+        raise ValueError(f"max_ratio must be > 1, got {max_ratio}")
+    pp = np.asarray(point_prim, dtype=np.int64).reshape(-1)
+    pix = np.asarray(point_pix, dtype=np.int64).reshape(-1)
+    d = np.asarray(point_d, dtype=np.float64).reshape(-1)
+    if not (pp.size == pix.size == d.size):
+        raise ValueError("point_prim, point_pix and point_d must have the same length")
+    if np.any(~np.isfinite(d) | (d <= 0)):
+        raise ValueError("point_d must be finite and > 0")
+    return pp, pix, d
+
+
+def _point_shapes(prims: PrimitiveSet, hypotheses: Optional[np.ndarray], ids: np.ndarray,
+                  r_pt: np.ndarray, ent: np.ndarray):
+    """Unscaled inverse-depth shapes at the points (entries ``ent`` of primitives
+    ``ids``, rays ``r_pt``): the own shape first, then one planar shape per
+    normal hypothesis.  Returns ``(shapes, hypotheses as float array or None,
+    anchor rays)``; ``ValueError`` for hypotheses of the wrong shape."""
+    n = len(prims)
     shapes = [np.exp(-prims.log_depth[ent])]          # own shape, rho0 at the points
     anchor_r = pixel_rays(prims, prims.anchors)
     hyp = None
@@ -181,6 +208,15 @@ def fit_primitive_planes(prims: PrimitiveSet, point_prim: np.ndarray, point_pix:
             den = np.einsum("na,na->n", nh, anchor_r)  # planar rho0 = n.r / n.r(anchor)
             with np.errstate(invalid="ignore", divide="ignore"):
                 shapes.append(np.einsum("ka,ka->k", nh[ids], r_pt) / den[ids])
+    return shapes, hyp, anchor_r
+
+
+def _best_planes(shapes, ids, r_pt, pd, log_scales, cand, hyp_choice, prior, huber, iterations,
+                 rho_bar) -> np.ndarray:
+    """(N, 4) scale-and-plane unknowns of the lowest robust cost over ``shapes``
+    per candidate primitive (NaN where none fits); ``hyp_choice`` gets the
+    chosen shape's index minus one (-1: own shape)."""
+    n = cand.size
     best_x = np.full((n, 4), np.nan)
     best_cost = np.full(n, np.inf)
     for h, rho0 in enumerate(shapes):
@@ -197,8 +233,13 @@ def fit_primitive_planes(prims: PrimitiveSet, point_prim: np.ndarray, point_pix:
         best_x[better] = x[better]
         best_cost[better] = cost[better]
         hyp_choice[better] = h - 1
+    return best_x
 
-    # evaluate on every pixel of the candidate primitives; guard against bad planes
+
+def _pixel_shapes(prims: PrimitiveSet, hyp: Optional[np.ndarray], hyp_choice: np.ndarray,
+                  anchor_r: np.ndarray) -> np.ndarray:
+    """(M,) unscaled inverse depth on every entry of the set: the own shape, or
+    the chosen hypothesis' plane where one was chosen."""
     rho0_all = np.exp(-prims.log_depth)
     ch = hyp_choice[prims.primitive_ids]
     if hyp is not None and np.any(ch >= 0):
@@ -206,10 +247,7 @@ def fit_primitive_planes(prims: PrimitiveSet, point_prim: np.ndarray, point_pix:
         pj = prims.primitive_ids[j]
         rho0_all[j] = (np.einsum("ka,ka->k", hyp[pj, ch[j]], pixel_rays(prims, prims.pixels[j]))
                        / np.einsum("ka,ka->k", hyp[pj, ch[j]], anchor_r[pj]))
-    L, good = apply_planes(prims, best_x, L, max_ratio, rho0_all)
-    mode[good] = MODE_PLANE
-    hyp_choice[~good] = -1
-    return PlaneFit(L, mode, hyp_choice)
+    return rho0_all
 
 
 def apply_planes(prims: PrimitiveSet, x: np.ndarray, L_ref: np.ndarray, max_ratio: float = 3.0,

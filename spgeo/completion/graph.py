@@ -32,10 +32,10 @@ from scipy import sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
-from .completion_planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, pixel_rays,
-                                apply_planes, primitive_adjacency)
-from .completion_scales import flat_primitives
-from .primitives import PrimitiveSet
+from ..primitives import PrimitiveSet
+from .planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, apply_planes, pixel_rays,
+                     primitive_adjacency)
+from .scales import flat_primitives
 
 __all__ = ["GraphScales", "solve_log_scales_graph", "solve_planes_graph"]
 
@@ -179,7 +179,7 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     with ``shape_model="plane"``).
 
     Each primitive has ``rho_i(u) = alpha_i rho0_i(u) + delta_i . r(u)``
-    (:mod:`spgeo.completion_planes`).  Terms, all relative inverse-depth
+    (:mod:`spgeo.completion.planes`).  Terms, all relative inverse-depth
     residuals with Cauchy losses (scale ``sigma``), IRLS on one sparse
     ``4N x 4N`` system:
 
@@ -194,9 +194,9 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
       knew no normal) use ``prior_flat`` instead when given.
 
     Primitives with NaN ``log_scales`` are left out (``MODE_NONE``); a model
-    failing :func:`spgeo.completion_planes.apply_planes`'s checks keeps the
+    failing :func:`spgeo.completion.planes.apply_planes`'s checks keeps the
     scale-only shape (``MODE_SCALE``).  Returns a
-    :class:`~spgeo.completion_planes.PlaneFit`.
+    :class:`~spgeo.completion.planes.PlaneFit`.
     """
     for name, v in (("sigma", sigma), ("edge_scale", edge_scale)):
         if not (np.isfinite(v) and v > 0):
@@ -216,6 +216,41 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     pp = np.asarray(point_prim, dtype=np.int64).reshape(-1)
     if not np.any(act) or pp.size == 0:
         return PlaneFit(L1, mode, hyp)
+    rho0 = np.exp(-prims.log_depth)
+    pp, fd, wd0 = _data_rows(prims, act, rho0, pp, point_pix, point_d, point_weights)
+    cont = _continuity_rows(prims, image, act, L1, rho0, coupling, edge_scale)
+    ridge = _plane_ridge(prims, act, s, prior, prior_flat)
+    J, b = _plane_system(n, pp, fd, cont)
+    x = _plane_irls(n, J, b, pp.size, wd0, cont, ridge, L1, sigma, iterations)
+    X = x.reshape(n, 4)
+    X[~act] = np.nan
+    L, good = apply_planes(prims, X, L1, max_ratio)
+    mode[good] = MODE_PLANE
+    return PlaneFit(L, mode, hyp)
+
+
+@dataclass
+class _Continuity:
+    """Continuity rows of :func:`solve_planes_graph`, one per boundary pixel pair
+    of weakly separated active neighbours: the pair's primitives ``ca``, ``cb``,
+    entries ``ep``, ``eq``, reference inverse depth ``rref``, features ``gp``,
+    ``gq`` (M, 4) on each primitive's unknowns and base weight ``cw0``."""
+
+    ca: np.ndarray
+    cb: np.ndarray
+    ep: np.ndarray
+    eq: np.ndarray
+    rref: np.ndarray
+    gp: np.ndarray
+    gq: np.ndarray
+    cw0: np.ndarray
+
+
+def _data_rows(prims: PrimitiveSet, act: np.ndarray, rho0: np.ndarray, pp: np.ndarray,
+               point_pix: np.ndarray, point_d: np.ndarray, point_weights: Optional[np.ndarray]):
+    """Data rows of :func:`solve_planes_graph` for the points of active primitives:
+    ``(their primitives (K,), features (K, 4) on the primitive's 4 unknowns,
+    start weights (K,))``."""
     pix = np.asarray(point_pix, dtype=np.int64).reshape(-1)
     d = np.asarray(point_d, dtype=np.float64).reshape(-1)
     wd0 = np.ones(pp.size) if point_weights is None else np.asarray(point_weights, float)
@@ -225,10 +260,14 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     key = prims.primitive_ids * npix + prims.pixels
     order = np.argsort(key, kind="stable")
     ent = order[np.searchsorted(key[order], pp * npix + pix)]
-    rho0 = np.exp(-prims.log_depth)
     # data rows: (K, 4) features on the 4 unknowns of primitive pp
     fd = np.concatenate([rho0[ent, None], pixel_rays(prims, pix)], 1) * d[:, None]
-    # continuity rows
+    return pp, fd, wd0
+
+
+def _continuity_rows(prims: PrimitiveSet, image: np.ndarray, act: np.ndarray, L1: np.ndarray,
+                     rho0: np.ndarray, coupling: float, edge_scale: float) -> _Continuity:
+    """:class:`_Continuity` (empty when ``coupling`` is 0 or no edge is weak)."""
     e = _weak_edges(prims, image, edge_scale) if coupling > 0 else None
     if e is not None and e.edge_a.size:
         ok = act[e.edge_a[e.pair_edge]] & act[e.edge_b[e.pair_edge]]
@@ -243,6 +282,15 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
         rref = np.ones(0)
         gp = gq = np.zeros((0, 4))
         cw0 = np.zeros(0)
+    return _Continuity(ca, cb, ep, eq, rref, gp, gq, cw0)
+
+
+def _plane_ridge(prims: PrimitiveSet, act: np.ndarray, s: np.ndarray, prior: float,
+                 prior_flat: Optional[float]) -> np.ndarray:
+    """(4N,) diagonal regulariser of :func:`solve_planes_graph`: the orientation
+    prior on active primitives' planar unknowns, a tiny ridge on their scales,
+    and ones on inactive primitives (decoupled, solved to zero)."""
+    n = len(prims)
     rho_ref = np.exp(-s[act])
     ridge = np.zeros(4 * n)
     ridge_idx = (4 * np.flatnonzero(act)[:, None] + np.arange(1, 4)[None]).ravel()
@@ -253,30 +301,41 @@ def solve_planes_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: np.nd
     ridge[4 * np.flatnonzero(~act)] = 1.0   # inactive primitives: decoupled, zero
     ridge[(4 * np.flatnonzero(~act)[:, None] + np.arange(1, 4)[None]).ravel()] = 1.0
     ridge[4 * np.flatnonzero(act)] = 1e-12
+    return ridge
+
+
+def _plane_system(n: int, pp: np.ndarray, fd: np.ndarray, c: _Continuity):
+    """Sparse Jacobian ``J`` ((K + M) x 4N: data rows, then continuity rows) and
+    right-hand side ``b`` (1 per data row, 0 per continuity row)."""
     cols4 = np.arange(4)
     rows_d = np.repeat(np.arange(pp.size), 4)
     cols_d = (4 * pp[:, None] + cols4).ravel()
-    m = ca.size
+    m = c.ca.size
     rows_c = np.repeat(np.arange(pp.size, pp.size + m), 8)
-    cols_c = np.concatenate([4 * ca[:, None] + cols4, 4 * cb[:, None] + cols4], 1).ravel()
-    vals_c = np.concatenate([gp, -gq], 1).ravel()
+    cols_c = np.concatenate([4 * c.ca[:, None] + cols4, 4 * c.cb[:, None] + cols4], 1).ravel()
+    vals_c = np.concatenate([c.gp, -c.gq], 1).ravel()
     J = sp.csr_matrix((np.concatenate([fd.ravel(), vals_c]),
                        (np.concatenate([rows_d, rows_c]), np.concatenate([cols_d, cols_c]))),
                       shape=(pp.size + m, 4 * n))
     b = np.concatenate([np.ones(pp.size), np.zeros(m)])
+    return J, b
+
+
+def _plane_irls(n: int, J, b: np.ndarray, k: int, wd0: np.ndarray, c: _Continuity,
+                ridge: np.ndarray, L1: np.ndarray, sigma: float, iterations: int) -> np.ndarray:
+    """(4N,) unknowns by Cauchy IRLS on ``J x = b`` (``k`` data rows first),
+    data weights starting at ``wd0``, continuity weights at the scale-only
+    solution's steps."""
+    m = c.ca.size
     wd = wd0.copy()
     # continuity weights start from the scale-only solution's steps across each boundary
-    wc = _cauchy((np.exp(-L1[ep]) - np.exp(-L1[eq])) / rref, sigma) if m else np.ones(0)
+    wc = _cauchy((np.exp(-L1[c.ep]) - np.exp(-L1[c.eq])) / c.rref, sigma) if m else np.ones(0)
     x = np.zeros(4 * n)
     for _ in range(int(iterations)):
-        W = sp.diags(np.concatenate([wd, cw0 * wc]))
+        W = sp.diags(np.concatenate([wd, c.cw0 * wc]))
         H = (J.T @ W @ J + sp.diags(ridge)).tocsc()
         x = spsolve(H, J.T @ (W @ b))
         r = J @ x - b
-        wd = _cauchy(r[:pp.size], sigma)
-        wc = _cauchy(r[pp.size:], sigma)
-    X = x.reshape(n, 4)
-    X[~act] = np.nan
-    L, good = apply_planes(prims, X, L1, max_ratio)
-    mode[good] = MODE_PLANE
-    return PlaneFit(L, mode, hyp)
+        wd = _cauchy(r[:k], sigma)
+        wc = _cauchy(r[k:], sigma)
+    return x

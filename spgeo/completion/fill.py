@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .camera import PinholeCamera
-from .completion_scales import working_pixels
+from ..camera import PinholeCamera
+from .scales import working_pixels
 
 __all__ = [
     "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR", "CONFIDENCE_NEAREST",

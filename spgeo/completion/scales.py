@@ -11,8 +11,8 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .primitives import PrimitiveSet
+from ..camera import PinholeCamera
+from ..primitives import PrimitiveSet
 
 __all__ = ["working_pixels", "sparse_point_assignments", "grouped_median",
            "solve_log_scales_joint", "flat_primitives"]
@@ -88,7 +88,7 @@ def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d:
     """
     import gtsam
 
-    from .factors.sparse_depth import SparseDepthFactor
+    from ..factors.sparse_depth import SparseDepthFactor
 
     point_prim = np.asarray(point_prim, dtype=np.int64)
     out = np.full(n_primitives, np.nan)

@@ -22,9 +22,9 @@ import numpy as np
 
 import gtsam
 
-from .factors.photometric_group import PhotometricFactorGroup
-from .primitives import PrimitiveSet
-from .sfm_graph import scale_key
+from ..factors.photometric_group import PhotometricFactorGroup
+from ..primitives import PrimitiveSet
+from .graph import scale_key
 
 __all__ = ["orientation_ratios", "scene_orientations", "centre_rays", "planes_with_orientation",
            "primitive_costs", "choose_orientations", "choose_planar_orientations"]
@@ -154,7 +154,7 @@ def choose_planar_orientations(prims: PrimitiveSet, builders: Sequence[Photometr
     hypotheses are each primitive's own front-end orientation and the scene's
     dominant ones (:func:`scene_orientations`); ``builders`` are the finest
     level's groups, ``values`` the solved variables (planes under
-    :func:`spgeo.sfm_graph.scale_key`).  Returns ``(values, orientations)``:
+    :func:`spgeo.sfm.graph.scale_key`).  Returns ``(values, orientations)``:
     the values with the chosen planes and the (N, 2) slope ratios for the
     priors, or ``(values, None)`` when no primitive has another orientation
     to offer or none changed; ``report["orientation_choice"]`` gets the

@@ -14,15 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from typing import TYPE_CHECKING, Optional
+from typing import List, Optional
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .twoview_geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .twoview import TwoViewConfig
+from ..camera import PinholeCamera
+from .config import TwoViewConfig
+from .geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
 
 __all__ = [
     "colmap_camera", "quiet_colmap", "opencv_features", "ratio_matches",
@@ -130,24 +128,15 @@ def pycolmap_features_and_matches(g1: np.ndarray, g2: np.ndarray, config: TwoVie
     return p1, p2, matches, t_feat
 
 
-def opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: TwoViewConfig):
-    """(R_tgt_ref, t, inlier mask, message) from OpenCV.
-
-    Candidate poses come from the essential matrix (``cv2.findEssentialMat``
-    with RANSAC and, where available, USAC_ACCURATE, each disambiguated by
-    ``cv2.recoverPose``) and from the decompositions of a RANSAC homography
-    (planar scenes, where a five-point RANSAC may stop on the wrong one of the
-    two plane-induced solutions).  Each candidate is optionally refined on its
-    inliers (Sampson error) and scored with the MSAC cost over all matches
-    (squared Sampson error, truncated at the threshold; matches that triangulate
-    behind a camera count as outliers); the lowest cost wins.
-    """
+def _essential_candidates(K: np.ndarray, x1: np.ndarray, x2: np.ndarray,
+                          config: TwoViewConfig, notes: List[str]) -> list:
+    """``(R, t)`` candidates of :func:`opencv_geometry` from the essential matrix
+    (RANSAC, then USAC_ACCURATE where available), each solution disambiguated
+    by ``cv2.recoverPose``; why a method gave none is appended to ``notes``."""
     import cv2
 
-    K = cam.K
     thr = float(config.ransac_threshold_px)
     candidates = []
-    notes = []
     methods = [("RANSAC", cv2.RANSAC)]
     if hasattr(cv2, "USAC_ACCURATE"):
         methods.append(("USAC_ACCURATE", cv2.USAC_ACCURATE))
@@ -171,6 +160,17 @@ def opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: 
                 continue
             if n_good >= 5:
                 candidates.append((R, t.ravel()))
+    return candidates
+
+
+def _homography_candidates(K: np.ndarray, x1: np.ndarray, x2: np.ndarray,
+                           config: TwoViewConfig) -> list:
+    """``(R, t)`` candidates of :func:`opencv_geometry` from the decompositions of
+    a RANSAC homography (planar scenes); none when it fails."""
+    import cv2
+
+    thr = float(config.ransac_threshold_px)
+    candidates = []
     try:
         H, hmask = cv2.findHomography(x1, x2, cv2.RANSAC, thr, maxIters=int(config.ransac_max_iterations),
                                       confidence=float(config.ransac_confidence))
@@ -184,6 +184,25 @@ def opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: 
         for R, t in zip(Rs, ts):
             if np.linalg.norm(t) > 1e-9:
                 candidates.append((np.asarray(R, float), np.asarray(t, float).ravel()))
+    return candidates
+
+
+def opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: TwoViewConfig):
+    """(R_tgt_ref, t, inlier mask, message) from OpenCV.
+
+    Candidate poses come from the essential matrix (``cv2.findEssentialMat``
+    with RANSAC and, where available, USAC_ACCURATE, each disambiguated by
+    ``cv2.recoverPose``) and from the decompositions of a RANSAC homography
+    (planar scenes, where a five-point RANSAC may stop on the wrong one of the
+    two plane-induced solutions).  Each candidate is optionally refined on its
+    inliers (Sampson error) and scored with the MSAC cost over all matches
+    (squared Sampson error, truncated at the threshold; matches that triangulate
+    behind a camera count as outliers); the lowest cost wins.
+    """
+    thr = float(config.ransac_threshold_px)
+    notes: List[str] = []
+    candidates = _essential_candidates(cam.K, x1, x2, config, notes)
+    candidates += _homography_candidates(cam.K, x1, x2, config)
     if not candidates:
         return None, None, None, "; ".join(notes) or "no essential matrix found"
 

@@ -16,13 +16,13 @@ sparse depth fixes one log-scale per primitive:
    with outliers both are robust (the median has a 50 % breakdown point, the
    Huber estimate bounds each point's influence).  The joint form is the one
    that composes with photometric factors on the same keys.
-   ``method="graph"`` (:mod:`spgeo.completion_graph`) solves all scales
+   ``method="graph"`` (:mod:`spgeo.completion.graph`) solves all scales
    together with Cauchy losses and a coupling between neighbours separated by
    a weak image edge: keypoints sit on region borders and often carry the
    neighbour's depth, which this outvotes; primitives without points get a
    scale through the coupling.
    ``shape_model="plane"`` then adds a planar inverse-depth correction per
-   primitive (:mod:`spgeo.completion_planes`: robust plane fits with a prior
+   primitive (:mod:`spgeo.completion.planes`: robust plane fits with a prior
    towards the primitive's own orientation where it holds three or more
    points, depth lent across weak edges to empty primitives; with "graph",
    one joint solve with continuity across weak edges).  ``"graph"`` with
@@ -46,7 +46,7 @@ sparse depth fixes one log-scale per primitive:
 6. **residual correction** (``residual_clip``) — the log-residuals of the
    complete map at the sparse points, each clipped to ``residual_clip``, are
    interpolated linearly over the image and applied as a factor
-   (:func:`spgeo.completion_fill.residual_correction`) on the pixels of flat
+   (:func:`spgeo.completion.fill.residual_correction`) on the pixels of flat
    primitives (the front-end knew no shape: one scale or plane cannot pass
    through their points) and of holes; the map there honours its points up to
    the clip, smoothly.  Primitives shaped by normals are left as fitted (there
@@ -72,157 +72,26 @@ from typing import TYPE_CHECKING, Dict, Optional, Tuple, Union
 
 import numpy as np
 
-from .camera import PinholeCamera
-from .completion_fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
-                              fill_holes, linear_fill, nearest_fill, resample_sparse,
-                              residual_correction, upsample)
-from .completion_graph import solve_log_scales_graph, solve_planes_graph
-from .completion_planes import (MODE_NONE, MODE_SCALE, fit_primitive_planes,
-                                lend_across_weak_edges)
-from .completion_scales import (flat_primitives, grouped_median, solve_log_scales_joint,
-                                sparse_point_assignments, working_pixels)
-from .images import to_float_image
-from .primitives import PrimitiveSet
-from .validation import check_camera, check_sparse_depth
+from ..camera import PinholeCamera
+from ..images import to_float_image
+from ..primitives import PrimitiveSet
+from ..validation import check_camera, check_sparse_depth
+from .config import CompletionConfig
+from .fill import fill_holes, resample_sparse, residual_correction, upsample
+from .graph import solve_log_scales_graph, solve_planes_graph
+from .planes import MODE_NONE, MODE_SCALE, fit_primitive_planes, lend_across_weak_edges
+from .scales import (flat_primitives, grouped_median, solve_log_scales_joint,
+                     sparse_point_assignments, working_pixels)
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .frontend import PrimitiveFrontEnd
+    from ..frontend import PrimitiveFrontEnd
 
-__all__ = [
-    "CompletionConfig", "CompletionResult", "complete_depth", "check_sparse_depth",
-    "nearest_fill", "linear_fill", "sparse_point_assignments", "grouped_median",
-    "solve_log_scales_joint", "working_size_for", "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR",
-    "CONFIDENCE_NEAREST",
-]
+__all__ = ["CompletionResult", "complete_depth", "working_size_for"]
 
 log = logging.getLogger(__name__)
 
-METHODS = ("median", "joint", "graph")
-SHAPE_MODELS = ("scale", "plane")
 
-
-# ----------------------------------------------------------------- config / result
-@dataclass(frozen=True)
-class CompletionConfig:
-    """Options of :func:`complete_depth`.
-
-    Attributes:
-        method: ``"median"`` (the paper's per-primitive median of the
-            log-depth ratios), ``"joint"`` (GTSAM Levenberg–Marquardt over
-            all log-scales with robust :class:`SparseDepthFactor` s) or
-            ``"graph"`` (default; :mod:`spgeo.completion_graph`: Cauchy-robust
-            scales coupled across weak image edges; primitives without points
-            get scales through the coupling, outlier points are down-weighted;
-            docs/results.md says why it is the default).
-        graph_coupling: ``"graph"``: weight of a neighbour coupling relative
-            to one sparse point (>= 0).
-        plane_prior_flat: ``"graph"`` with ``"plane"``: ``plane_prior`` for
-            primitives whose shape is constant (fronto-parallel: no normal
-            was known), so that points and continuity decide their tilt (>= 0).
-        plane_coupling: ``"graph"`` with ``"plane"``: weight of one boundary
-            pixel pair's continuity term relative to one sparse point
-            (:func:`spgeo.completion_graph.solve_planes_graph`; >= 0).
-        working_width: when the front-end is built here (``frontend`` None or
-            a name), primitives are computed on a copy resized to this width
-            (aspect kept) if the image is wider; None keeps the input size.
-            Default 320 (the authors integrated at 320x240).  A front-end
-            object passed in keeps its own ``FrontEndConfig.working_size``.
-        min_points: primitives with fewer sparse points are dropped.  Default 1.
-        sigma: ``"joint"``: sparse-depth noise in log units.  Default 0.01 (1 %).
-        huber_k: ``"joint"``: Huber threshold in units of ``sigma`` (None: least
-            squares).  Default 1.345.
-        max_iterations: ``"joint"``: Levenberg–Marquardt iteration limit.  Default 50.
-        min_coverage: below this fraction of the image covered by supported
-            primitives, fall back to plain linear interpolation.  Default 0.05.
-        shape_model: ``"scale"`` (the paper: one log-scale per primitive, its
-            shape kept) or ``"plane"`` (default; :mod:`spgeo.completion_planes`: a
-            planar inverse-depth correction fitted where a primitive holds
-            ``plane_min_points`` points, normal hypotheses from
-            ``PrimitiveSet.meta["normal_hypotheses"]`` ((N, H, 3) camera-frame
-            normals) tried, and depth lent to empty primitives across weak
-            edges; with ``method="graph"`` one joint solve with continuity
-            across weak edges, :func:`spgeo.completion_graph.solve_planes_graph`).
-        plane_min_points: ``"plane"``: points needed for the planar fit (>= 3).
-        plane_prior: ``"plane"``: ridge weight pulling the plane towards the
-            primitive's own orientation (>= 0).
-        plane_huber: ``"plane"``: Huber threshold on the relative
-            inverse-depth residual (> 0).
-        lend_edge_threshold: ``"plane"``: largest mean absolute colour step
-            (image in [0, 1]) along a shared boundary across which a neighbour
-            lends depth to a primitive without points; None: no lending.
-        lend_rounds: ``"plane"``: lending passes (depth spreads one primitive
-            per pass).
-        residual_clip: step 6's largest correction in log units (>= 0; 0 or
-            None: off).  Default 0.05 (docs/results.md says why).
-    """
-
-    method: str = "graph"
-    working_width: Optional[int] = 320
-    min_points: int = 1
-    sigma: float = 0.01
-    huber_k: Optional[float] = 1.345
-    max_iterations: int = 50
-    min_coverage: float = 0.05
-    shape_model: str = "plane"
-    plane_min_points: int = 3
-    plane_prior: float = 0.1
-    plane_huber: float = 0.05
-    lend_edge_threshold: Optional[float] = 0.08
-    lend_rounds: int = 3
-    graph_coupling: float = 1.0
-    plane_coupling: float = 0.03
-    plane_prior_flat: float = 1e-4
-    residual_clip: Optional[float] = 0.05
-
-    def __post_init__(self) -> None:
-        if self.residual_clip is not None and not (
-                np.isfinite(self.residual_clip) and self.residual_clip >= 0):
-            raise ValueError(f"CompletionConfig: residual_clip must be >= 0 or None, "
-                             f"got {self.residual_clip}")
-        if not (np.isfinite(self.plane_prior_flat) and self.plane_prior_flat >= 0):
-            raise ValueError(f"CompletionConfig: plane_prior_flat must be >= 0, "
-                             f"got {self.plane_prior_flat}")
-        if not (np.isfinite(self.plane_coupling) and self.plane_coupling >= 0):
-            raise ValueError(f"CompletionConfig: plane_coupling must be >= 0, "
-                             f"got {self.plane_coupling}")
-        if not (np.isfinite(self.graph_coupling) and self.graph_coupling >= 0):
-            raise ValueError(f"CompletionConfig: graph_coupling must be >= 0, "
-                             f"got {self.graph_coupling}")
-        if self.shape_model not in SHAPE_MODELS:
-            raise ValueError(f"CompletionConfig: shape_model must be one of {SHAPE_MODELS}, "
-                             f"got {self.shape_model!r}")
-        if int(self.plane_min_points) != self.plane_min_points or self.plane_min_points < 3:
-            raise ValueError(f"CompletionConfig: plane_min_points must be an integer >= 3, "
-                             f"got {self.plane_min_points}")
-        if not (np.isfinite(self.plane_prior) and self.plane_prior >= 0):
-            raise ValueError(f"CompletionConfig: plane_prior must be >= 0, got {self.plane_prior}")
-        if not (np.isfinite(self.plane_huber) and self.plane_huber > 0):
-            raise ValueError(f"CompletionConfig: plane_huber must be > 0, got {self.plane_huber}")
-        if self.lend_edge_threshold is not None and not (
-                np.isfinite(self.lend_edge_threshold) and self.lend_edge_threshold >= 0):
-            raise ValueError(f"CompletionConfig: lend_edge_threshold must be >= 0 or None, "
-                             f"got {self.lend_edge_threshold}")
-        if int(self.lend_rounds) < 0:
-            raise ValueError(f"CompletionConfig: lend_rounds must be >= 0, got {self.lend_rounds}")
-        if self.method not in METHODS:
-            raise ValueError(f"CompletionConfig: method must be one of {METHODS}, "
-                             f"got {self.method!r}")
-        if self.working_width is not None and int(self.working_width) < 8:
-            raise ValueError("CompletionConfig: working_width must be >= 8 or None")
-        if int(self.min_points) != self.min_points or self.min_points < 1:
-            raise ValueError(f"CompletionConfig: min_points must be an integer >= 1, "
-                             f"got {self.min_points}")
-        if not (np.isfinite(self.sigma) and self.sigma > 0):
-            raise ValueError(f"CompletionConfig: sigma must be finite and > 0, got {self.sigma}")
-        if self.huber_k is not None and not (np.isfinite(self.huber_k) and self.huber_k > 0):
-            raise ValueError(f"CompletionConfig: huber_k must be > 0 or None, got {self.huber_k}")
-        if int(self.max_iterations) < 1:
-            raise ValueError("CompletionConfig: max_iterations must be >= 1")
-        if not 0.0 <= self.min_coverage <= 1.0:
-            raise ValueError(f"CompletionConfig: min_coverage must be in [0, 1], "
-                             f"got {self.min_coverage}")
-
-
+# ----------------------------------------------------------------- result
 @dataclass
 class CompletionResult:
     """Output of :func:`complete_depth`.
@@ -251,7 +120,7 @@ class CompletionResult:
             ``fill``: holes and the residual correction, ``total``).
         solver: ``"joint"``: LM report (iterations, initial / final error).
         modes: (N_kept,) how each kept primitive got its depth
-            (:data:`spgeo.completion_planes.MODE_SCALE` / ``MODE_PLANE`` /
+            (:data:`spgeo.completion.planes.MODE_SCALE` / ``MODE_PLANE`` /
             ``MODE_LENT``); all ``MODE_SCALE`` for ``shape_model="scale"``.
     """
 
@@ -304,7 +173,7 @@ def _check_primitive_camera(prims: PrimitiveSet, camera: PinholeCamera) -> None:
 
 def _primitives(image, camera, frontend, frontend_depth, config):
     """(PrimitiveSet, front-end name, uses_depth)."""
-    from .frontend import FrontEndConfig, make_frontend
+    from ..frontend import FrontEndConfig, make_frontend
 
     if isinstance(frontend, PrimitiveSet):
         if frontend_depth is not None:
@@ -423,6 +292,44 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
             primitives of another camera.
     """
     t0 = time.perf_counter()
+    image, sparse, uv, sd = _checked_inputs(image, sparse_depth, camera, config)
+    prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
+    t_fe = time.perf_counter()
+
+    n = len(prims)
+    fit = _fit_scales(image, prims, uv, sd, camera, config)
+    kept, sub = fit.kept, fit.sub
+    t_sc = time.perf_counter()
+
+    dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
+    covered = np.isfinite(dmap)
+    coverage = float(covered.mean())
+    fallback = coverage < config.min_coverage or kept.size == 0
+    t_re = time.perf_counter()
+    if fallback:
+        log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
+                    "back to linear interpolation of the %d sparse points", coverage,
+                    config.min_coverage, sd.size)
+        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
+                                 sparse)
+    else:
+        depth, conf = _filled_map(dmap, covered, prims, uv, sd, camera, config)
+    t_fi = time.perf_counter()
+    res = CompletionResult(
+        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
+        n_points=fit.counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
+        coverage=coverage, method=config.method, frontend=fe_name,
+        uses_depth=uses_depth, fallback=fallback,
+        timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
+                 "fill": t_fi - t_re, "total": time.perf_counter() - t0},
+        solver=fit.solver, modes=fit.modes)
+    log.info("%s", res.summary())
+    return res
+
+
+def _checked_inputs(image, sparse_depth, camera, config):
+    """:func:`complete_depth`'s input checks (its *Raises*); returns ``(image,
+    sparse depth map, (P, 2) pixel coordinates of the P sparse points, their depths)``."""
     check_camera(camera, "complete_depth: camera")
     if not isinstance(config, CompletionConfig):
         raise TypeError(f"config must be a CompletionConfig, got {type(config).__name__}")
@@ -432,10 +339,27 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
     sv, su = np.nonzero(sparse > 0)
     sd = sparse[sv, su]
     uv = np.stack([su, sv], 1).astype(np.float64)
+    return image, sparse, uv, sd
 
-    prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
-    t_fe = time.perf_counter()
 
+@dataclass
+class _ScaleFit:
+    """Output of :func:`_fit_scales`: the kept primitives with their fitted
+    depths (``sub``), their indices in the front-end's set, how each got its
+    depth (``MODE_*``), sparse points per primitive of the set, solver report."""
+
+    sub: PrimitiveSet
+    kept: np.ndarray
+    modes: np.ndarray
+    counts: np.ndarray
+    solver: Dict[str, float]
+
+
+def _fit_scales(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
+                camera: PinholeCamera, config: CompletionConfig) -> _ScaleFit:
+    """Steps 1-2 of the module docstring: log-scales by ``config.method`` (median,
+    joint or graph), primitives without support dropped, then the planar shapes
+    of ``shape_model="plane"``."""
     n = len(prims)
     point, prim, ldep = sparse_point_assignments(prims, uv, camera) if n else (
         np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -461,35 +385,18 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
                                         counts, kept, config, point_w)
     else:
         sub = prims.subset(kept).with_log_scales(s[kept])
-    t_sc = time.perf_counter()
+    return _ScaleFit(sub, kept, modes, counts, solver)
 
-    dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
-    covered = np.isfinite(dmap)
-    coverage = float(covered.mean())
-    fallback = coverage < config.min_coverage or kept.size == 0
-    t_re = time.perf_counter()
-    if fallback:
-        log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
-                    "back to linear interpolation of the %d sparse points", coverage,
-                    config.min_coverage, sd.size)
-        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
-                                 sparse)
-    else:
-        # holes are filled at the primitives' resolution, then the map is resized
-        depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera,
-                                                                    prims.camera))
-        depth, conf = upsample(depth_w, conf_w, camera)
-        if config.residual_clip:
-            depth = residual_correction(depth, uv, sd, config.residual_clip,
-                                        _shapeless_weight(prims, camera))
-    t_fi = time.perf_counter()
-    res = CompletionResult(
-        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
-        n_points=counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
-        coverage=coverage, method=config.method, frontend=fe_name,
-        uses_depth=uses_depth, fallback=fallback,
-        timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
-                 "fill": t_fi - t_re, "total": time.perf_counter() - t0},
-        solver=solver, modes=modes)
-    log.info("%s", res.summary())
-    return res
+
+def _filled_map(dmap: np.ndarray, covered: np.ndarray, prims: PrimitiveSet, uv: np.ndarray,
+                sd: np.ndarray, camera: PinholeCamera, config: CompletionConfig):
+    """Steps 4 and 6 of the module docstring: ``(depth, confidence)`` at the
+    input resolution from the rendered map ``dmap`` (finite where ``covered``):
+    holes filled at the primitives' resolution, resized, residual correction."""
+    # holes are filled at the primitives' resolution, then the map is resized
+    depth_w, conf_w = fill_holes(dmap, covered, resample_sparse(uv, sd, camera, prims.camera))
+    depth, conf = upsample(depth_w, conf_w, camera)
+    if config.residual_clip:
+        depth = residual_correction(depth, uv, sd, config.residual_clip,
+                                    _shapeless_weight(prims, camera))
+    return depth, conf

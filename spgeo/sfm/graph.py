@@ -8,20 +8,18 @@ of the VO tracker, which minimises the same cost.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, List, Optional
+from typing import List, Optional
 
 import numpy as np
 
 import gtsam
 
-from .factors.photometric import PlanarShape, ScaledShape
-from .factors.photometric_group import PhotometricFactorGroup
-from .factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
-                             pose_gauge_prior)
-from .primitives import PrimitiveSet
-
-if TYPE_CHECKING:
-    from .sfm import SfMConfig
+from ..factors.photometric import PlanarShape, ScaledShape
+from ..factors.photometric_group import PhotometricFactorGroup
+from ..factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
+                              pose_gauge_prior)
+from ..primitives import PrimitiveSet
+from .config import SfMConfig
 
 __all__ = ["pose_key", "scale_key", "brightness_key", "level_pixels", "build_graph",
            "hold_translation_and_shape", "gtsam_error_line", "gauge_free_scale_std"]

@@ -13,9 +13,9 @@ from typing import List, Sequence, Tuple
 import cv2
 import numpy as np
 
-from .camera import PinholeCamera
-from .geometry import invert_pose
-from .primitives import PrimitiveSet
+from ..camera import PinholeCamera
+from ..geometry import invert_pose
+from ..primitives import PrimitiveSet
 
 __all__ = ["twoview_initialisation", "triangulate_depths"]
 
@@ -58,7 +58,7 @@ def twoview_initialisation(ref_image: np.ndarray, views: Sequence[np.ndarray],
         ``prims`` with log-scales set by a robust median over the triangulated inliers
         (unchanged when no primitive has a point).
     """
-    from .twoview import estimate_relative_pose
+    from ..twoview import estimate_relative_pose
 
     cam = prims.camera
     sx, sy = cam.width / camera.width, cam.height / camera.height
