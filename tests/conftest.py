@@ -31,62 +31,13 @@ def shared_data() -> Path:
 
 
 # ------------------------------------------------------------------ the ``slow`` marker
-# Chosen by measuring ``python3 -m pytest -q --durations=0 tests``: a test is slow when its
-# call, or the set-up of a module-scoped fixture it requests, takes more than about 1.5 s.
-# A test that requests a slow fixture is slow too (else the fixture's cost moves to it).
-SLOW_FILES = {"test_notebooks.py", "test_demo.py"}
-SLOW_FIXTURES = {
-    "test_completion.py": {"synthetic_results"},
-    "test_demo_vo.py": {"vo_demo"},
-    "test_odometry.py": {"run", "run_frequent_kf"},
-    "test_rerun_logger.py": {"logged"},
-    "test_vo_cli.py": {"depth_run"},
-    "test_vo_evaluation.py": {"synthetic_sequence"},
-    "test_vo_fast_motion.py": {"frames"},
-    "test_vo_references.py": {"colmap_result"},
-}
-SLOW_TESTS = {
-    "test_atomic_outputs.py": {"test_sfm_failure_leaves_previous_output_byte_for_byte",
-                               "test_sfm_rerun_replaces_the_previous_run"},
-    "test_colmap.py": {"test_colmap_fewview_paths_uint8_deterministic",
-                       "test_colmap_two_view_fallback"},
-    "test_eval_jobs.py": {"test_ray_gives_the_sequential_numbers",
-                          "test_vo_synthetic_cli_error_row"},
-    "test_odometry.py": {"test_classical_planar_monocular_accuracy",
-                         "test_fixed_lag_marginalises_old_keyframes",
-                         "test_mapping_failure_restarts_the_window",
-                         "test_reinitialisation_after_a_long_loss"},
-    "test_rerun_logger.py": {"test_rerun_is_not_imported_without_the_option",
-                             "test_completion_and_sfm_logging"},
-    "test_scannet_protocol.py": {"test_runner_end_to_end"},
-    "test_sfm.py": {"test_cli_writes_documented_outputs", "test_depth_frontend_accuracy",
-                    "test_planar_model_classical_frontend",
-                    "test_unconstrained_primitives_are_flagged_not_reported"},
-    "test_sfm_ablation.py": {"test_tum_classical_planar_row"},
-    "test_sfm_real.py": {"test_tum_bundled_frames_rotation_error"},
-    "test_trajectory_plots.py": {"test_vo_run_save_writes_the_plots"},
-    "test_vo_frontier.py": {"test_tiny_synthetic_grid"},
-    "test_vo_evaluation.py": {"test_feature_vo_7scenes"},
-    "test_vo_references.py": {"test_compare_vo_feature_and_colmap"},
-}
-
-
+# A test is marked at the test (``@pytest.mark.slow``, or ``pytestmark`` for a whole module)
+# when its call, or the set-up of a module-scoped fixture it requests, takes more than about
+# 1.5 s (``python3 -m pytest -q --durations=0 tests``); a test that requests a slow fixture is
+# marked too, else the fixture's cost moves into the fast tier.
 def pytest_configure(config):
     config.addinivalue_line(
         "markers", "slow: end-to-end test (> ~1.5 s); deselect with -m \"not slow\"")
-
-
-def is_slow(item) -> bool:
-    name = item.path.name
-    return (name in SLOW_FILES
-            or item.originalname in SLOW_TESTS.get(name, ())
-            or not SLOW_FIXTURES.get(name, set()).isdisjoint(item.fixturenames))
-
-
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if is_slow(item):
-            item.add_marker(pytest.mark.slow)
 
 
 # ------------------------------------------------------------------ small input files

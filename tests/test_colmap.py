@@ -234,6 +234,7 @@ def test_colmap_fewview_synthetic(synthetic, colmap_synthetic):
     assert ratio == pytest.approx(true, rel=0.05)
 
 
+@pytest.mark.slow
 def test_colmap_fewview_paths_uint8_deterministic(synthetic, colmap_synthetic, tmp_path):
     import cv2
 
@@ -270,6 +271,7 @@ def test_colmap_fewview_blank_view_partial_and_failed(synthetic):
     assert failed.num_registered == 0
 
 
+@pytest.mark.slow
 def test_colmap_two_view_fallback(synthetic):
     """With the mapper unable to start (impossible initial-pair requirement) the
     views are posed from two-view geometry, with unit translations."""

@@ -287,6 +287,7 @@ def synthetic_results():
     return out
 
 
+@pytest.mark.slow
 def test_keypoint_sparse_depth(synthetic_results):
     view, sparse = synthetic_results["views"][0], synthetic_results["sparse"][0]
     assert np.count_nonzero(sparse) == 150
@@ -302,6 +303,7 @@ def test_keypoint_sparse_depth(synthetic_results):
             assert np.count_nonzero(qv & qu) >= 15
 
 
+@pytest.mark.slow
 def test_oracle_primitives_beat_linear_interpolation_by_a_wide_margin(synthetic_results):
     """ORACLE front-end (ground-truth segments + normals).  Measured (3 scenes,
     320x240): linear MAE 137 / RMSE 282 mm, iMAE 21.4 / iRMSE 49.7 1/km;
@@ -315,6 +317,7 @@ def test_oracle_primitives_beat_linear_interpolation_by_a_wide_margin(synthetic_
     assert ora["mae_mm"] < 40.0
 
 
+@pytest.mark.slow
 def test_classical_frontend_is_reported_against_the_baselines(synthetic_results):
     """Classical front-end = superpixels + fronto-parallel normals (constant depth per
     primitive): no better than linear interpolation on MAE (measured 140 vs 137 mm at
@@ -327,6 +330,7 @@ def test_classical_frontend_is_reported_against_the_baselines(synthetic_results)
     assert m["ip_basic"]["mae_mm"] > m["linear"]["mae_mm"]
 
 
+@pytest.mark.slow
 def test_joint_solve_agrees_with_median_on_clean_data(synthetic_results):
     cam = synthetic.default_camera(*SIZE)
     for view, sparse, prims in zip(synthetic_results["views"], synthetic_results["sparse"],
@@ -344,6 +348,7 @@ def test_joint_solve_agrees_with_median_on_clean_data(synthetic_results):
         assert abs(b["mae_mm"] - a["mae_mm"]) <= 0.2 * a["mae_mm"] + 5.0  # mm
 
 
+@pytest.mark.slow
 def test_median_and_joint_are_robust_to_outlier_points(synthetic_results):
     view, sparse, prims = (synthetic_results[k][0] for k in ("views", "sparse", "oracle_prims"))
     cam = synthetic.default_camera(*SIZE)

@@ -5,7 +5,11 @@ interpolation on the bundled TUM frame."""
 import re
 from pathlib import Path
 
+import pytest
+
 from spgeo.apps.demo import DemoConfig, run_demo
+
+pytestmark = pytest.mark.slow   # the whole demo: every test here is end-to-end
 
 
 def test_demo_rows_pictures_and_completion(tmp_path):

@@ -19,6 +19,7 @@ def vo_demo(tmp_path_factory):
     return run_vo_demo(cfg)
 
 
+@pytest.mark.slow
 def test_synthetic_classical_accuracy(vo_demo):
     """Per-frame ATE under 5% of the path on this 40-frame seed-0 sequence."""
     rows = [r for r in vo_demo.rows if r.sequence == "synthetic"]
@@ -32,6 +33,7 @@ def test_synthetic_classical_accuracy(vo_demo):
     assert r.fps > 0
 
 
+@pytest.mark.slow
 def test_table_has_the_rows(vo_demo):
     assert [r.sequence for r in vo_demo.rows] == ["synthetic"]
     table = vo_demo.table().splitlines()
@@ -41,6 +43,7 @@ def test_table_has_the_rows(vo_demo):
     assert f"{vo_demo.rows[0].ate_percent:6.2f}" in row[0]
 
 
+@pytest.mark.slow
 def test_trajectories_written(vo_demo):
     for r in vo_demo.rows:
         assert vo_demo.files[f"vo_{r.sequence}_classical"] == r.out_dir

@@ -103,6 +103,7 @@ def test_run_table_rewrites_files_after_each_job(tmp_path):
     assert len(json.loads((tmp_path / "t.json").read_text())["rows"]) == 3
 
 
+@pytest.mark.slow
 def test_vo_synthetic_cli_error_row(tmp_path, capsys):
     from spgeo.evaluation.vo.synthetic import main
 
@@ -117,6 +118,7 @@ def test_vo_synthetic_cli_error_row(tmp_path, capsys):
     assert "| depth | 0 |" in out.out and "seed0/nosuch" in out.err
 
 
+@pytest.mark.slow
 def test_ray_gives_the_sequential_numbers():
     pytest.importorskip("ray")
     from spgeo.evaluation.vo.synthetic import make_jobs

@@ -54,6 +54,7 @@ def run_frequent_kf(frames):
     return vo
 
 
+@pytest.mark.slow
 def test_end_to_end_accuracy(frames, run):
     """The initialised keyframe pair (at least), mapped by the smoother; Sim(3) ATE of
     the tracked frames < 3% of the trajectory length."""
@@ -87,6 +88,7 @@ def test_end_to_end_accuracy(frames, run):
         assert kf_ate.rmse_percent_of_length < 3.0
 
 
+@pytest.mark.slow
 def test_blank_frame_is_lost_and_tracking_continues(run):
     vo, results = run
     assert results[BLANK].status == "lost"
@@ -97,6 +99,7 @@ def test_blank_frame_is_lost_and_tracking_continues(run):
     assert after[-1] != "lost"
 
 
+@pytest.mark.slow
 def test_save_writes_parseable_files(run, tmp_path):
     vo, _ = run
     paths = vo.save(tmp_path)
@@ -112,6 +115,7 @@ def test_save_writes_parseable_files(run, tmp_path):
     assert rep["n_frames"] == N_FRAMES and rep["status_counts"]["lost"] >= 1
 
 
+@pytest.mark.slow
 def test_fixed_lag_marginalises_old_keyframes(frames):
     """Default 5-keyframe window; frequent keyframes (relative-cost threshold
     0.08, 3 LM iterations per update, for test time): once more than 5 keyframes exist, the oldest keyframes' keys
@@ -150,6 +154,7 @@ def test_bad_input_raises(frames):
 
 
 # ---------------------------------------------------------------- issue-4 system features
+@pytest.mark.slow
 def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
     """Each mapping update links the previous keyframe to up to ``n_support``
     supporting non-keyframes whose poses are smoother variables; result() reports them at
@@ -172,6 +177,7 @@ def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
     np.testing.assert_allclose(res.poses[f], est.atPose3(support_pose_key(f)).matrix(), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_reinitialisation_after_a_long_loss(frames):
     """Frames of another room after the first 25: tracking is lost, then (after
     max_lost_frames) the map re-initialises on a textured frame as a new
@@ -222,6 +228,7 @@ def test_primitive_model_ablations_reshape_primitives(frames, model):
         np.testing.assert_allclose(np.exp(-out.scaled_log_depth()), rho, rtol=2e-3)
 
 
+@pytest.mark.slow
 def test_classical_planar_monocular_accuracy(frames):
     """Monocular classical front-end (never reads depth) with 3-DoF planar
     primitives optimised in mapping: Sim(3) ATE < 3% of the trajectory length
@@ -240,6 +247,7 @@ def test_classical_planar_monocular_accuracy(frames):
     assert ate.rmse_percent_of_length < 3.0
 
 
+@pytest.mark.slow
 def test_mapping_failure_restarts_the_window(frames, caplog):
     """A gtsam exception inside the smoother update (e.g. an indeterminant
     system) restarts the window from the last two keyframes instead of

@@ -54,6 +54,7 @@ def _column(rows, entity, component, first=True):
     return sorted(pairs, key=lambda p: p[0])
 
 
+@pytest.mark.slow
 def test_entity_paths(logged):
     run, _, rows, _ = logged
     n_kf = len(run.odometry.keyframes)
@@ -67,6 +68,7 @@ def test_entity_paths(logged):
     assert rows["/world"]["ViewCoordinates:xyz"]   # RDF, static
 
 
+@pytest.mark.slow
 def test_logged_poses_equal_the_trajectory(logged):
     run, online, rows, _ = logged
     rot = _column(rows, "/world/camera", "Transform3D:mat3x3")
@@ -89,6 +91,7 @@ def test_logged_poses_equal_the_trajectory(logged):
     assert len(_column(rows, "/timings/total", "Scalars:scalars")) == N
 
 
+@pytest.mark.slow
 def test_ground_truth_and_keyframes(logged):
     run, online, rows, frames = logged
     # the ground truth drawn in the VO's world: anchored at frame 0's final pose, scaled
@@ -133,6 +136,7 @@ def test_spec_parsing_and_cli_errors(capsys):
     assert err.startswith("spgeo vo: error: argument --rerun:") and ".rrd" in err
 
 
+@pytest.mark.slow
 def test_rerun_is_not_imported_without_the_option():
     code = textwrap.dedent("""
         import sys
@@ -155,6 +159,7 @@ def test_rerun_is_not_imported_without_the_option():
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_completion_and_sfm_logging(tmp_path):
     from spgeo.completion import complete_depth
     from spgeo.sfm import few_view_sfm

@@ -104,6 +104,7 @@ def test_view_set_selection_discards_near_static_sets():
     assert "only 1 of 2" in {s["ref"]: s["reason"] for s in skipped}[400]
 
 
+@pytest.mark.slow
 def test_runner_end_to_end(written):
     """References 0 and 30 (frames every 10, +-10/+-20 offsets), n = 1, 2 views,
     both initialisations, on one set.  Measured (160x120, classical): two-view

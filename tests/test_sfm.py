@@ -43,6 +43,7 @@ def seed2():
     return view_set(2)
 
 
+@pytest.mark.slow
 def test_depth_frontend_accuracy(seed2):
     """Depth-derived (oracle) normals, 2 views with 7.5 deg rotation, 5% baseline:
     median-scaled depth error < 3% and rotation error < 0.5 deg."""
@@ -63,6 +64,7 @@ def test_depth_frontend_accuracy(seed2):
     assert res.report["init"]["method"] == "twoview"
 
 
+@pytest.mark.slow
 def test_planar_model_classical_frontend(seed2):
     """No normals (classical segments, planar primitives): looser bounds:
     rotation < 1 deg, median-scaled depth error < 10%."""
@@ -97,6 +99,7 @@ def test_bad_input(seed2):
         SfMConfig(shape_model="cubes")
 
 
+@pytest.mark.slow
 def test_cli_writes_documented_outputs(tmp_path, seed2):
     import json
 
@@ -133,6 +136,7 @@ def test_cli_writes_documented_outputs(tmp_path, seed2):
                  "100,100,50,50", "--out", str(out)]) == 2
 
 
+@pytest.mark.slow
 def test_unconstrained_primitives_are_flagged_not_reported():
     """Seed 4, classical front-end: one primitive drifts ~8 log-units (a factor
     ~2000 in depth) when nothing but the weak scale prior constrains it.  The

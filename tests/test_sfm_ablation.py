@@ -6,6 +6,7 @@ import pytest
 from spgeo.evaluation.sfm.ablation import CASES, make_jobs, sfm_case_row
 
 
+@pytest.mark.slow
 def test_tum_classical_planar_row(shared_data):
     """TUM fr1_desk 0/4/8, classical front-end, planar shapes: verified, the
     reference depth within 15 % (median, after one scale), rotations within 2 deg."""

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from spgeo.evaluation.sfm.real import run_case, spgeo_estimator
+import pytest
 
 
 def _errors(comp, name):
@@ -16,6 +17,7 @@ def _errors(comp, name):
             for r in comp["vs_gt"][name]["rows"]]
 
 
+@pytest.mark.slow
 def test_tum_bundled_frames_rotation_error():
     """Bundled TUM fr1_desk frames 0 (ref), 4, 8 (always available)."""
     est = spgeo_estimator("classical")

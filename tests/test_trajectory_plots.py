@@ -73,6 +73,7 @@ def test_bad_input_and_reconstruction_view(tmp_path):
     assert _png_size(out) == (480, 320)
 
 
+@pytest.mark.slow
 def test_vo_run_save_writes_the_plots(tmp_path):
     cam = synthetic.default_camera(80, 60)
     frames = synthetic.render_frames(synthetic.SyntheticScene.generate(0), cam,

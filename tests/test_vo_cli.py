@@ -67,6 +67,7 @@ def depth_run(seven_scenes, tmp_path_factory):
     return rc, out
 
 
+@pytest.mark.slow
 def test_cli_depth_frontend_writes_trajectory_and_ate(depth_run, capsys):
     """All files written; timestamps are the 7-Scenes frame numbers (every
     second frame here); per-frame Sim(3) ATE < 5% of the trajectory length."""
@@ -250,6 +251,7 @@ def test_evaluation_run_vo_wrapper(frames):
     assert len(gt) == 3 and gt[0] is not None and fps > 0
 
 
+@pytest.mark.slow
 def test_cli_report_has_effective_config(depth_run):
     """report.json: the OdometryConfig under "config", the rest of the run config under
     "run_config" (spgeo vo --set / --config)."""

@@ -141,6 +141,7 @@ def synthetic_sequence():
     return frames
 
 
+@pytest.mark.slow
 def test_feature_vo_synthetic(synthetic_sequence, tmp_path):
     frames = synthetic_sequence
     gt = np.array([f.T_world_cam for f in frames])
@@ -169,6 +170,7 @@ def test_feature_vo_synthetic(synthetic_sequence, tmp_path):
     assert st == res.status
 
 
+@pytest.mark.slow
 def test_feature_vo_blank_frame_is_flagged(synthetic_sequence):
     frames = list(synthetic_sequence[:50])
     k = 35
@@ -198,6 +200,7 @@ def test_feature_vo_never_crashes_on_bad_input():
         FeatureVOConfig(detector="surf")
 
 
+@pytest.mark.slow
 def test_feature_vo_7scenes(shared_data, tmp_path, capsys):
     path = shared_data / "7scenes_redkitchen_dev"
     if not path.is_dir():

@@ -26,6 +26,7 @@ def frames():
     return synthetic.render_frames(scene, cam, poses, supersample=2)
 
 
+@pytest.mark.slow
 def test_forward_trajectory_shape(frames):
     """Steps of STEP metres, inter-frame rotations of a few degrees, all finite poses,
     and the path inside the forward scene's free zone."""
@@ -48,6 +49,7 @@ def _keyframe(frames, i):
                           cfg.selection), cfg
 
 
+@pytest.mark.slow
 def test_feature_retry_recovers_a_pose_the_tracker_cannot_reach(frames):
     """Three frames (1.2 m) ahead: tracking from the keyframe's pose fails, the PnP
     pose on features lifted with the keyframe's depth is within 5 cm / 1 degree, and the
@@ -68,6 +70,7 @@ def test_feature_retry_recovers_a_pose_the_tracker_cannot_reach(frames):
     assert np.linalg.norm(err[:3, 3]) < 0.02
 
 
+@pytest.mark.slow
 def test_feature_retry_rejects_an_unrelated_image(frames):
     """A blank frame has no features: no guess rather than a wrong one."""
     kf, _ = _keyframe(frames, 0)
@@ -76,6 +79,7 @@ def test_feature_retry_rejects_an_unrelated_image(frames):
     assert retry.guess(0, frames[0].image, kf.primitives, kf.T_world_kf, blank) is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frontend, max_ate_pct", [("classical", 1.5), ("depth", 1.0)])
 def test_vo_holds_a_fast_forward_drive(frames, frontend, max_ate_pct):
     """Default VO config: at most one frame lost, one map segment, and the Sim(3) ATE

@@ -46,6 +46,7 @@ def colmap_result(frames):
 
 
 # ============================================================ COLMAP reference
+@pytest.mark.slow
 def test_colmap_vo_registers_synthetic_sequence(frames, colmap_result, tmp_path):
     res = colmap_result
     gt = [f.T_world_cam for f in frames]
@@ -101,6 +102,7 @@ def test_colmap_vo_failures_are_reported_not_raised():
 
 
 # ================================================================== compare_vo
+@pytest.mark.slow
 def test_compare_vo_feature_and_colmap(frames, colmap_result, tmp_path):
     rows = compare_vo(frames, ("feature", "colmap"), resolution=(160, 120))
     assert [r.method for r in rows] == ["feature", "colmap"]

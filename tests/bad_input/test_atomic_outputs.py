@@ -103,6 +103,7 @@ def test_check_output_folder_accepts_empty_and_new(tmp_path):
 
 
 # ------------------------------------------------------------------ commands
+@pytest.mark.slow
 def test_sfm_rerun_replaces_the_previous_run(inputs, tmp_path):
     out = tmp_path / "o"
     assert sfm(inputs, out) in (0, 3)
@@ -114,6 +115,7 @@ def test_sfm_rerun_replaces_the_previous_run(inputs, tmp_path):
     assert leftovers(tmp_path, "o") == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["solve", "write"])
 def test_sfm_failure_leaves_previous_output_byte_for_byte(inputs, tmp_path, monkeypatch, where):
     out = tmp_path / "o"
