@@ -457,11 +457,3 @@ class PrimitivePhotometricFactor:
             if self.has_brightness:
                 H[3] = res["J_brightness"]
         return res["e"]
-
-
-def __getattr__(name: str):
-    # PhotometricFactorGroup lives in .photometric_group (which imports this module)
-    if name == "PhotometricFactorGroup":
-        from .photometric_group import PhotometricFactorGroup
-        return PhotometricFactorGroup
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

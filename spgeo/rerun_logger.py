@@ -39,6 +39,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from .configs import config_repr
+from .viz import colorize_normals
 
 __all__ = ["RerunLoggerConfig", "RerunLogger", "RERUN_MODES"]
 
@@ -264,8 +265,6 @@ class RerunLogger:
                            rr.SegmentationImage((primitives.label_image() + 1).astype(np.uint16)))
         self.log_depth(f"{path}/depth", primitives.depth_map())
         if getattr(primitives, "normals", None) is not None:
-            from .viz import colorize_normals
-
             n = np.full((cam.width * cam.height, 3), np.nan, np.float32)
             n[primitives.pixels] = primitives.normals
             self.recording.log(f"{path}/normals",

@@ -9,7 +9,9 @@
 * The modules of ``spgeo/`` and ``factors/`` import each other without a cycle (imports run
   when a module loads: module level and class bodies, not function bodies nor
   ``if TYPE_CHECKING:`` blocks; importing ``a.b.c`` also loads the packages ``a.b`` and
-  ``a`` unless the importer lies inside them).  A failure lists every cycle found.
+  ``a`` unless the importer lies inside them).  A failure lists every cycle found.  Imports
+  deferred into function bodies make no exception: counted too, they form no cycle either
+  (only a module ``__getattr__``, the lazy re-export of an optional piece, is left out).
 * Every function of ``spgeo/`` and ``factors/`` (methods and nested functions included; a
   nested function counts within its parent and on its own) has at most 60 lines of code:
   lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
@@ -21,6 +23,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 from typing import Dict, Iterator, List, Optional, Set
+
+import pytest
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,10 +70,12 @@ def _is_type_checking(test: ast.expr) -> bool:
             or (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"))
 
 
-def _import_nodes(tree: ast.AST, module_level: bool) -> Iterator[ast.stmt]:
+def _import_nodes(tree: ast.AST, module_level: bool, lazy: bool = False) -> Iterator[ast.stmt]:
     """Import statements of ``tree``; with ``module_level`` only those that run when the
-    module loads (not in function bodies nor under ``if TYPE_CHECKING:``)."""
-    if not module_level:
+    module loads (not in function bodies nor under ``if TYPE_CHECKING:``); with ``lazy``
+    also those in function bodies, except a module ``__getattr__`` (the lazy re-export of
+    an optional piece, e.g. ``spgeo.viz.RerunLogger``)."""
+    if not (module_level or lazy):
         yield from (n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
         return
     todo = [tree]
@@ -77,7 +83,8 @@ def _import_nodes(tree: ast.AST, module_level: bool) -> Iterator[ast.stmt]:
         node = todo.pop()
         if isinstance(node, (ast.Import, ast.ImportFrom)):
             yield node
-        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)) and (
+                not lazy or getattr(node, "name", "") == "__getattr__"):
             continue
         elif isinstance(node, ast.If) and _is_type_checking(node.test):
             todo.extend(node.orelse)
@@ -85,17 +92,18 @@ def _import_nodes(tree: ast.AST, module_level: bool) -> Iterator[ast.stmt]:
             todo.extend(ast.iter_child_nodes(node))
 
 
-def import_statements(source: str, package: str, module_level: bool = False
-                      ) -> list[tuple[int, str, Optional[list[str]]]]:
+def import_statements(source: str, package: str, module_level: bool = False,
+                      lazy: bool = False) -> list[tuple[int, str, Optional[list[str]]]]:
     """``(line, absolute module, names)`` per import statement of ``source``.
 
     ``names`` is the list of names of ``from X import a, b`` and ``None`` for
     ``import X``; relative imports are resolved against ``package``, the package
     holding the module.  With ``module_level`` only the imports that run when the
-    module loads are listed (see :func:`_import_nodes`).
+    module loads are listed, with ``lazy`` those too that run inside functions (see
+    :func:`_import_nodes`).
     """
     found: list[tuple[int, str, Optional[list[str]]]] = []
-    for node in _import_nodes(ast.parse(source), module_level):
+    for node in _import_nodes(ast.parse(source), module_level, lazy):
         if isinstance(node, ast.Import):
             found.extend((node.lineno, alias.name, None) for alias in node.names)
             continue
@@ -152,16 +160,17 @@ def _packages_loaded(module: str, importer: str) -> list[str]:
 
 
 def module_dependencies(source: str, importer: str, package: str, modules: Set[str],
-                        known: Optional[Set[str]] = None) -> Set[str]:
+                        known: Optional[Set[str]] = None, lazy: bool = False) -> Set[str]:
     """The modules of ``modules`` that loading ``importer`` (held by ``package``) runs.
 
     ``from X import a`` needs ``X.a`` when that is a module (of ``known``, default
     ``modules``), else ``X`` itself (even when ``X`` is a package holding ``importer``:
-    ``a`` must already be defined there).
+    ``a`` must already be defined there).  With ``lazy`` the imports inside functions
+    count too (:func:`_import_nodes`).
     """
     known = modules if known is None else known
     deps: Set[str] = set()
-    for _, base, names in import_statements(source, package, module_level=True):
+    for _, base, names in import_statements(source, package, module_level=True, lazy=lazy):
         if names is None:
             needed = [base]
         else:
@@ -174,12 +183,14 @@ def module_dependencies(source: str, importer: str, package: str, modules: Set[s
     return deps
 
 
-def import_graph(files: List[Path], known: Set[str]) -> Dict[str, Set[str]]:
-    """Module name -> the modules (among ``files``) it imports when it loads; ``known``:
-    every module name, to tell ``from X import module`` from ``from X import name``."""
+def import_graph(files: List[Path], known: Set[str], lazy: bool = False
+                 ) -> Dict[str, Set[str]]:
+    """Module name -> the modules (among ``files``) it imports when it loads (with
+    ``lazy``: or when its functions run); ``known``: every module name, to tell
+    ``from X import module`` from ``from X import name``."""
     names = {module_name(p): p for p in files}
     return {name: module_dependencies(path.read_text(encoding="utf-8"), name,
-                                      module_package(path), set(names), known)
+                                      module_package(path), set(names), known, lazy)
             for name, path in names.items()}
 
 
@@ -311,9 +322,13 @@ def test_module_level_imports_skip_functions_and_type_checking():
               "if TYPE_CHECKING:\n    from . import c\nelse:\n    from . import d\n"
               "try:\n    from .e import E\nexcept ImportError:\n    E = None\n"
               "class K:\n    from .f import F\n"
-              "def g():\n    from . import h\n")
-    modules = {f"p.{x}" for x in "abcdefgh"} | {"p"}
+              "def g():\n    from . import h\n"
+              "def __getattr__(name):\n    from . import i\n")
+    modules = {f"p.{x}" for x in "abcdefghi"} | {"p"}
     assert module_dependencies(source, "p.a", "p", modules) == {"p.b", "p.d", "p.e", "p.f"}
+    # lazy: the function body's import counts, a module __getattr__'s does not
+    assert module_dependencies(source, "p.a", "p", modules, lazy=True) == {
+        "p.b", "p.d", "p.e", "p.f", "p.h"}
     # importing p.q.r from p.a also loads the package p.q; ``from p import name`` needs p
     assert module_dependencies("import p.q.r\nfrom p import name\n", "p.a", "p",
                                modules | {"p.q", "p.q.r"}) == {"p.q", "p.q.r", "p"}
@@ -343,11 +358,13 @@ def test_nothing_below_the_cli_imports_it():
                            "(docs/design.md §6.1):\n" + "\n".join(offenders))
 
 
-def test_no_import_cycles():
+@pytest.mark.parametrize("lazy", [False, True], ids=["module-level", "with-lazy-imports"])
+def test_no_import_cycles(lazy):
     files = _python_files("spgeo") + _python_files("factors")
     known = {module_name(p) for folder in PACKAGE_OF_DIR for p in _python_files(folder)}
-    cycles = import_cycles(import_graph(files, known))
-    assert not cycles, ("import cycles among the modules of spgeo/ and factors/:\n"
+    cycles = import_cycles(import_graph(files, known, lazy))
+    assert not cycles, ("import cycles among the modules of spgeo/ and factors/"
+                        + (" (imports inside functions counted)" if lazy else "") + ":\n"
                         + "\n".join(" -> ".join(c) for c in cycles))
 
 

@@ -17,7 +17,7 @@ Four measurements on one rendered synthetic sequence
    (level 1, all pixels).
 4. *Mapping factor granularity*: the same pipeline with one gtsam factor per
    primitive (``map_chunk=1``) vs the default chunks, mapping seconds per
-   keyframe (same cost, see :class:`spgeo.factors.photometric.PhotometricFactorGroup`).
+   keyframe (same cost, see :class:`spgeo.factors.photometric_group.PhotometricFactorGroup`).
 
 ``--settings`` replaces the pipeline rows of 2-4 by its own: one string of
 ``FIELD=VALUE`` :class:`~spgeo.vo.OdometryConfig` overrides per row, as

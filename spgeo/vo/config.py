@@ -173,7 +173,7 @@ class OdometryConfig:
         map_chunk: shape-variable columns per gtsam factor in mapping
             (default 128: 128 scaled or 42 planar primitives; 1 = one factor
             per primitive; the cost and the Gauss-Newton system
-            are identical, :class:`~spgeo.factors.photometric.PhotometricFactorGroup`,
+            are identical, :class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`,
             whose chunks are in square-root form).  gtsam's Python
             ``CustomFactor`` copies the whole ``Values`` on every call, so
             per-primitive factors make a window update quadratic in its size;

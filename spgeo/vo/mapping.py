@@ -11,7 +11,7 @@ supporting non-keyframes tracked against it (evenly spaced; paper: 4), whose
 poses are optimised too.  One
 :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` per primitive
 and pair, built at pyramid level ``map_level``; the factors of a pair are
-evaluated together (:class:`~spgeo.factors.photometric.PhotometricFactorGroup`,
+evaluated together (:class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`,
 identical values, one vectorised pass).  The first keyframe's pose has a tight
 gauge prior; every shape variable a weak prior (weight ``scale_prior_weight``)
 to its initial value; a new keyframe's primitives whose scale was rendered
@@ -52,7 +52,8 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..factors.photometric import PhotometricFactorGroup, PlanarShape, ScaledShape
+from ..factors.photometric import PlanarShape, ScaledShape
+from ..factors.photometric_group import PhotometricFactorGroup
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..primitives import PrimitiveSet
 from ..sfm.graph import gtsam_error_line
