@@ -1,17 +1,6 @@
-"""TUM trajectory files and per-frame status files.
+"""TUM trajectory files and per-frame status files as :mod:`spgeo.io` offers them.
 
-TUM format (one pose per line, camera-to-world ``T_world_cam``)::
-
-    # comment lines start with '#'
-    timestamp tx ty tz qx qy qz qw
-
-Quaternions are Hamilton ``(qx, qy, qz, qw)`` (:mod:`spgeo.geometry`).  Files
-written here have exactly 8 space-separated columns per pose line, so
-``evo_ape tum gt.txt est.txt -as`` reads them unchanged.  Per-frame status flags
-go into a separate ``timestamp status [extra...]`` file, by default
-``<stem>.status.txt`` beside the trajectory (evo rejects extra columns).  Frames
-without a pose are omitted from the trajectory file and appear only in the
-status file.  The file reading and writing is :mod:`spgeo.tum_files` (plain arrays,
+The format and the one reader / writer are :mod:`spgeo.tum_files` (plain arrays,
 re-exported here); :func:`read_tum` gives a :class:`~spgeo.trajectory.Trajectory`.
 """
 from __future__ import annotations
