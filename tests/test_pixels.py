@@ -139,7 +139,7 @@ def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level)
     (same level, same pixels: mapping uses every pixel of ``map_level``)."""
     cam, image, prims, T_kf, T_f, frame = keyframe_pair
     cfg = OdometryConfig(pixel_budget=600, map_level=level)
-    kf = Keyframe.build(image, prims, T_kf, cfg.levels, cfg.selection)
+    kf = Keyframe.build(image, prims, T_kf, cfg.keyframe_levels, cfg.selection)
     mkf = MapKeyframe(0, 0, image, kf)
     mapper = WindowMapper(cfg)
     pyr = kf.frame_pyramid(frame)

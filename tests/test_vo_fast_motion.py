@@ -45,7 +45,7 @@ def _keyframe(frames, i):
     fe = make_frontend("depth", FrontEndConfig(working_size=SIZE))
     prims = fe.primify(frames[i].image, frames[i].camera, frames[i].depth)
     cfg = OdometryConfig()
-    return Keyframe.build(frames[i].image, prims, frames[i].T_world_cam, cfg.levels,
+    return Keyframe.build(frames[i].image, prims, frames[i].T_world_cam, cfg.keyframe_levels,
                           cfg.selection), cfg
 
 

@@ -41,7 +41,7 @@ def _map_keyframe(frames, frontend, i, k, cfg=INIT, T=None):
     prims = frontend.primify(f.image, CAM, f.depth)
     T = f.T_world_cam if T is None else T
     return MapKeyframe(k, i, np.asarray(f.image),
-                       Keyframe.build(f.image, prims, T, cfg.levels, cfg.selection))
+                       Keyframe.build(f.image, prims, T, cfg.keyframe_levels, cfg.selection))
 
 
 def _pose_error(T, T_gt):

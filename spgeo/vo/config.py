@@ -126,7 +126,7 @@ _ODOMETRY_CHECKS = (
     ("init_min_parallax", ">= 0"), ("kf_max_rotation_deg", "> 0"),
     ("kf_max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
     ("kf_scale_check_min_parallax", ">= 0"), ("kf_scale_check_max_change", "> 0"),
-    ("levels", ">= 1"))
+    ("keyframe_levels", ">= 1"))
 
 
 @config_repr
@@ -153,10 +153,11 @@ class OdometryConfig:
             are marginalised.
         n_support: supporting non-keyframes linked to each keyframe (paper: 4; default 2,
             docs/results.md says why).
-        levels: pyramid levels of the keyframes (default 3; the tracker uses
-            at most ``tracker.levels`` of them).
+        keyframe_levels: pyramid levels built for each keyframe (default 3); the
+            tracker uses at most ``tracker.levels`` of them, mapping works on
+            ``map_level``.
         map_level: pyramid level of the mapping factors (default 1: half
-            resolution, 80x60 at 160x120), in ``[0, levels)``: speed against
+            resolution, 80x60 at 160x120), in ``[0, keyframe_levels)``: speed against
             accuracy (level 0 is more accurate and slower).
         map_pixel_fraction: fraction of the level's primitive pixels used by
             mapping, those with the largest reference image gradient (at least
@@ -248,7 +249,7 @@ class OdometryConfig:
     kf_max_rotation_deg: float = 15.0
     window: int = 5
     n_support: int = 2
-    levels: int = 3
+    keyframe_levels: int = 3
     map_level: int = 1
     map_iterations: int = 10
     map_pixel_fraction: float = 1.0
@@ -282,8 +283,8 @@ class OdometryConfig:
             if not _CONDITIONS[expected](getattr(self, name)):    # NaN fails every comparison
                 raise InputError(f"OdometryConfig.{name} must be {expected}, "
                                  f"got {getattr(self, name)!r}")
-        if not 0 <= self.map_level < self.levels:
-            raise InputError("OdometryConfig.map_level must be in [0, levels)")
+        if not 0 <= self.map_level < self.keyframe_levels:
+            raise InputError("OdometryConfig.map_level must be in [0, keyframe_levels)")
         if not 1 <= self.init_min_gap <= self.init_max_gap:
             raise InputError("OdometryConfig: 1 <= init_min_gap <= init_max_gap required")
 

@@ -194,7 +194,7 @@ class Initialiser:
     """The map initialisation of one :class:`spgeo.vo.Odometry` (module docstring).
 
     Args:
-        config: the VO's :class:`OdometryConfig` (``init_*``, ``sfm``, ``levels``,
+        config: the VO's :class:`OdometryConfig` (``init_*``, ``sfm``, ``keyframe_levels``,
             ``kf_*`` overlap thresholds, ``primitive_model``, ``tracker``).
         camera: the frames' intrinsics.
         uses_depth: whether the front-end uses depth (metric primitives).
@@ -344,7 +344,7 @@ class Initialiser:
         else:
             T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
         keyframe0 = Keyframe.build(kf0.image, new_prims, kf0.keyframe.T_world_kf,
-                                   self.config.levels, self.config.selection)
+                                   self.config.keyframe_levels, self.config.selection)
         return keyframe0, T_01
 
     def _retrack(self, keyframe0: Keyframe, frame0: int, idx: int, T_01: np.ndarray,

@@ -300,7 +300,7 @@ class WindowMapper:
         if kf.keyframe.selection != sel:
             k = kf.keyframe
             kf.keyframe = Keyframe.build(kf.image, k.primitives, k.T_world_kf,
-                                         self.config.levels, sel)
+                                         self.config.keyframe_levels, sel)
             kf.map_pixels = None
 
     def _update(self, kfs: List[MapKeyframe], candidates: Sequence[SupportCandidate],
