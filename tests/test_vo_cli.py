@@ -13,7 +13,7 @@ from spgeo.cli import main
 from spgeo.evaluation.trajectory import read_status, read_tum
 from spgeo.frame import Frame
 from spgeo.apps.vo_run import VORunConfig, run_dataset, run_odometry
-from spgeo.cli.args import parse_resolution
+from spgeo.apps.args import parse_resolution
 
 N = 20
 CAM = synthetic.default_camera(160, 120)
@@ -173,7 +173,7 @@ def test_parse_resolution():
     with pytest.raises(ValueError):
         VORunConfig(resolution=(0, 120))
     # the shared parser behind it: 'native' and the minimum size are the caller's choice
-    from spgeo.cli.args import parse_resolution as parse_any
+    from spgeo.apps.args import parse_resolution as parse_any
     assert parse_any("native", allow_native=True) is None
     assert parse_any("8x8", min_size=1) == (8, 8)
     with pytest.raises(ValueError):
@@ -181,7 +181,7 @@ def test_parse_resolution():
 
 
 def test_cli_dataset_kinds_are_the_readers():
-    from spgeo.cli.args import DATASET_KINDS
+    from spgeo.apps.args import DATASET_KINDS
     from spgeo.datasets import DATASET_KINDS as READERS
 
     assert set(DATASET_KINDS) == set(READERS)

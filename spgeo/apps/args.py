@@ -1,8 +1,8 @@
 """Command-line arguments shared by ``spgeo`` and the ``spgeo.evaluation`` tools:
 ``--dataset KIND PATH`` / ``--frames`` / ``-v``, logging set-up, and the
 ``WIDTHxHEIGHT`` resolution and ``fx,fy,cx,cy`` intrinsics parsers (argparse
-only; no computation).  Here, below :mod:`spgeo.cli` (which re-exports it as
-``spgeo.cli.args``), so that the evaluation tools need not import the command line."""
+only; no computation).  Here, below :mod:`spgeo.cli`, so that the evaluation tools
+need not import the command line."""
 from __future__ import annotations
 
 import argparse

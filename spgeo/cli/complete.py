@@ -17,7 +17,7 @@ import argparse
 
 from ..frontend import MONOCULAR_FRONTENDS
 from ..validation import InputError
-from .args import parse_intrinsics
+from ..apps.args import parse_intrinsics
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
 from .rerun_args import add_rerun_argument, open_rerun

@@ -29,7 +29,7 @@ import numpy as np
 from ..jsonio import json_default
 from ..frontend import MONOCULAR_FRONTENDS
 from ..validation import InputError
-from .args import parse_intrinsics
+from ..apps.args import parse_intrinsics
 from .exit_codes import EXIT_FLAGGED, EXIT_OK
 from ..configs import apply_overrides, config_to_dict, resolve_config
 from .config_args import add_config_arguments

@@ -18,7 +18,7 @@ import sys
 
 from ..frontend import FRONTENDS
 from ..validation import InputError
-from .args import DATASET_KINDS, parse_resolution
+from ..apps.args import DATASET_KINDS, parse_resolution
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
 from .rerun_args import add_rerun_argument, open_rerun
