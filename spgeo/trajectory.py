@@ -26,7 +26,9 @@ class FrameStatus(str, Enum):
     ``INIT``: before a map exists (pose provisional or absent); ``OK``: tracked
     (or registered); ``KEYFRAME``: tracked and made a keyframe; ``LOST``: no
     pose of its own; ``RELOCALISED``: first tracked frame after a loss, or
-    tracked against an older keyframe; ``REINIT``: started a new map segment.
+    tracked against an older keyframe; ``REINIT``: started a new map segment;
+    ``SKIPPED``: the frame's file could not be read, so no estimator saw it (no
+    pose; recorded by the batch runner, :mod:`spgeo.apps.vo_run`).
     Members compare equal to their string values.
     """
 
@@ -36,14 +38,16 @@ class FrameStatus(str, Enum):
     LOST = "lost"
     RELOCALISED = "relocalised"
     REINIT = "reinit"
+    SKIPPED = "skipped"
 
     def __str__(self) -> str:
         return self.value
 
     @property
     def has_pose(self) -> bool:
-        """Whether a frame with this status carries a pose of its own."""
-        return self is not FrameStatus.LOST
+        """Whether a frame with this status carries a pose of its own (not
+        ``LOST``, not ``SKIPPED``)."""
+        return self not in (FrameStatus.LOST, FrameStatus.SKIPPED)
 
 
 #: Every status value, in enum order.
@@ -118,7 +122,8 @@ class Trajectory:
 
     @property
     def tracked(self) -> np.ndarray:
-        """(n,) bool: frames with a pose of their own (finite, status not ``LOST``)."""
+        """(n,) bool: frames with a pose of their own (finite, status neither
+        ``LOST`` nor ``SKIPPED``)."""
         return self.finite & np.array([s.has_pose for s in self.status], dtype=bool)
 
     @property
@@ -138,6 +143,28 @@ class Trajectory:
                           [self.status[i] for i in idx], self.is_keyframe[idx],
                           self.segment[idx],
                           {k: [v[i] for i in idx] for k, v in self.columns.items()})
+
+    def with_skipped(self, timestamps: Sequence[float]) -> "Trajectory":
+        """This trajectory with one ``SKIPPED`` frame per timestamp inserted in
+        time order: NaN pose (no TUM line), not a keyframe, segment -1, extra
+        columns ``"nan"``.  Without timestamps, ``self`` itself.  Raises
+        ``ValueError`` when a timestamp is not finite or is already a frame's."""
+        stamps = np.asarray(list(timestamps), dtype=np.float64).reshape(-1)
+        if stamps.size == 0:
+            return self
+        if not np.all(np.isfinite(stamps)) or np.isin(stamps, self.timestamps).any():
+            raise ValueError("Trajectory.with_skipped: skipped timestamps must be finite and "
+                             "differ from the frames' timestamps")
+        k = len(stamps)
+        all_t = np.concatenate([self.timestamps, stamps])
+        order = np.argsort(all_t, kind="stable")
+        poses = np.concatenate([self.poses, np.full((k, 4, 4), np.nan)])[order]
+        status = [(list(self.status) + [FrameStatus.SKIPPED] * k)[i] for i in order]
+        is_kf = np.concatenate([self.is_keyframe, np.zeros(k, dtype=bool)])[order]
+        seg = np.concatenate([self.segment, np.full(k, -1, dtype=int)])[order]
+        cols = {name: [(list(v) + ["nan"] * k)[i] for i in order]
+                for name, v in self.columns.items()}
+        return Trajectory(all_t[order], poses, status, is_kf, seg, cols)
 
     def status_counts(self) -> Dict[str, int]:
         """Frames per status value (every :class:`FrameStatus`, zeros included)."""

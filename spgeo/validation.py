@@ -24,7 +24,8 @@ from .checks import (FOCAL_RATIO_RANGE, FOV_RANGE_DEG, PRINCIPAL_POINT_MARGIN, I
 __all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
            "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
            "check_intrinsics", "check_camera", "check_real_array", "check_sparse_depth",
-           "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes"]
+           "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes",
+           "FrameReadError"]
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +148,32 @@ def check_mask_stack(masks, shape: Tuple[int, int], what: str = "masks") -> np.n
 
 
 # ------------------------------------------------------------------ files
+class FrameReadError(InputError):
+    """A frame of a sequence whose file(s) could not be read (missing, unreadable,
+    truncated, undecodable, wrong size): raised by
+    :class:`spgeo.datasets.common.FrameSequence` in place of the reader's
+    :class:`InputError` / ``OSError`` (kept as ``__cause__``), so that a batch
+    runner can skip the frame (:mod:`spgeo.apps.vo_run`) and still let every
+    other error through.
+
+    Attributes:
+        index: the frame's position in the sequence's selection (0-based).
+        path: the frame's image file (the message names the file that failed,
+            e.g. its depth file).
+        timestamp: the frame's timestamp (seconds, or its frame number), known
+            without reading the file; None where unknown.
+        reason: the reader's message.
+    """
+
+    def __init__(self, index: int, path: Optional[str], reason: str,
+                 timestamp: Optional[float] = None) -> None:
+        super().__init__(f"frame {index} ({path}): {reason}")
+        self.index = int(index)
+        self.path = None if path is None else os.fspath(path)
+        self.reason = str(reason)
+        self.timestamp = None if timestamp is None else float(timestamp)
+
+
 def check_input_file(path, what: str = "input") -> str:
     """Return ``os.fspath(path)`` if it names a readable, non-empty regular file.
 

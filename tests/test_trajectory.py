@@ -33,7 +33,7 @@ def test_properties_and_errors():
     tr = _trajectory()
     np.testing.assert_array_equal(tr.tracked, [True, True, False, True, True])
     assert tr.status_counts() == {"init": 1, "ok": 2, "keyframe": 1, "lost": 1,
-                                  "relocalised": 0, "reinit": 0}
+                                  "relocalised": 0, "reinit": 0, "skipped": 0}
     assert set(tr.status_counts()) == set(STATUSES) and FrameStatus.OK == "ok"
     sub = tr.subset(tr.tracked)
     assert len(sub) == 4 and sub.columns["inliers"] == [1, 2, 4, 5]

@@ -1,8 +1,10 @@
 """Monocular VO methods side by side on the same frames: spgeo, the OpenCV
 feature baseline and the COLMAP reference, with Sim(3)-aligned ATE.
 
-:func:`compare_vo` resizes the frames once (``cv2.INTER_AREA``, default
-320x240 as ``spgeo vo``: :data:`DEFAULT_RESOLUTION`; depth with nearest
+:func:`compare_vo` resizes the frames once (``cv2.INTER_AREA``, by default to
+the processing size ``spgeo vo`` would choose, :data:`DEFAULT_RESOLUTION`
+``"auto"``: :meth:`spgeo.apps.vo_run.VORunConfig.size_for`, 320x240 for 4:3
+input, the input's aspect ratio otherwise; depth with nearest
 neighbour, only kept for an oracle method) and runs every requested method on
 exactly those frames:
 
@@ -28,7 +30,7 @@ fraction.
 Command line::
 
     python -m spgeo.evaluation.vo.compare --dataset 7scenes PATH --frames 0:300 \
-        [--resolution 320x240] [--methods feature colmap ...] [--out DIR]
+        [--resolution WxH|auto|native] [--methods feature colmap ...] [--out DIR]
 
 prints a markdown table and, with ``--out``, writes ``<method>.txt`` (TUM,
 camera-to-world, posed frames), ``<method>.status.txt``,
@@ -63,7 +65,7 @@ from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
                                          write_status, write_tum)
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "DEFAULT_RESOLUTION", "VOCompareConfig",
-           "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table",
+           "AUTO_RESOLUTION", "compare_size", "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table",
            "write_results", "main"]
 
 logger = logging.getLogger(__name__)
@@ -79,9 +81,25 @@ METHOD_LABELS = {
 }
 #: Methods that read the sensor depth (not monocular: oracle).
 ORACLE_METHODS = ("spgeo-depth",)
-#: ``(width, height)`` every method sees by default: ``spgeo vo``'s processing
-#: resolution (:attr:`spgeo.apps.vo_run.VORunConfig.resolution`, 320x240).
-DEFAULT_RESOLUTION: Tuple[int, int] = tuple(VORunConfig.resolution)
+#: ``resolution`` value meaning "the processing size ``spgeo vo`` chooses for
+#: these frames" (:meth:`spgeo.apps.vo_run.VORunConfig.size_for` of the default
+#: :class:`~spgeo.apps.vo_run.VORunConfig`, the one rule of both tools).
+AUTO_RESOLUTION = "auto"
+#: What every method sees by default: :data:`AUTO_RESOLUTION`.
+DEFAULT_RESOLUTION = AUTO_RESOLUTION
+
+
+def compare_size(resolution: Union[None, str, Tuple[int, int]],
+                 input_size: Tuple[int, int]) -> Optional[Tuple[int, int]]:
+    """The ``(width, height)`` every method sees for frames of ``input_size``:
+    ``spgeo vo``'s default processing size for :data:`AUTO_RESOLUTION`,
+    ``resolution`` itself for a size, None (the frames' size) for None."""
+    if isinstance(resolution, str):
+        if resolution != AUTO_RESOLUTION:
+            raise ValueError(f"resolution must be (width, height), None or "
+                             f"{AUTO_RESOLUTION!r}, got {resolution!r}")
+        return VORunConfig().size_for(tuple(input_size))
+    return None if resolution is None else (int(resolution[0]), int(resolution[1]))
 
 
 @dataclass
@@ -89,8 +107,10 @@ class VOCompareConfig:
     """Options of :func:`compare_vo`.
 
     Attributes:
-        resolution: ``(width, height)`` in pixels every method sees, default
-            :data:`DEFAULT_RESOLUTION` (320, 240); None keeps the frames' size.
+        resolution: ``(width, height)`` in pixels every method sees; default
+            :data:`DEFAULT_RESOLUTION` (``"auto"``: ``spgeo vo``'s default
+            processing size for the frames, :func:`compare_size`); None keeps
+            the frames' size.
         max_time_diff: ATE timestamp association tolerance; None (default):
             0.1 for frame-number timestamps, 0.02 s otherwise
             (:func:`~spgeo.evaluation.trajectory.default_max_time_diff`).
@@ -103,7 +123,7 @@ class VOCompareConfig:
         progress: tqdm bars, default False.
     """
 
-    resolution: Optional[Tuple[int, int]] = DEFAULT_RESOLUTION
+    resolution: Union[None, str, Tuple[int, int]] = DEFAULT_RESOLUTION
     max_time_diff: Optional[float] = None
     feature: FeatureVOConfig = field(default_factory=FeatureVOConfig)
     colmap: ColmapVOConfig = field(default_factory=ColmapVOConfig)
@@ -111,7 +131,10 @@ class VOCompareConfig:
     progress: bool = False
 
     def __post_init__(self) -> None:
-        self.resolution = check_resolution(self.resolution, "VOCompareConfig.resolution")
+        if isinstance(self.resolution, str):
+            compare_size(self.resolution, (640, 480))       # only "auto" is accepted
+        else:
+            self.resolution = check_resolution(self.resolution, "VOCompareConfig.resolution")
         if self.max_time_diff is not None and not float(self.max_time_diff) > 0:
             raise ValueError("VOCompareConfig.max_time_diff must be > 0")
 
@@ -176,14 +199,20 @@ class VOCompareRow:
 
 
 # ================================================================== frames
-def prepare_frames(frames: Iterable[Frame], resolution: Optional[Tuple[int, int]],
+def prepare_frames(frames: Iterable[Frame], resolution: Union[None, str, Tuple[int, int]],
                    keep_depth: bool = False, progress: bool = False) -> List[Frame]:
-    """Frames resized once to ``resolution`` (``cv2.INTER_AREA``; depth with
-    nearest neighbour when ``keep_depth``, else dropped), as every method of
-    :func:`compare_vo` would resize them; consumes a lazy reader frame by
-    frame so that only the small copies are held."""
-    return [resize_frame(f, resolution, keep_depth=keep_depth)
-            for f in tqdm(frames, disable=not progress, desc="load", unit="frame")]
+    """Frames resized once to ``resolution`` (:func:`compare_size` of the first
+    frame's size; ``cv2.INTER_AREA``; depth with nearest neighbour when
+    ``keep_depth``, else dropped), as every method of :func:`compare_vo` would
+    resize them; consumes a lazy reader frame by frame so that only the small
+    copies are held."""
+    out: List[Frame] = []
+    size: Optional[Tuple[int, int]] = None
+    for f in tqdm(frames, disable=not progress, desc="load", unit="frame"):
+        if not out:
+            size = compare_size(resolution, f.camera.size)
+        out.append(resize_frame(f, size, keep_depth=keep_depth))
+    return out
 
 
 # ================================================================= methods
@@ -191,7 +220,7 @@ def _run_spgeo(frames: List[Frame], frontend: str, config: VOCompareConfig):
     from spgeo.apps.vo_run import run_vo
 
     kwargs = {} if config.odometry is None else {"config": config.odometry}
-    size = config.resolution or frames[0].camera.size
+    size = compare_size(config.resolution, frames[0].camera.size) or frames[0].camera.size
     vo, _, _ = run_vo(frames, resolution=tuple(size), frontend=frontend,
                       progress=config.progress, **kwargs)
     r = vo.result()
@@ -224,7 +253,7 @@ def _run_colmap(frames: List[Frame], config: VOCompareConfig):
 
 
 def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
-               resolution: Optional[Tuple[int, int]] = DEFAULT_RESOLUTION,
+               resolution: Union[None, str, Tuple[int, int]] = DEFAULT_RESOLUTION,
                config: Optional[VOCompareConfig] = None) -> List[VOCompareRow]:
     """Run VO methods on the same frames and evaluate them against ground truth.
 
@@ -235,7 +264,9 @@ def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
             is fine (read once).
         methods: names from :data:`METHODS`, run in this order.
         resolution: ``(width, height)`` in pixels every method sees (overrides
-            ``config.resolution``); None keeps the frames' size.
+            ``config.resolution``); ``"auto"`` (default) ``spgeo vo``'s default
+            processing size for the frames (:func:`compare_size`); None keeps
+            the frames' size.
         config: :class:`VOCompareConfig`.
     Returns:
         one :class:`VOCompareRow` per method.  A method that raises, or whose
@@ -256,6 +287,8 @@ def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
     frames = prepare_frames(frames, cfg.resolution, keep_depth=need_depth, progress=cfg.progress)
     if not frames:
         raise ValueError("compare_vo: no frames")
+    if isinstance(cfg.resolution, str):     # "auto": the size the frames now have
+        cfg = dataclasses.replace(cfg, resolution=tuple(frames[0].camera.size))
     stamps = np.array([f.timestamp for f in frames], dtype=np.float64)
     has_gt = [f.T_world_cam is not None for f in frames]
     if sum(has_gt) < 3:
@@ -398,10 +431,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         description="spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
                     "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
     add_dataset_arguments(parser)
-    default_res = "x".join(str(v) for v in DEFAULT_RESOLUTION)
-    parser.add_argument("--resolution", default=default_res,
-                        help=f"WIDTHxHEIGHT every method sees (default {default_res}, the "
-                             f"processing resolution of spgeo vo) or 'native'")
+    parser.add_argument("--resolution", default=AUTO_RESOLUTION,
+                        help="WIDTHxHEIGHT every method sees, 'native', or 'auto' (default: "
+                             "the processing size spgeo vo chooses: the input's aspect ratio "
+                             "at about 320x240 pixels, 320x240 for 4:3 input)")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                         help=f"methods to run (default: all: {' '.join(METHODS)})")
     parser.add_argument("--out", default=None, help="write trajectories and results.json here")
@@ -416,7 +449,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     kind, path = args.dataset
     try:
-        resolution = parse_resolution(args.resolution, allow_native=True, min_size=1)
+        resolution = (AUTO_RESOLUTION if args.resolution.strip().lower() == AUTO_RESOLUTION
+                      else parse_resolution(args.resolution, allow_native=True, min_size=1))
         load_depth = any(m in ORACLE_METHODS for m in args.methods)
         seq = open_dataset(kind, path, frames=args.frames, load_depth=load_depth)
         config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,
@@ -425,7 +459,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (ValueError, FileNotFoundError, OSError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    res_txt = "native" if resolution is None else f"{resolution[0]}x{resolution[1]}"
+    size = compare_size(resolution, seq.camera.size)
+    res_txt = "native" if size is None else f"{size[0]}x{size[1]}"
     title = (f"{getattr(seq, 'name', path)} ({kind}), frames {args.frames or 'all'}, "
              f"{res_txt}: per-frame and keyframe-only ATE, Sim(3)-aligned")
     print(format_markdown_table(rows, title))

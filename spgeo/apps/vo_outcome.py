@@ -13,23 +13,46 @@ import logging
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Union
+from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
 from ..configs import config_to_dict
 from ..frame import Frame
+from ..trajectory import Trajectory
 from ..vo import Odometry, OdometryResult
 
 if TYPE_CHECKING:
     from .vo_run import VORunConfig
 
-__all__ = ["VORun", "ATE_LABELS"]
+__all__ = ["VORun", "SkippedFrame", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
 
 #: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
 ATE_LABELS = ("per-frame", "keyframe-only")
+
+
+@dataclass(frozen=True)
+class SkippedFrame:
+    """A frame the runner skipped because its file could not be read
+    (:class:`~spgeo.validation.FrameReadError`).
+
+    Attributes:
+        index: its position in the input sequence (0-based, counting every frame).
+        timestamp: its timestamp (seconds, or frame number), None where unknown.
+        path: its image file, None where unknown.
+        reason: the reader's message (names the file that failed).
+    """
+
+    index: int
+    timestamp: Optional[float]
+    path: Optional[str]
+    reason: str
+
+    def to_dict(self) -> Dict[str, object]:
+        return {"index": self.index, "timestamp": self.timestamp, "path": self.path,
+                "reason": self.reason}
 
 
 @dataclass
@@ -53,6 +76,11 @@ class VORun:
             when :meth:`Odometry.save` writes none).
         interrupted: the run was stopped by Ctrl-C (``KeyboardInterrupt``)
             between or during frames; it holds the frames processed before.
+        resolution: the processing ``(width, height)`` the VO saw
+            (:meth:`VORunConfig.size_for`; None only for a hand-made VORun:
+            ``config.resolution``).
+        skipped: the frames skipped as unreadable, in input order; they are
+            not among the processed frames above (no pose, no ATE).
     """
 
     odometry: Odometry
@@ -64,10 +92,26 @@ class VORun:
     config: "VORunConfig"
     keyframe_images: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     interrupted: bool = False
+    resolution: Optional[Tuple[int, int]] = None
+    skipped: List[SkippedFrame] = field(default_factory=list)
 
     @property
     def n_frames(self) -> int:
+        """Frames processed by the VO (skipped frames not counted)."""
         return len(self.timestamps)
+
+    @property
+    def processing_size(self) -> Tuple[int, int]:
+        """``(width, height)`` the VO saw: :attr:`resolution`, else ``config.resolution``."""
+        size = self.resolution if self.resolution is not None else self.config.resolution
+        return (int(size[0]), int(size[1]))
+
+    def trajectory(self) -> Trajectory:
+        """:meth:`result` with the skipped frames of known timestamp inserted
+        (status ``skipped``, no pose: :meth:`Trajectory.with_skipped`): what
+        :meth:`save` writes."""
+        stamps = [s.timestamp for s in self.skipped if s.timestamp is not None]
+        return self.result().with_skipped(stamps)
 
     @property
     def has_map(self) -> bool:
@@ -97,11 +141,16 @@ class VORun:
         return self.odometry.result()
 
     def status_counts(self) -> Dict[str, int]:
-        """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``, ...)."""
-        return dict(Counter(self.result().statuses))
+        """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``,
+        ..., and ``skipped`` when frames were skipped)."""
+        counts = Counter(str(s) for s in self.result().statuses)
+        if self.skipped:
+            counts["skipped"] = len(self.skipped)
+        return dict(counts)
 
     def ate(self) -> Optional[Dict[str, object]]:
-        """Sim(3)-aligned ATE of the frames not flagged ``"lost"``.
+        """Sim(3)-aligned ATE of the processed frames not flagged ``"lost"``
+        (skipped frames have no pose and are never among them).
 
         Returns ``{"per-frame": AteResult, "keyframe-only": AteResult or None}``
         (:class:`spgeo.evaluation.trajectory.AteResult`; errors in ground-truth
@@ -137,6 +186,7 @@ class VORun:
         out: Dict[str, object] = {lab: (None if ate.get(lab) is None else ate[lab].summary())
                                   for lab in ATE_LABELS}
         out["n_lost_excluded"] = int(sum(s == "lost" for s in self.result().statuses))
+        out["n_skipped_excluded"] = len(self.skipped)
         out["alignment"] = "Sim(3) (Umeyama, evo_ape -as), translation RMSE"
         return out
 
@@ -147,8 +197,9 @@ class VORun:
         """
         res = self.result()
         n_lost = int(sum(s == "lost" for s in res.statuses))
-        w, h = self.config.resolution
-        lines = [f"{self.n_frames} frames, {n_lost} lost, {int(res.is_keyframe.sum())} "
+        w, h = self.processing_size
+        skipped = f", {len(self.skipped)} skipped (unreadable)" if self.skipped else ""
+        lines = [f"{self.n_frames} frames, {n_lost} lost{skipped}, {int(res.is_keyframe.sum())} "
                  f"keyframes, {self.fps:.1f} FPS (front-end {self.frontend_name}, {w}x{h})"]
         if ate is None:
             ate = self.ate()
@@ -180,7 +231,10 @@ class VORun:
         frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
         ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
         keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
-        ``"run"`` (resolution, front-end, wall time, FPS), ``"run_config"``
+        ``"run"`` (processing resolution, front-end, wall time, FPS, ``n_skipped``),
+        ``"skipped"`` (one :meth:`SkippedFrame.to_dict` per skipped frame; such a
+        frame is ``skipped`` in the status file and has no line in
+        ``trajectory.txt``), ``"run_config"``
         (this :class:`VORunConfig` without ``odometry``) and, with
         ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
         report and the plots ``trajectory_topview.png`` and
@@ -192,21 +246,25 @@ class VORun:
         (``"clouds"``: a list).
         """
         out = Path(directory)
-        w, h = self.config.resolution
+        w, h = self.processing_size
         extra: Dict[str, object] = {
             "run": {"status": self.status, "init_failure": self.odometry.init_failure,
                     "resolution": [w, h], "frontend": self.frontend_name,
                     "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
-                    "n_frames": self.n_frames,
+                    "n_frames": self.n_frames, "n_skipped": len(self.skipped),
                     "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
                     "frame_names": list(self.names)},
+            "skipped": [s.to_dict() for s in self.skipped],
             # the odometry's own configuration is the report's "config"
             "run_config": {k: v for k, v in config_to_dict(self.config).items()
                            if k != "odometry"}}
         if with_ate:
             ate = self.ate() if ate is None else ate
             extra["ate"] = self.ate_report(ate) if ate is not None else None
-        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra))
+        traj = self.trajectory()
+        extra["status_counts"] = traj.status_counts()     # skipped frames included
+        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra,
+                                                           trajectory=traj))
         if with_ate and ate is not None and ate.get("per-frame") is not None:
             paths.update(self._write_plots(out, ate["per-frame"], title or out.name or str(out)))
         return paths

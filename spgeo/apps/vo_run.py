@@ -3,11 +3,19 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth
 (an application: the ATE comes from :mod:`spgeo.evaluation.trajectory`).
 
 * :func:`run_odometry`: frames (any iterable of :class:`~spgeo.frame.Frame`)
-  -> :class:`VORun`.  Every image is resized to ``VORunConfig.resolution``
-  (``cv2.INTER_AREA``, the camera with :meth:`PinholeCamera.resized`); the
+  -> :class:`VORun`.  Every image is resized to the processing size
+  (:meth:`VORunConfig.size_for` of the first frame's size: ``resolution`` when
+  set, else about ``target_pixels`` pixels with the input's aspect ratio,
+  :func:`processing_size`; ``cv2.INTER_AREA``, the camera with
+  :meth:`PinholeCamera.resized`); the
   depth map is resized (``cv2.INTER_NEAREST``) and passed on **only** when the
   front-end uses depth (``frontend.uses_depth``): with a monocular front-end
-  the runner never touches ``Frame.depth``.
+  the runner never touches ``Frame.depth``.  A frame of a random-access
+  sequence (a data-set reader) whose file cannot be read
+  (:class:`~spgeo.validation.FrameReadError`) never reaches the VO: it is
+  skipped with a warning naming the file (``VORun.skipped``; status ``skipped``
+  in the status file, no pose, not in the ATE), or with ``VORunConfig.strict``
+  the error propagates.  Any other error propagates.
 * :func:`run_dataset`: the same on a data set opened with
   :func:`spgeo.datasets.open_dataset`, with ``load_depth=False`` for a
   monocular front-end (the depth files are not even opened).
@@ -32,28 +40,56 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
+from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
-from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, FrontEndConfig, PrimitiveFrontEnd,
+                        make_frontend)
 from ..vo import Odometry, OdometryConfig
-from ..validation import MAX_IMAGE_SIDE, InputError
-from .vo_outcome import ATE_LABELS, VORun
+from ..validation import MAX_IMAGE_SIDE, FrameReadError, InputError
+from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
 
-__all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
-           "blas_threads", "ATE_LABELS"]
+__all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset", "run_vo",
+           "make_vo_frontend", "blas_threads", "processing_size", "DEFAULT_TARGET_PIXELS",
+           "SIZE_MULTIPLE", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
 
 #: Per-frame hook of :func:`run_odometry`: ``(frame, frame_result, odometry) -> None``.
 FrameHook = Callable[[Frame, Any, Any], None]
 
+
+
+#: Default processing area in pixels (:attr:`VORunConfig.target_pixels`): that of 320x240.
+DEFAULT_TARGET_PIXELS = 320 * 240
+#: Processing widths and heights of :func:`processing_size` are multiples of this
+#: (the keyframe pyramid halves the image twice and stays on whole pixels).
+SIZE_MULTIPLE = 8
+
+
+def processing_size(input_size: Tuple[int, int], target_pixels: int = DEFAULT_TARGET_PIXELS,
+                    multiple: int = SIZE_MULTIPLE) -> Tuple[int, int]:
+    """The default processing ``(width, height)`` for an input of ``input_size``
+    ``(width, height)`` pixels: about ``target_pixels`` pixels with the input's
+    aspect ratio, i.e. ``sqrt(target_pixels * W / H)`` by ``sqrt(target_pixels * H / W)``,
+    each rounded to the nearest multiple of ``multiple`` (at least ``multiple``).
+    A 4:3 input with the default target gives exactly 320x240, whatever its size.
+    The size may exceed the input's (small inputs are upsampled).  Raises
+    :class:`~spgeo.validation.InputError` for non-positive sizes or target."""
+    w, h = (int(v) for v in input_size)
+    if w <= 0 or h <= 0 or int(target_pixels) <= 0 or int(multiple) <= 0:
+        raise InputError(f"processing_size: input size {input_size!r}, target_pixels "
+                         f"{target_pixels!r} and multiple {multiple!r} must be positive")
+    m = int(multiple)
+    out = [max(m, int(round(np.sqrt(target_pixels * a / b) / m)) * m) for a, b in ((w, h), (h, w))]
+    return min(out[0], MAX_IMAGE_SIDE), min(out[1], MAX_IMAGE_SIDE)
 
 
 @config_repr
@@ -63,8 +99,15 @@ class VORunConfig:
 
     Attributes:
         resolution: ``(width, height)`` in pixels the frames are resized to
-            before the VO sees them (default ``(320, 240)``); also the
-            front-end's working size.
+            before the VO sees them, also the front-end's working size; default
+            None: :func:`processing_size` of the first frame's size with
+            ``target_pixels`` (the input's aspect ratio kept; 4:3 gives 320x240).
+        target_pixels: processing area in pixels when ``resolution`` is None
+            (default :data:`DEFAULT_TARGET_PIXELS`, that of 320x240).
+        strict: abort on a frame whose file cannot be read
+            (:class:`~spgeo.validation.FrameReadError` propagates); default False:
+            such a frame is skipped with a warning naming the file, marked
+            ``skipped`` in the status file and listed in ``report.json``.
         frontend: front-end name for :func:`spgeo.frontend.make_frontend`:
             ``"classical"`` (default; monocular, reads no depth), ``"depth"``
             (normals and initial scales from the sensor depth: RGB-D / oracle)
@@ -86,7 +129,9 @@ class VORunConfig:
             the other core slow the main thread); None leaves BLAS as it is.
     """
 
-    resolution: Tuple[int, int] = (320, 240)
+    resolution: Optional[Tuple[int, int]] = None
+    target_pixels: int = DEFAULT_TARGET_PIXELS
+    strict: bool = False
     frontend: str = "classical"
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     progress: bool = True
@@ -96,12 +141,18 @@ class VORunConfig:
     blas_threads: Optional[int] = 1
 
     def __post_init__(self) -> None:
-        res = tuple(self.resolution)
-        if len(res) != 2 or not all(isinstance(v, (int, np.integer))
-                                    and 0 < v <= MAX_IMAGE_SIDE for v in res):
-            raise InputError(f"VORunConfig.resolution must be (width, height) integers in "
-                             f"[1, {MAX_IMAGE_SIDE}] pixels, got {self.resolution!r}")
-        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        if self.resolution is not None:
+            res = tuple(self.resolution)
+            if len(res) != 2 or not all(isinstance(v, (int, np.integer))
+                                        and 0 < v <= MAX_IMAGE_SIDE for v in res):
+                raise InputError(f"VORunConfig.resolution must be None or (width, height) "
+                                 f"integers in [1, {MAX_IMAGE_SIDE}] pixels, got "
+                                 f"{self.resolution!r}")
+            object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        tp = self.target_pixels
+        if isinstance(tp, bool) or not isinstance(tp, (int, np.integer)) or not 64 <= tp <= 2 ** 26:
+            raise InputError(f"VORunConfig.target_pixels must be an integer in [64, 2**26], "
+                             f"got {tp!r}")
         if self.frontend not in FRONTENDS:
             raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
                              f"got {self.frontend!r}")
@@ -110,9 +161,18 @@ class VORunConfig:
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
 
+    def size_for(self, input_size: Tuple[int, int]) -> Tuple[int, int]:
+        """The processing ``(width, height)`` for frames of ``input_size``:
+        ``resolution`` when set, else :func:`processing_size` with ``target_pixels``."""
+        if self.resolution is not None:
+            return self.resolution
+        return processing_size(input_size, self.target_pixels)
 
-def make_vo_frontend(config: VORunConfig = VORunConfig()) -> PrimitiveFrontEnd:
-    """The front-end named by ``config.frontend`` with working size ``config.resolution``.
+
+def make_vo_frontend(config: VORunConfig = VORunConfig(),
+                     size: Optional[Tuple[int, int]] = None) -> PrimitiveFrontEnd:
+    """The front-end named by ``config.frontend`` with working size ``size``
+    (default ``config.resolution``; None when both are None: the frames' size).
 
     ``onnx`` and ``onnx-depth`` raise ``FileNotFoundError`` when their models are
     not in the cache (``sam_family`` / ``normal_model`` name them; for
@@ -122,7 +182,8 @@ def make_vo_frontend(config: VORunConfig = VORunConfig()) -> PrimitiveFrontEnd:
     if config.frontend in ("onnx", "onnx-depth"):
         sam = {"family": config.sam_family} if config.sam_family else None
         normals = {"name_or_path": config.normal_model} if config.normal_model else None
-    return make_frontend(config.frontend, FrontEndConfig(working_size=config.resolution),
+    size = config.resolution if size is None else tuple(size)
+    return make_frontend(config.frontend, FrontEndConfig(working_size=size),
                          sam=sam, normals=normals)
 
 
@@ -165,7 +226,8 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             ``depth`` is read only when the front-end uses depth.
         config: :class:`VORunConfig`.
         frontend: an already-built front-end (overrides ``config.frontend``;
-            its working size should be ``config.resolution``).
+            its working size should be the processing size,
+            :meth:`VORunConfig.size_for`).
         n_frames: total for the progress bar (default ``len(frames)`` when
             available).
         on_frame: optional hook called after every tracked frame as
@@ -179,9 +241,11 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
     frames processed so far are returned with ``VORun.interrupted`` set.
 
     Raises:
-        ValueError: no frame, frames of different camera sizes, timestamps not
-            strictly increasing, a depth-using front-end and a frame without
-            depth, or an image the VO rejects.
+        ValueError: no frame (or every frame skipped), frames of different
+            camera sizes, timestamps not strictly increasing, a depth-using
+            front-end and a frame without depth, or an image the VO rejects.
+        FrameReadError: (a ``ValueError``) with ``config.strict``, the first
+            frame whose file cannot be read.
     """
     with blas_threads(config.blas_threads):
         return _run_odometry(frames, config, frontend, n_frames, on_frame)
@@ -198,16 +262,22 @@ def blas_threads(n: Optional[int]):
     return threadpool_limits(limits=int(n), user_api="blas")
 
 
-def _open_odometry(cam_in: PinholeCamera, size: Tuple[int, int], config: VORunConfig,
-                   fe: PrimitiveFrontEnd) -> Tuple[PinholeCamera, PinholeCamera, Odometry]:
-    """``(input camera, working camera, Odometry)`` from the first frame's camera."""
-    cam = cam_in.resized(*size)
-    ain, aout = cam_in.width / cam_in.height, size[0] / size[1]
-    if abs(ain / aout - 1.0) > 0.01:
-        log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
-                    "(fx and fy scale differently)", size[0], size[1],
-                    cam_in.width, cam_in.height)
-    return cam_in, cam, Odometry(cam, config.odometry, fe)
+def _indexed_frames(frames: Iterable[Frame]) -> Iterator[Tuple[int, Union[Frame, FrameReadError]]]:
+    """``(position, frame)`` pairs.  For a random-access sequence (a list, a
+    data-set reader) a frame whose file cannot be read gives its
+    :class:`~spgeo.validation.FrameReadError` in place of the frame and the
+    iteration goes on; any other iterable is consumed as it is (an error raised
+    inside a generator ends it)."""
+    if isinstance(frames, SequenceABC):
+        for i in range(len(frames)):
+            try:
+                f = frames[i]
+            except FrameReadError as exc:
+                yield i, exc
+                continue
+            yield i, f
+        return
+    yield from enumerate(frames)
 
 
 def _checked_stamp(i: int, f: Frame, cam_in: PinholeCamera, stamps: List[float]) -> float:
@@ -224,63 +294,111 @@ def _checked_stamp(i: int, f: Frame, cam_in: PinholeCamera, stamps: List[float])
     return ts
 
 
+@dataclass
+class _Loop:
+    """State of one :func:`run_odometry` loop: the odometry (opened on the first
+    readable frame, with its processing size) and the per-frame records."""
+
+    config: VORunConfig
+    frontend: Optional[PrimitiveFrontEnd]
+    on_frame: Optional[FrameHook] = None
+    vo: Optional[Odometry] = None
+    cam_in: Optional[PinholeCamera] = None
+    cam: Optional[PinholeCamera] = None
+    gt: List[Optional[np.ndarray]] = field(default_factory=list)
+    stamps: List[float] = field(default_factory=list)
+    names: List[str] = field(default_factory=list)
+    kf_images: Dict[int, np.ndarray] = field(default_factory=dict)
+    counts: Counter = field(default_factory=Counter)
+    skipped: List[SkippedFrame] = field(default_factory=list)
+
+    def _open(self, camera: PinholeCamera) -> None:
+        """The processing size, front-end and :class:`Odometry` from the first frame's camera."""
+        size = self.config.size_for(camera.size)
+        fe = self.frontend if self.frontend is not None else make_vo_frontend(self.config, size)
+        self.cam_in, self.cam = camera, camera.resized(*size)
+        ain, aout = camera.width / camera.height, size[0] / size[1]
+        if abs(ain / aout - 1.0) > 0.01:
+            log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
+                        "(fx and fy scale differently)", size[0], size[1],
+                        camera.width, camera.height)
+        self.vo = Odometry(self.cam, self.config.odometry, fe)
+
+    def step(self, i: int, f: Frame):
+        """Track frame ``i``; returns its :class:`~spgeo.vo.result.FrameResult`."""
+        if self.vo is None:
+            self._open(f.camera)
+        ts = _checked_stamp(i, f, self.cam_in, self.stamps)
+        small = _resize_frame(f, self.cam, self.cam.size, bool(self.vo.frontend.uses_depth), i)
+        r = self.vo.track(small)
+        self.gt.append(None if f.T_world_cam is None
+                       else np.asarray(f.T_world_cam, dtype=np.float64).copy())
+        self.stamps.append(ts)
+        self.names.append(str(f.name))
+        self.counts[r.status] += 1
+        if r.keyframe_index is not None:
+            self.kf_images[r.keyframe_index] = small.image
+        if self.on_frame is not None:
+            gt = self.gt[-1]
+            self.on_frame(small if gt is None else replace(small, T_world_cam=gt), r, self.vo)
+        return r
+
+    def skip(self, exc: FrameReadError) -> None:
+        """Record an unreadable frame (or, with ``config.strict``, raise ``exc``)."""
+        if self.config.strict:
+            raise exc
+        log.warning("skipping frame %d: %s", exc.index, exc)
+        self.skipped.append(SkippedFrame(exc.index, exc.timestamp, exc.path, exc.reason))
+        self.counts["skipped"] += 1
+
+
 def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
                   frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int],
                   on_frame: Optional[FrameHook] = None) -> VORun:
-    fe = frontend if frontend is not None else make_vo_frontend(config)
-    use_depth = bool(fe.uses_depth)
-    size = config.resolution
     if n_frames is None and hasattr(frames, "__len__"):
         n_frames = len(frames)  # type: ignore[arg-type]
     from tqdm import tqdm
 
-    vo: Optional[Odometry] = None
-    cam_in = cam = None
-    gt: List[Optional[np.ndarray]] = []
-    stamps: List[float] = []
-    names: List[str] = []
-    kf_images: Dict[int, np.ndarray] = {}
-    counts: Counter = Counter()
+    loop = _Loop(config, frontend, on_frame)
     interrupted = False
     t0 = time.perf_counter()
-    bar = tqdm(frames, total=n_frames, disable=not config.progress, desc="vo", unit="frame",
+    bar = tqdm(total=n_frames, disable=not config.progress, desc="vo", unit="frame",
                dynamic_ncols=True)
     try:
-        for i, f in enumerate(bar):
-            if cam_in is None:
-                cam_in, cam, vo = _open_odometry(f.camera, size, config, fe)
-            ts = _checked_stamp(i, f, cam_in, stamps)
-            small = _resize_frame(f, cam, size, use_depth, i)
-            r = vo.track(small)  # type: ignore[union-attr]
-            gt.append(None if f.T_world_cam is None
-                      else np.asarray(f.T_world_cam, dtype=np.float64).copy())
-            stamps.append(ts)
-            names.append(str(f.name))
-            counts[r.status] += 1
-            if r.keyframe_index is not None:
-                kf_images[r.keyframe_index] = small.image
-            if on_frame is not None:
-                on_frame(small if gt[-1] is None else replace(small, T_world_cam=gt[-1]), r, vo)
+        for i, f in _indexed_frames(frames):
+            bar.update(1)
+            if isinstance(f, FrameReadError):
+                loop.skip(f)
+                continue
+            r = loop.step(i, f)
             if config.progress:
-                dt = time.perf_counter() - t0
-                bar.set_postfix({"fps": f"{(i + 1) / max(dt, 1e-9):.1f}",
-                                 "kf": len(kf_images), "lost": counts["lost"],
-                                 "status": r.status}, refresh=False)
+                bar.set_postfix({"fps": f"{len(loop.stamps) / max(time.perf_counter() - t0, 1e-9):.1f}",
+                                 "kf": len(loop.kf_images), "lost": loop.counts["lost"],
+                                 "skipped": loop.counts["skipped"], "status": r.status},
+                                refresh=False)
     except KeyboardInterrupt:
-        if not stamps:
+        if not loop.stamps:
             raise
         interrupted = True
-        log.warning("VO interrupted after %d frames", len(stamps))
+        log.warning("VO interrupted after %d frames", len(loop.stamps))
     finally:
         bar.close()
-    if vo is None:
-        raise ValueError("run_odometry: no frames (empty sequence or frame selection)")
-    wall = time.perf_counter() - t0
-    n = len(stamps)
-    log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost", n, wall,
-             n / max(wall, 1e-9), len(kf_images), counts["lost"])
-    return VORun(vo, gt, np.array(stamps, dtype=np.float64), names, wall,
-                 n / max(wall, 1e-9), config, kf_images, interrupted)
+    return _finish(loop, time.perf_counter() - t0, interrupted)
+
+
+def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
+    """The :class:`VORun` of a finished loop (``ValueError`` when no frame was tracked)."""
+    if loop.vo is None:
+        what = (f"all {len(loop.skipped)} frames were skipped as unreadable; the first: "
+                f"{loop.skipped[0].reason}"
+                if loop.skipped else "no frames (empty sequence or frame selection)")
+        raise ValueError(f"run_odometry: {what}")
+    n = len(loop.stamps)
+    log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost, %d skipped", n, wall,
+             n / max(wall, 1e-9), len(loop.kf_images), loop.counts["lost"], len(loop.skipped))
+    return VORun(loop.vo, loop.gt, np.array(loop.stamps, dtype=np.float64), loop.names, wall,
+                 n / max(wall, 1e-9), loop.config, loop.kf_images, interrupted,
+                 resolution=loop.cam.size, skipped=loop.skipped)
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
@@ -302,26 +420,30 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     """
     from ..datasets import open_dataset
 
-    fe = frontend if frontend is not None else make_vo_frontend(config)
+    uses_depth = (bool(frontend.uses_depth) if frontend is not None
+                  else config.frontend not in MONOCULAR_FRONTENDS)
     opts = dict(reader_options)
-    opts.setdefault("load_depth", bool(fe.uses_depth))
-    if opts["load_depth"] is False and fe.uses_depth:
+    opts.setdefault("load_depth", uses_depth)
+    if opts["load_depth"] is False and uses_depth:
         raise ValueError("the front-end uses depth: the data set must be read with depth")
     seq = open_dataset(kind, path, frames=frames, **opts)
     if len(seq) == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
-    log.info("VO on %s (%s): %d frames, camera %r", seq.name, kind, len(seq), seq.camera)
-    return run_odometry(seq, config, fe, n_frames=len(seq), on_frame=on_frame)
+    log.info("VO on %s (%s): %d frames, camera %r, processing size %s", seq.name, kind,
+             len(seq), seq.camera, config.size_for(seq.camera.size))
+    return run_odometry(seq, config, frontend, n_frames=len(seq), on_frame=on_frame)
 
 
-def run_vo(frames: Iterable[Frame], resolution: Tuple[int, int] = (320, 240),
+def run_vo(frames: Iterable[Frame], resolution: Optional[Tuple[int, int]] = None,
            frontend: str = "classical", config: OdometryConfig = OdometryConfig(),
            progress: bool = True) -> Tuple[Odometry, List[Optional[np.ndarray]], float]:
-    """VO over a frame sequence resized to ``resolution`` (width, height pixels).
+    """VO over a frame sequence resized to ``resolution`` (width, height pixels;
+    default None: :func:`processing_size` of the frames' size, as ``spgeo vo``).
 
     Returns ``(odometry, ground-truth camera-to-world poses (None per frame
     without), frames per wall-clock second)``; see :func:`run_odometry`.
     """
-    run = run_odometry(frames, VORunConfig(resolution=tuple(resolution), frontend=frontend,
+    res = None if resolution is None else tuple(resolution)
+    run = run_odometry(frames, VORunConfig(resolution=res, frontend=frontend,
                                            odometry=config, progress=progress))
     return run.odometry, run.gt_poses, run.fps

@@ -1,15 +1,19 @@
 """``spgeo vo``: argument wiring for :func:`spgeo.apps.vo_run.run_dataset`.
 
     spgeo vo --dataset {tum,7scenes,icl,folder} PATH [--frames A:B[:STEP]]
-             [--resolution 320x240] [--frontend classical|depth|onnx]
+             [--resolution WxH] [--strict] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
              [--export-colmap DIR [--all-frames]]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
-explicit options (``--resolution``, ``--frontend``, ...) override
-``--config``, and ``--set`` overrides both.
+explicit options (``--resolution``, ``--strict``, ``--frontend``, ...) override
+``--config``, and ``--set`` overrides both.  Without ``--resolution`` the
+processing size keeps the input's aspect ratio at about 320x240 pixels
+(:func:`spgeo.apps.vo_run.processing_size`).  A frame whose file cannot be read
+is skipped (status ``skipped``, listed in report.json) unless ``--strict``,
+which stops with exit code 2 naming the file.
 """
 from __future__ import annotations
 
@@ -36,7 +40,10 @@ OUT/report.json (with the per-frame and keyframe-only Sim(3) ATE under "ate"
 when the data set has ground truth, the OdometryConfig under "config" and the
 rest of the run config under "run_config") and keyframe point clouds in
 OUT/clouds/.  The classical and onnx front-ends never read depth; 'depth' uses
-the sensor depth (RGB-D / oracle)."""
+the sensor depth (RGB-D / oracle).  A frame whose image (or depth) file cannot
+be read is skipped with a warning: status 'skipped' in
+OUT/trajectory.status.txt, no pose, not in the ATE, listed under "skipped" in
+OUT/report.json; --strict stops instead (exit code 2)."""
 
 
 def _run_config(args: argparse.Namespace):
@@ -51,6 +58,8 @@ def _run_config(args: argparse.Namespace):
         explicit["frontend"] = args.frontend
     if args.no_progress:
         explicit["progress"] = False
+    if args.strict:
+        explicit["strict"] = True
     if args.sam_family is not None:
         explicit["sam_family"] = args.sam_family
     if args.normal_model is not None:
@@ -119,7 +128,12 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
                    help="frame numbers A <= n < B, every STEP-th (default: all)")
     p.add_argument("--resolution", default=None, metavar="WxH",
-                   help="processing resolution (default 320x240)")
+                   help="processing resolution (default: the input's aspect ratio at about "
+                        "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "
+                        "input gives 320x240)")
+    p.add_argument("--strict", action="store_true",
+                   help="stop (exit code 2) at a frame whose file cannot be read; by "
+                        "default it is skipped, marked 'skipped' and counted in report.json")
     p.add_argument("--frontend", default=None, choices=FRONTENDS,
                    help="classical (default, monocular), manhattan (monocular), onnx and "
                         "onnx-depth (need `spgeo models fetch`) or depth (reads the sensor "

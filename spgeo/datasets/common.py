@@ -25,6 +25,7 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json,
                     read_depth_png, read_rgb)
+from ..validation import FrameReadError, InputError
 from .warp import photometric_error, warp_image
 
 __all__ = [
@@ -265,7 +266,18 @@ class FrameSequence(_SequenceABC):
         return None if pose is None else pose.copy()
 
     def _get(self, i: int) -> Frame:
-        return self._load(i, self._records[i])
+        """Frame ``i`` (:meth:`_load`); a file that cannot be read (the reader's
+        :class:`~spgeo.validation.InputError` or ``OSError``) raises
+        :class:`~spgeo.validation.FrameReadError` naming the position, the
+        frame's image file and the reader's message."""
+        record = self._records[i]
+        try:
+            return self._load(i, record)
+        except (InputError, OSError) as exc:
+            path = getattr(record, "color_path", None) or getattr(record, "path", None)
+            stamp = getattr(record, "timestamp", None)
+            raise FrameReadError(i, None if path is None else str(path), str(exc),
+                                 stamp) from exc
 
     @abstractmethod
     def _load(self, index: int, record: Any) -> Frame:

@@ -30,6 +30,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
+from ..validation import InputError
 from .common import FrameSelection, FrameSequence, check_camera, select_frames
 from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
 
@@ -156,9 +157,9 @@ class FolderSequence(FrameSequence):
             try:
                 depth = np.load(npy, allow_pickle=False)
             except (OSError, ValueError) as exc:
-                raise ValueError(f"cannot read depth file {npy}: {exc}") from None
+                raise InputError(f"cannot read depth file {npy}: {exc}") from None
             if depth.shape != self._raw_camera.shape or not np.issubdtype(depth.dtype, np.floating):
-                raise ValueError(f"depth file {npy} must be a float (H, W) = "
+                raise InputError(f"depth file {npy} must be a float (H, W) = "
                                  f"{self._raw_camera.shape} array, got {depth.dtype} {depth.shape}")
             depth = depth.astype(np.float32)
             with np.errstate(invalid="ignore"):

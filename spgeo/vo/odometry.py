@@ -261,12 +261,16 @@ class Odometry:
         }
 
     def save(self, directory: Union[str, Path], clouds: bool = True,
-             extra_report: Optional[dict] = None) -> Dict[str, object]:
-        """:func:`spgeo.vo.result.save_run` of :meth:`result`, :meth:`report`
-        updated with ``extra_report`` and, with ``clouds``, the keyframes that
-        carry depth (:meth:`keyframes_with_depth`)."""
+             extra_report: Optional[dict] = None,
+             trajectory: Optional[OdometryResult] = None) -> Dict[str, object]:
+        """:func:`spgeo.vo.result.save_run` of ``trajectory`` (default
+        :meth:`result`; a caller may pass it with frames the VO never saw, e.g.
+        :meth:`Trajectory.with_skipped`), :meth:`report` updated with
+        ``extra_report`` and, with ``clouds``, the keyframes that carry depth
+        (:meth:`keyframes_with_depth`)."""
         kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self.keyframes_with_depth()]
-        return save_run(directory, self.result(), {**self.report(), **(extra_report or {})},
+        traj = self.result() if trajectory is None else trajectory
+        return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
 
     # ------------------------------------------------------------ stages
