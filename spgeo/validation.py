@@ -25,7 +25,7 @@ __all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE",
            "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
            "check_intrinsics", "check_camera", "check_real_array", "check_sparse_depth",
            "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes",
-           "FrameReadError"]
+           "FrameReadError", "FrameFileMissing"]
 
 log = logging.getLogger(__name__)
 
@@ -172,6 +172,11 @@ class FrameReadError(InputError):
         self.path = None if path is None else os.fspath(path)
         self.reason = str(reason)
         self.timestamp = None if timestamp is None else float(timestamp)
+
+
+class FrameFileMissing(FrameReadError, FileNotFoundError):
+    """A :class:`FrameReadError` whose file is missing: also a ``FileNotFoundError``,
+    as a missing file is everywhere else."""
 
 
 def check_input_file(path, what: str = "input") -> str:

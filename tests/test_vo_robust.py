@@ -201,3 +201,20 @@ def test_trajectory_with_skipped_round_trip(tmp_path):
     assert list(t_tum) == [0.0, 2.0, 3.0]
     assert [s.value for s in Trajectory.load(tmp_path / "t.txt").status] == \
         [s.value for s in out.status]
+
+
+def test_missing_frame_file_is_skipped_and_still_a_file_not_found(broken_seq, tmp_path):
+    import shutil
+
+    folder = tmp_path / "seq-01"
+    shutil.copytree(broken_seq, folder)
+    seq = open_dataset("7scenes", folder, frames=f"0:{BAD + 3}")
+    (folder / f"frame-{BAD - 1:06d}.color.png").unlink()     # vanished after the listing
+    with pytest.raises(FileNotFoundError) as info:
+        seq[BAD - 1]
+    assert isinstance(info.value, FrameReadError) and info.value.index == BAD - 1
+    run = run_odometry(seq, VORunConfig(frontend="depth", progress=False))
+    assert [s.index for s in run.skipped] == [BAD - 1, BAD] and run.n_frames == BAD + 1
+    assert run.status_counts()["skipped"] == 2
+    traj = run.trajectory()
+    assert [traj.status[i] for i in (BAD - 1, BAD)] == [FrameStatus.SKIPPED] * 2

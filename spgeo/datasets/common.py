@@ -25,7 +25,7 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json,
                     read_depth_png, read_rgb)
-from ..validation import FrameReadError, InputError
+from ..validation import FrameFileMissing, FrameReadError, InputError
 from .warp import photometric_error, warp_image
 
 __all__ = [
@@ -269,15 +269,16 @@ class FrameSequence(_SequenceABC):
         """Frame ``i`` (:meth:`_load`); a file that cannot be read (the reader's
         :class:`~spgeo.validation.InputError` or ``OSError``) raises
         :class:`~spgeo.validation.FrameReadError` naming the position, the
-        frame's image file and the reader's message."""
+        frame's image file and the reader's message (for a missing file
+        :class:`~spgeo.validation.FrameFileMissing`, also a ``FileNotFoundError``)."""
         record = self._records[i]
         try:
             return self._load(i, record)
         except (InputError, OSError) as exc:
             path = getattr(record, "color_path", None) or getattr(record, "path", None)
             stamp = getattr(record, "timestamp", None)
-            raise FrameReadError(i, None if path is None else str(path), str(exc),
-                                 stamp) from exc
+            cls = FrameFileMissing if isinstance(exc, FileNotFoundError) else FrameReadError
+            raise cls(i, None if path is None else str(path), str(exc), stamp) from exc
 
     @abstractmethod
     def _load(self, index: int, record: Any) -> Frame:
