@@ -1,0 +1,16 @@
+"""Loop closure for the monocular VO (issue 23, docs/design.md §5.2): a keyframe
+database with place recognition, Sim(3) geometric verification of candidates, a
+Sim(3) pose graph over the keyframes, and :class:`LoopCloser` that drives them.
+
+Sim(3) convention (:mod:`spgeo.loop.sim3`): ``S_a_b`` maps ``x_b`` to
+``x_a = s R x_b + t``, a 4x4 ``[[s R, t], [0, 1]]``.
+"""
+from .config import LoopClosureConfig, PlaceRecognitionConfig, PoseGraphConfig, VerificationConfig
+from .pose_graph import PoseGraphResult, Sim3Edge, odometry_edges, optimise_sim3_pose_graph
+from .sim3 import sim3, sim3_difference, sim3_inverse, sim3_parts, umeyama
+
+__all__ = [
+    "LoopClosureConfig", "PlaceRecognitionConfig", "PoseGraphConfig", "VerificationConfig",
+    "PoseGraphResult", "Sim3Edge", "odometry_edges", "optimise_sim3_pose_graph",
+    "sim3", "sim3_difference", "sim3_inverse", "sim3_parts", "umeyama",
+]
