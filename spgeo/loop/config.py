@@ -68,11 +68,11 @@ class VerificationConfig:
     """
 
     reprojection_px: float = 3.0
-    depth_tolerance: float = 0.1
+    depth_tolerance: float = 0.05
     ransac_iterations: int = 300
     seed: int = 0
     min_inliers: int = 30
-    min_inlier_ratio: float = 0.3
+    min_inlier_ratio: float = 0.5
     neighbour_radius: int = 2
     min_neighbour_support: int = 1
     min_neighbour_inliers: int = 15
