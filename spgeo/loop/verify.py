@@ -1,0 +1,200 @@
+"""Keyframe features lifted to 3-D, and the geometric verification of a loop candidate:
+RANSAC over 3-point Umeyama similarities between the two keyframes' 3-D points,
+scored by reprojection in both images and depth agreement (docs/design.md §5.2).
+
+Frames: a keyframe's points are in its camera frame, in its depth units; the
+verified ``S_cand_query`` (convention of :mod:`spgeo.loop.sim3`) maps query-camera
+points into the candidate's camera, so its scale is the candidate's depth unit over
+the query's (1 for a map without scale drift).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..twoview import TwoViewConfig, to_gray_uint8
+from ..twoview.backends import opencv_features, ratio_matches
+from .config import VerificationConfig
+from .sim3 import sim3_inverse, umeyama
+
+__all__ = ["KeyframeFeatures", "extract_features", "match_features", "Sim3Verification",
+           "count_inliers", "verify_sim3"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class KeyframeFeatures:
+    """Features of one keyframe image.
+
+    Attributes:
+        keypoints: (N, 2) pixel coordinates in ``camera`` (pixel centres at integers).
+        descriptors: (N, D) OpenCV descriptors (float32 SIFT or uint8 ORB), or None.
+        points: (N, 3) camera-frame points from the keyframe's depth (its depth units);
+            rows of NaN where the depth is missing.
+        camera: the camera of ``keypoints``.
+    """
+
+    keypoints: np.ndarray
+    descriptors: Optional[np.ndarray]
+    points: np.ndarray
+    camera: PinholeCamera
+
+    def scaled(self, factor: float) -> "KeyframeFeatures":
+        """The same features with depths multiplied by ``factor`` (log-scale ``+= log factor``)."""
+        return KeyframeFeatures(self.keypoints, self.descriptors, self.points * float(factor),
+                                self.camera)
+
+
+def extract_features(image: np.ndarray, camera: PinholeCamera, depth: np.ndarray,
+                     config: TwoViewConfig) -> KeyframeFeatures:
+    """SIFT / ORB features of ``image`` lifted to 3-D with ``depth``.
+
+    Args:
+        image: (H, W[, 3]) image of ``camera``'s size (uint8 / uint16 / float in [0, 1]).
+        camera: the image's pinhole camera.
+        depth: (h, w) depth map of the same view at any resolution (z along the optical
+            axis; NaN or <= 0 where unknown), e.g. the keyframe's primitive depth map.
+        config: feature type and count (``features``, ``max_features``,
+            ``sift_contrast_threshold``).
+    Returns:
+        :class:`KeyframeFeatures`.
+    """
+    image = camera.check_image(np.asarray(image), "image")
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"extract_features: depth must be (h, w), got shape {depth.shape}")
+    pts, desc = opencv_features(to_gray_uint8(image), config)
+    h, w = depth.shape
+    u = (pts[:, 0] + 0.5) * w / camera.width - 0.5
+    v = (pts[:, 1] + 0.5) * h / camera.height - 0.5
+    ui = np.clip(np.round(u).astype(np.int64), 0, w - 1)
+    vi = np.clip(np.round(v).astype(np.int64), 0, h - 1)
+    z = depth[vi, ui] if len(pts) else np.zeros(0)
+    ok = np.isfinite(z) & (z > 0)
+    X = np.stack([(pts[:, 0] - camera.cx) / camera.fx * z,
+                  (pts[:, 1] - camera.cy) / camera.fy * z, z], 1) if len(pts) else np.zeros((0, 3))
+    return KeyframeFeatures(pts, desc, np.where(ok[:, None], X, np.nan), camera)
+
+
+def match_features(a: KeyframeFeatures, b: KeyframeFeatures, config: TwoViewConfig) -> np.ndarray:
+    """(M, 2) index pairs ``(index in a, index in b)`` passing the ratio test (and the
+    mutual check when ``config.cross_check``)."""
+    import cv2
+
+    norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
+    return ratio_matches(a.descriptors, b.descriptors, config, norm)
+
+
+@dataclass
+class Sim3Verification:
+    """Outcome of :func:`verify_sim3`.
+
+    Attributes:
+        accepted: enough inliers and inlier ratio.
+        S_cand_query: 4x4 similarity from the query's camera (its depth units) to the
+            candidate's camera (its units), or None without a model.
+        n_matches: matches with depth in both keyframes.
+        n_inliers: matches consistent with ``S_cand_query``.
+        inlier_ratio: ``n_inliers / n_matches`` (0 without matches).
+        inliers: (n_matches,) bool over the matches with depth (order of ``pairs``).
+        reason: why it was rejected ("" when accepted).
+    """
+
+    accepted: bool
+    S_cand_query: Optional[np.ndarray]
+    n_matches: int
+    n_inliers: int
+    inlier_ratio: float
+    inliers: np.ndarray
+    reason: str = ""
+
+
+def _reprojection(points: np.ndarray, camera: PinholeCamera, uv: np.ndarray) -> np.ndarray:
+    z = points[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = camera.fx * points[:, 0] / z + camera.cx
+        v = camera.fy * points[:, 1] / z + camera.cy
+        err = np.hypot(u - uv[:, 0], v - uv[:, 1])
+    return np.where(z > 0, err, np.inf)
+
+
+def count_inliers(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarray,
+                  uv_query: np.ndarray, uv_cand: np.ndarray, cam_query: PinholeCamera,
+                  cam_cand: PinholeCamera, config: VerificationConfig) -> np.ndarray:
+    """(M,) bool: matches whose query point mapped by ``S_cand_query`` reprojects near the
+    candidate keypoint with the candidate's depth, and whose candidate point mapped back
+    reprojects near the query keypoint (thresholds of ``config``)."""
+    S = np.asarray(S_cand_query, dtype=np.float64)
+    in_cand = P_query @ S[:3, :3].T + S[:3, 3]
+    Si = sim3_inverse(S)
+    in_query = P_cand @ Si[:3, :3].T + Si[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dlog = np.abs(np.log(in_cand[:, 2] / P_cand[:, 2]))
+    ok = (_reprojection(in_cand, cam_cand, uv_cand) <= config.reprojection_px) \
+        & (_reprojection(in_query, cam_query, uv_query) <= config.reprojection_px)
+    return ok & np.nan_to_num(dlog <= config.depth_tolerance, nan=False)
+
+
+def _ransac(P_q, P_c, uv_q, uv_c, cam_q, cam_c, config: VerificationConfig):
+    """Best 3-point Umeyama model, then refits on its inliers until they stop growing."""
+    rng = np.random.default_rng(config.seed)
+    best, best_in = None, np.zeros(len(P_q), bool)
+    for _ in range(int(config.ransac_iterations)):
+        idx = rng.choice(len(P_q), 3, replace=False)
+        S = umeyama(P_q[idx], P_c[idx])
+        if S is None:
+            continue
+        inl = count_inliers(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, config)
+        if inl.sum() > best_in.sum():
+            best, best_in = S, inl
+    for _ in range(5):
+        if best is None or best_in.sum() < 3:
+            break
+        S = umeyama(P_q[best_in], P_c[best_in])
+        if S is None:
+            break
+        inl = count_inliers(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, config)
+        if inl.sum() < best_in.sum():
+            break
+        best, best_in = S, inl
+    return best, best_in
+
+
+def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarray,
+                config: VerificationConfig = VerificationConfig()) -> Sim3Verification:
+    """Relative Sim(3) of a loop candidate from feature matches with depth in both keyframes.
+
+    Args:
+        query, cand: the two keyframes' :class:`KeyframeFeatures`.
+        pairs: (M, 2) matches ``(index in cand, index in query)``
+            (:func:`match_features` of ``cand`` and ``query``).
+        config: :class:`VerificationConfig` (thresholds, RANSAC iterations and seed).
+    Returns:
+        :class:`Sim3Verification`; accepted when ``n_inliers >= config.min_inliers`` and
+        ``inlier_ratio >= config.min_inlier_ratio``.
+    """
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    keep = np.isfinite(cand.points[pairs[:, 0], 0]) & np.isfinite(query.points[pairs[:, 1], 0])
+    pairs = pairs[keep]
+    m = len(pairs)
+    if m < max(3, config.min_inliers):
+        return Sim3Verification(False, None, m, 0, 0.0, np.zeros(m, bool), "too_few_matches")
+    args = (query.points[pairs[:, 1]], cand.points[pairs[:, 0]], query.keypoints[pairs[:, 1]],
+            cand.keypoints[pairs[:, 0]], query.camera, cand.camera)
+    S, inl = _ransac(*args, config)
+    n_in = int(inl.sum())
+    ratio = n_in / m
+    reason = ""
+    if S is None:
+        reason = "no_model"
+    elif n_in < config.min_inliers:
+        reason = "too_few_inliers"
+    elif ratio < config.min_inlier_ratio:
+        reason = "low_inlier_ratio"
+    log.debug("loop verification: %d inliers of %d matches (%s)", n_in, m, reason or "accepted")
+    return Sim3Verification(not reason, S, m, n_in, ratio, inl, reason)
