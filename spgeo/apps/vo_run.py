@@ -34,7 +34,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple, Union
+from typing import Any, Callable, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -44,12 +44,17 @@ from ..frame import Frame
 from ..frontend import FRONTENDS, FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..vo import Odometry, OdometryConfig
 from ..validation import MAX_IMAGE_SIDE, InputError
+from .memory import RssCheckpoints
 from .vo_outcome import ATE_LABELS, VORun
 
 __all__ = ["VORunConfig", "VORun", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
            "blas_threads", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
+
+#: :func:`run_odometry` records the current RSS after every this many frames
+#: (``report.json``'s ``run.memory``)
+RSS_EVERY = 100
 
 #: Per-frame hook of :func:`run_odometry`: ``(frame, frame_result, odometry) -> None``.
 FrameHook = Callable[[Frame, Any, Any], None]
@@ -239,7 +244,7 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
     gt: List[Optional[np.ndarray]] = []
     stamps: List[float] = []
     names: List[str] = []
-    kf_images: Dict[int, np.ndarray] = {}
+    memory = RssCheckpoints(RSS_EVERY)
     counts: Counter = Counter()
     interrupted = False
     t0 = time.perf_counter()
@@ -257,14 +262,13 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
             stamps.append(ts)
             names.append(str(f.name))
             counts[r.status] += 1
-            if r.keyframe_index is not None:
-                kf_images[r.keyframe_index] = small.image
+            memory.frame_done()
             if on_frame is not None:
                 on_frame(small if gt[-1] is None else replace(small, T_world_cam=gt[-1]), r, vo)
             if config.progress:
                 dt = time.perf_counter() - t0
                 bar.set_postfix({"fps": f"{(i + 1) / max(dt, 1e-9):.1f}",
-                                 "kf": len(kf_images), "lost": counts["lost"],
+                                 "kf": vo.n_keyframes, "lost": counts["lost"],
                                  "status": r.status}, refresh=False)
     except KeyboardInterrupt:
         if not stamps:
@@ -278,9 +282,9 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
     wall = time.perf_counter() - t0
     n = len(stamps)
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost", n, wall,
-             n / max(wall, 1e-9), len(kf_images), counts["lost"])
+             n / max(wall, 1e-9), vo.n_keyframes, counts["lost"])
     return VORun(vo, gt, np.array(stamps, dtype=np.float64), names, wall,
-                 n / max(wall, 1e-9), config, kf_images, interrupted)
+                 n / max(wall, 1e-9), config, interrupted, memory.report())
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
