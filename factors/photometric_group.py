@@ -17,7 +17,7 @@ from spgeo.camera import PinholeCamera
 from . import kernels
 from .photometric import PhotometricConfig, ShapeModel, photometric_rows
 
-__all__ = ["PhotometricFactorGroup"]
+__all__ = ["PhotometricFactorGroup", "release_groups"]
 
 
 class PhotometricFactorGroup:
@@ -289,3 +289,10 @@ class PhotometricFactorGroup:
         if self.brightness_key is not None:
             H[2 + prims.size] = C[:, 12:14]
         return C[:, -1]
+
+
+def release_groups(groups) -> None:
+    """:meth:`PhotometricFactorGroup.release` of every group in ``groups`` (an
+    owner done with them: their factors left, or are about to leave, the graph)."""
+    for g in groups:
+        g.release()

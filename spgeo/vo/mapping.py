@@ -53,7 +53,7 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape, ScaledShape
-from ..factors.photometric_group import PhotometricFactorGroup
+from ..factors.photometric_group import PhotometricFactorGroup, release_groups
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..primitives import PrimitiveSet
 from ..sfm.graph import gtsam_error_line
@@ -231,15 +231,8 @@ class WindowMapper:
     def reset(self) -> None:
         """Empty smoother and no factor group (a new map segment)."""
         self.smoother = self.new_smoother()
-        self._release_groups(self._groups)
+        release_groups(self._groups)     # else never freed: a reference cycle through gtsam
         self._groups = []
-
-    @staticmethod
-    def _release_groups(groups: Sequence[PhotometricFactorGroup]) -> None:
-        """:meth:`PhotometricFactorGroup.release` of groups whose factors left the
-        smoother (otherwise never freed: a reference cycle through gtsam)."""
-        for g in groups:
-            g.release()
 
     def estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
@@ -373,7 +366,7 @@ class WindowMapper:
         est, secs = self._solve(batch)
         self._refresh(est, kfs)
         alive = [est.exists(g.ref_key) and est.exists(g.tgt_key) for g in self._groups]
-        self._release_groups([g for g, a in zip(self._groups, alive) if not a])
+        release_groups([g for g, a in zip(self._groups, alive) if not a])
         self._groups = [g for g, a in zip(self._groups, alive) if a]
         self.reports.append({"keyframe": new.index, "segment": segment,
                              "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
