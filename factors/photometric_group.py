@@ -17,7 +17,7 @@ from spgeo.camera import PinholeCamera
 from . import kernels
 from .photometric import PhotometricConfig, ShapeModel, photometric_rows
 
-__all__ = ["PhotometricFactorGroup"]
+__all__ = ["PhotometricFactorGroup", "release_groups"]
 
 
 class PhotometricFactorGroup:
@@ -123,6 +123,19 @@ class PhotometricFactorGroup:
 
     def __len__(self) -> int:
         return len(self.shape_keys)
+
+    def release(self) -> None:
+        """Forget the gtsam factors and the cached evaluation, for an owner
+        that no longer needs the group (its factors left the graph).
+
+        Each factor's callback holds the group, and ``factors`` holds the
+        factors: a reference cycle through gtsam that Python's collector cannot
+        see, so a group is otherwise never freed.  After :meth:`release` the
+        factors still evaluate (they keep the group alive while gtsam holds
+        them) and the group is freed with the last of them; ``factors`` is
+        empty."""
+        self.factors = []
+        self._cache = None
 
     def evaluate(self, T_world_ref: np.ndarray, T_world_tgt: np.ndarray, thetas: np.ndarray,
                  brightness: Optional[np.ndarray] = None, jacobians: bool = True) -> dict:
@@ -276,3 +289,10 @@ class PhotometricFactorGroup:
         if self.brightness_key is not None:
             H[2 + prims.size] = C[:, 12:14]
         return C[:, -1]
+
+
+def release_groups(groups) -> None:
+    """:meth:`PhotometricFactorGroup.release` of every group in ``groups`` (an
+    owner done with them: their factors left, or are about to leave, the graph)."""
+    for g in groups:
+        g.release()

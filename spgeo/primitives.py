@@ -169,6 +169,13 @@ class PrimitiveSet:
         at_anchor = self.log_depth[self._anchor_entries()]
         self.log_depth -= np.repeat(at_anchor, self.sizes)
 
+    def __getstate__(self) -> dict:
+        """Pickled state: the arrays, without the cached per-entry primitive ids
+        (recomputed on demand)."""
+        state = dict(self.__dict__)
+        state["_ids"] = None
+        return state
+
     # ------------------------------------------------------------ validation
     def _validate(self) -> None:
         n = self.offsets.size - 1

@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -189,6 +189,7 @@ class RerunLogger:
             self.recording.connect_grpc(config.target)
         self.recording.log("world", rr.ViewCoordinates.RDF, static=True)
         self._logged_kfs: Dict[int, Any] = {}
+        self._seen_kfs: Set[int] = set()
         self._kf_images: Dict[int, np.ndarray] = {}
         self._centres: List[np.ndarray] = []
         self._gt: List[Tuple[int, np.ndarray, np.ndarray]] = []   # (frame, gt, estimate)
@@ -352,13 +353,27 @@ class RerunLogger:
 
     def _log_keyframes(self, odometry) -> list:
         """Log the keyframes that are new (everything) or replaced (pose, cloud,
-        depth) since the last call; returns them all."""
-        kfs = list(getattr(odometry, "keyframes", ()) or ())
-        for k, kf in enumerate(kfs):
+        depth) since the last call; returns them (in index order).
+
+        With an odometry that has ``window_keyframes()`` (:class:`spgeo.vo.Odometry`)
+        only those are looked at: a keyframe that left the window is final and
+        was logged at its final state while in it; the logger then forgets it
+        (its object and image), so its memory does not grow with the keyframes."""
+        window = getattr(odometry, "window_keyframes", None)
+        if callable(window):
+            items = dict(window())
+        else:
+            items = dict(enumerate(getattr(odometry, "keyframes", ()) or ()))
+        for k, kf in items.items():
             if self._logged_kfs.get(k) is not kf:
-                self.log_keyframe(k, kf, self._kf_images.get(k), k not in self._logged_kfs)
+                self.log_keyframe(k, kf, self._kf_images.get(k), k not in self._seen_kfs)
                 self._logged_kfs[k] = kf
-        return kfs
+                self._seen_kfs.add(k)
+        if callable(window):
+            for k in [k for k in self._logged_kfs if k not in items]:
+                del self._logged_kfs[k]
+                self._kf_images.pop(k, None)
+        return [items[k] for k in sorted(items)]
 
     def _log_paths(self) -> None:
         if self._centres:

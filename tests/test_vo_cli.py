@@ -85,6 +85,8 @@ def test_cli_depth_frontend_writes_trajectory_and_ate(depth_run, capsys):
     rep = json.loads((out / "report.json").read_text())
     assert rep["n_frames"] == N and rep["run"]["n_frames"] == N
     assert rep["run"]["resolution"] == [320, 240] and rep["run"]["fps_wall"] > 0  # the default
+    mem = rep["run"]["memory"]       # peak RSS, MiB (Linux); no checkpoint before 100 frames
+    assert mem["peak_rss_mb"] > 10 and mem["rss_every_frames"] == 100
     ate = rep["ate"]
     pf = ate["per-frame"]
     assert pf["label"] == "per-frame"

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Tuple, Union
+from typing import TYPE_CHECKING, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -71,9 +72,6 @@ class VORun:
             VO), seconds.
         fps: processed frames per wall-clock second (``n / wall_seconds``).
         config: the :class:`VORunConfig` used.
-        keyframe_images: keyframe index -> the resized RGB image (float32
-            [0, 1]) the keyframe was made from (colours of the point clouds
-            when :meth:`Odometry.save` writes none).
         interrupted: the run was stopped by Ctrl-C (``KeyboardInterrupt``)
             between or during frames; it holds the frames processed before.
         resolution: the processing ``(width, height)`` the VO saw
@@ -81,6 +79,10 @@ class VORun:
             ``config.resolution``).
         skipped: the frames skipped as unreadable, in input order; they are
             not among the processed frames above (no pose, no ATE).
+        memory: resident memory of the run
+            (:meth:`spgeo.apps.memory.RssCheckpoints.report`: ``peak_rss_mb``
+            at the end of the loop, ``rss_mb``: frames processed -> RSS then);
+            ``report.json``'s ``run.memory``.
     """
 
     odometry: Odometry
@@ -90,10 +92,18 @@ class VORun:
     wall_seconds: float
     fps: float
     config: "VORunConfig"
-    keyframe_images: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     interrupted: bool = False
     resolution: Optional[Tuple[int, int]] = None
     skipped: List[SkippedFrame] = field(default_factory=list)
+    memory: Dict[str, object] = field(default_factory=dict)
+
+    @property
+    def keyframe_images(self) -> "Mapping[int, np.ndarray]":
+        """Keyframe index -> the resized RGB image (float32 [0, 1]) the keyframe
+        was made from, read from the odometry at each access
+        (:meth:`Odometry.keyframe_image`: from disk for keyframes that left the
+        window), so the run holds no image of its own."""
+        return _KeyframeImages(self.odometry)
 
     @property
     def n_frames(self) -> int:
@@ -240,8 +250,8 @@ class VORun:
         report and the plots ``trajectory_topview.png`` and
         ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
         paths ``"plot_topview"`` / ``"plot_error"``).  ``"run"`` holds
-        :attr:`status` (``ok``, ``no_map``, ``interrupted``) and the odometry's
-        ``init_failure``.  ``ate``: a result of :meth:`ate` to reuse; ``title``:
+        :attr:`status` (``ok``, ``no_map``, ``interrupted``), the odometry's
+        ``init_failure`` and :attr:`memory` (peak and per-100-frame RSS, MiB).  ``ate``: a result of :meth:`ate` to reuse; ``title``:
         the plots' title (default the folder's name).  Returns the paths
         (``"clouds"``: a list).
         """
@@ -253,7 +263,7 @@ class VORun:
                     "wall_seconds": self.wall_seconds, "fps_wall": self.fps,
                     "n_frames": self.n_frames, "n_skipped": len(self.skipped),
                     "n_ground_truth": int(sum(T is not None for T in self.gt_poses)),
-                    "frame_names": list(self.names)},
+                    "frame_names": list(self.names), "memory": dict(self.memory)},
             "skipped": [s.to_dict() for s in self.skipped],
             # the odometry's own configuration is the report's "config"
             "run_config": {k: v for k, v in config_to_dict(self.config).items()
@@ -292,3 +302,22 @@ class VORun:
         images = None if frames is None else ((str(f.name), f.image) for f in frames)
         return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
                                images, stride, max_points)
+
+
+class _KeyframeImages(Mapping):
+    """Read-only mapping keyframe index -> input image of an :class:`Odometry`
+    (:meth:`Odometry.keyframe_image` at each access)."""
+
+    def __init__(self, odometry: Odometry) -> None:
+        self._odometry = odometry
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if not isinstance(k, (int, np.integer)) or not 0 <= int(k) < len(self):
+            raise KeyError(k)
+        return self._odometry.keyframe_image(int(k))
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(range(len(self)))
+
+    def __len__(self) -> int:
+        return self._odometry.n_keyframes

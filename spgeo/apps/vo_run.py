@@ -43,7 +43,7 @@ from collections import Counter
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Tuple, Union
+from typing import Any, Callable, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -54,6 +54,7 @@ from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, FrontEndConfig, Primitiv
                         make_frontend)
 from ..vo import Odometry, OdometryConfig
 from ..validation import MAX_IMAGE_SIDE, FrameReadError, InputError
+from .memory import RssCheckpoints
 from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
 
 __all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset", "run_vo",
@@ -61,6 +62,10 @@ __all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset"
            "SIZE_MULTIPLE", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
+
+#: :func:`run_odometry` records the current RSS after every this many frames
+#: (``report.json``'s ``run.memory``)
+RSS_EVERY = 100
 
 #: Per-frame hook of :func:`run_odometry`: ``(frame, frame_result, odometry) -> None``.
 FrameHook = Callable[[Frame, Any, Any], None]
@@ -308,7 +313,7 @@ class _Loop:
     gt: List[Optional[np.ndarray]] = field(default_factory=list)
     stamps: List[float] = field(default_factory=list)
     names: List[str] = field(default_factory=list)
-    kf_images: Dict[int, np.ndarray] = field(default_factory=dict)
+    memory: RssCheckpoints = field(default_factory=lambda: RssCheckpoints(RSS_EVERY))
     counts: Counter = field(default_factory=Counter)
     skipped: List[SkippedFrame] = field(default_factory=list)
 
@@ -336,8 +341,7 @@ class _Loop:
         self.stamps.append(ts)
         self.names.append(str(f.name))
         self.counts[r.status] += 1
-        if r.keyframe_index is not None:
-            self.kf_images[r.keyframe_index] = small.image
+        self.memory.frame_done()
         if self.on_frame is not None:
             gt = self.gt[-1]
             self.on_frame(small if gt is None else replace(small, T_world_cam=gt), r, self.vo)
@@ -373,7 +377,7 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
             r = loop.step(i, f)
             if config.progress:
                 bar.set_postfix({"fps": f"{len(loop.stamps) / max(time.perf_counter() - t0, 1e-9):.1f}",
-                                 "kf": len(loop.kf_images), "lost": loop.counts["lost"],
+                                 "kf": loop.vo.n_keyframes, "lost": loop.counts["lost"],
                                  "skipped": loop.counts["skipped"], "status": r.status},
                                 refresh=False)
     except KeyboardInterrupt:
@@ -395,10 +399,10 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
         raise ValueError(f"run_odometry: {what}")
     n = len(loop.stamps)
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost, %d skipped", n, wall,
-             n / max(wall, 1e-9), len(loop.kf_images), loop.counts["lost"], len(loop.skipped))
+             n / max(wall, 1e-9), loop.vo.n_keyframes, loop.counts["lost"], len(loop.skipped))
     return VORun(loop.vo, loop.gt, np.array(loop.stamps, dtype=np.float64), loop.names, wall,
-                 n / max(wall, 1e-9), loop.config, loop.kf_images, interrupted,
-                 resolution=loop.cam.size, skipped=loop.skipped)
+                 n / max(wall, 1e-9), loop.config, interrupted,
+                 resolution=loop.cam.size, skipped=loop.skipped, memory=loop.memory.report())
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,

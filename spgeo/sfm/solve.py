@@ -28,7 +28,7 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape
-from ..factors.photometric_group import PhotometricFactorGroup
+from ..factors.photometric_group import PhotometricFactorGroup, release_groups
 from ..frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..images import gaussian_pyramid, to_float_image, to_gray
 from ..primitives import PrimitiveSet
@@ -200,6 +200,7 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
         stages.insert(0, (n_levels - 1, True))
     orientations = None     # planar slope priors: fronto-parallel until a choice is made
     for lvl, rotation_only in stages:
+        release_groups(builders)      # the previous stage's (else never freed)
         graph, builders = build_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
                                       values, config, orientations)
         if rotation_only:
@@ -274,9 +275,10 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
                                           photometric=dataclasses.replace(
                                               config.photometric, normalise="none",
                                               pixel_sigma=sigma))
-            mgraph, _ = build_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0, values,
-                                    pix_cfg)
+            mgraph, mgroups = build_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
+                                          values, pix_cfg)
             marg = gtsam.Marginals(mgraph, values)
+            release_groups(mgroups)
             for j in range(pb.n_views):
                 covs[j] = marg.marginalCovariance(pose_key(j + 1))
             if config.shape_model == "scaled":
@@ -373,6 +375,7 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     status, view_status, valid_frac = assess_result(solved, T_ref_view, config, report,
                                                     init_report.get("twoview_status"))
     marg = _marginals(pb, values, builders, config, status, report)
+    release_groups(builders)
     unconstrained = _unconstrained(solved, marg, status, view_status, config, report)
     if unconstrained.size:
         depth = _supported_depth(solved, unconstrained, status, config)

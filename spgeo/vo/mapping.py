@@ -53,7 +53,7 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape, ScaledShape
-from ..factors.photometric_group import PhotometricFactorGroup
+from ..factors.photometric_group import PhotometricFactorGroup, release_groups
 from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_prior, pose_gauge_prior
 from ..primitives import PrimitiveSet
 from ..sfm.graph import gtsam_error_line
@@ -134,15 +134,58 @@ def apply_primitive_model(primitives: PrimitiveSet, model: str) -> PrimitiveSet:
 @dataclass
 class MapKeyframe:
     """A keyframe of the map: numbers, input image and its current
-    :class:`~spgeo.vo.tracking.Keyframe` (pose and primitives)."""
+    :class:`~spgeo.vo.tracking.Keyframe` (pose and primitives).
+
+    A *retired* keyframe (:meth:`retire`: it left the window, its state is
+    final) holds only its numbers, pose and median depth: ``image`` and
+    ``keyframe`` are None, its image and primitives are in a
+    :class:`~spgeo.vo.keyframe_store.KeyframeStore` (:meth:`restore`).
+    """
 
     index: int          # keyframe number
     frame: int          # frame number
-    image: np.ndarray
-    keyframe: Keyframe
+    image: Optional[np.ndarray]
+    keyframe: Optional[Keyframe]
     segment: int = 0
     map_pixels: Optional[tuple] = None   # cached mapping pixels (pixels and image never change)
     prior_weights: Optional[np.ndarray] = None   # (N,) weights of the shape priors
+    _final: Optional[tuple] = None   # retired: (T_world_kf, median depth, selection)
+
+    @property
+    def retired(self) -> bool:
+        return self._final is not None
+
+    @property
+    def T_world_kf(self) -> np.ndarray:
+        """4x4 camera-to-world pose (the keyframe's current one)."""
+        return self._final[0] if self._final is not None else self.keyframe.T_world_kf
+
+    @property
+    def median_depth(self) -> float:
+        """Median depth of the keyframe's points (current scales)."""
+        return self._final[1] if self._final is not None else self.keyframe.median_depth
+
+    def retire(self, store) -> None:
+        """Put image and primitives into ``store`` (a
+        :class:`~spgeo.vo.keyframe_store.KeyframeStore`) and drop everything
+        else but the pose and median depth; no-op when already retired."""
+        if self._final is not None:
+            return
+        kf = self.keyframe
+        store.put(self.index, self.image, kf.primitives)
+        self._final = (kf.T_world_kf.copy(), float(kf.median_depth), kf.selection)
+        self.image = self.keyframe = None
+        self.map_pixels = self.prior_weights = None
+
+    def restore(self, store, levels: int) -> Tuple[np.ndarray, Keyframe]:
+        """``(input image, Keyframe)``: the live ones, or for a retired keyframe
+        the stored image and primitives at its final pose (the
+        :class:`Keyframe` built again with ``levels`` pyramid levels: equal to
+        the one it had)."""
+        if self._final is None:
+            return self.image, self.keyframe
+        image, prims = store.get(self.index)
+        return image, Keyframe.build(image, prims, self._final[0], levels, self._final[2])
 
 
 @dataclass
@@ -188,6 +231,7 @@ class WindowMapper:
     def reset(self) -> None:
         """Empty smoother and no factor group (a new map segment)."""
         self.smoother = self.new_smoother()
+        release_groups(self._groups)     # else never freed: a reference cycle through gtsam
         self._groups = []
 
     def estimate(self) -> gtsam.Values:
@@ -285,7 +329,7 @@ class WindowMapper:
                 if len(kfs) == 2:
                     log.warning("mapping keyframe %d failed (%s); keyframe poses kept as "
                                 "tracked", k, exc)
-                    self.smoother = self.new_smoother()
+                    self.reset()
                     self.reports.append({"keyframe": k, "segment": segment, "failed": True})
                     return restarted
                 # restart the window from the last two keyframes (old ones stay as they are)
@@ -321,7 +365,9 @@ class WindowMapper:
         n_sup = self._add_support(batch, prev, chosen)
         est, secs = self._solve(batch)
         self._refresh(est, kfs)
-        self._groups = [g for g in self._groups if est.exists(g.ref_key) and est.exists(g.tgt_key)]
+        alive = [est.exists(g.ref_key) and est.exists(g.tgt_key) for g in self._groups]
+        release_groups([g for g, a in zip(self._groups, alive) if not a])
+        self._groups = [g for g, a in zip(self._groups, alive) if a]
         self.reports.append({"keyframe": new.index, "segment": segment,
                              "factors_keyframe_pairs": n_pair, "factors_support": n_sup,
                              "support_frames": [c.frame for c in chosen],

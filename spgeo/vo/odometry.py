@@ -38,6 +38,7 @@ from ..validation import InputError, check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
 from .initialisation import FAILED, START, InitDecision, Initialiser
+from .keyframe_store import KeyframeStore
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
@@ -60,10 +61,21 @@ class Odometry:
         config: :class:`OdometryConfig`.
         frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes
             (give it a small ``working_size``, e.g. 160x120).
+        store: where keyframes that left the window keep their image and
+            primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
+            default None: a temporary folder, removed with the odometry).
+
+    Memory: after a frame is processed only its :class:`FrameResult` (pose,
+    status, timings, the small :class:`TrackResult`) and relative pose stay;
+    keyframes outside the window are retired
+    (:meth:`spgeo.vo.mapping.MapKeyframe.retire`: pose and median depth in
+    memory, image and primitives in the store), so memory grows with the
+    number of frames only by these small records.
     """
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
-                 frontend: Optional[PrimitiveFrontEnd] = None) -> None:
+                 frontend: Optional[PrimitiveFrontEnd] = None,
+                 store: Optional[KeyframeStore] = None) -> None:
         if frontend is None:
             raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
         if not isinstance(config, OdometryConfig):
@@ -75,6 +87,8 @@ class Odometry:
         self._frames: List[FrameResult] = []
         self._kfs: Dict[int, MapKeyframe] = {}
         self._kf_order: List[int] = []
+        self._live: List[int] = []             # keyframes not retired
+        self._store = store if store is not None else KeyframeStore()
         # frame -> (kf, T_kf_frame, the keyframe's median depth when it was tracked)
         self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
         self._candidates: List[SupportCandidate] = []
@@ -155,7 +169,7 @@ class Odometry:
         kf_of_frame = {kf.frame: kf for kf in self._kfs.values()}
         for i, f in enumerate(self._frames):
             if i in kf_of_frame:
-                poses[i] = kf_of_frame[i].keyframe.T_world_kf
+                poses[i] = kf_of_frame[i].T_world_kf
                 is_kf[i] = True
             elif i in self._mapper.support_pose:
                 poses[i] = self._mapper.support_pose[i]
@@ -175,7 +189,7 @@ class Odometry:
         translation is rescaled by the change of the keyframe's median depth
         since tracking (mapping refines the keyframe's scales; the tracked
         translation was measured in the old depth units)."""
-        kf = self._kfs[k].keyframe
+        kf = self._kfs[k]
         T = np.array(T_kf_frame, dtype=float)
         if median_then > 0:
             T[:3, 3] *= kf.median_depth / median_then
@@ -196,8 +210,30 @@ class Odometry:
 
     @property
     def keyframes(self) -> List[Keyframe]:
-        """All keyframes in creation order (the window's at their smoothed state)."""
-        return [self._kfs[k].keyframe for k in self._kf_order]
+        """All keyframes in creation order (the window's at their smoothed state).
+
+        Keyframes that left the window are built again from the store at every
+        call (new objects, equal to the ones they were): for their poses use
+        :meth:`result`, for the window :meth:`window_keyframes`."""
+        return [self.keyframe(k) for k in self._kf_order]
+
+    @property
+    def n_keyframes(self) -> int:
+        """Number of keyframes so far (indices ``0 .. n_keyframes - 1``)."""
+        return len(self._kf_order)
+
+    def keyframe(self, k: int) -> Keyframe:
+        """Keyframe ``k`` (:attr:`keyframes`; one read from the store if retired)."""
+        return self._kfs[k].restore(self._store, self.config.keyframe_levels)[1]
+
+    def keyframe_image(self, k: int) -> np.ndarray:
+        """The input image keyframe ``k`` was made from (as given to :meth:`track`)."""
+        return self._kfs[k].restore(self._store, self.config.keyframe_levels)[0]
+
+    def window_keyframes(self) -> Dict[int, Keyframe]:
+        """Keyframe index -> :class:`Keyframe` of the keyframes not retired (the
+        window's: the only ones that can still change), in creation order."""
+        return {k: self._kfs[k].keyframe for k in self._live}
 
     @property
     def frames(self) -> List[FrameResult]:
@@ -267,8 +303,10 @@ class Odometry:
         :meth:`result`; a caller may pass it with frames the VO never saw, e.g.
         :meth:`Trajectory.with_skipped`), :meth:`report` updated with
         ``extra_report`` and, with ``clouds``, the keyframes that carry depth
-        (:meth:`keyframes_with_depth`)."""
-        kfs = [(k, self._kfs[k].image, self._kfs[k].keyframe) for k in self.keyframes_with_depth()]
+        (:meth:`keyframes_with_depth`; keyframes that left the window are read
+        back from the keyframe store one at a time)."""
+        levels = self.config.keyframe_levels
+        kfs = ((k, *self._kfs[k].restore(self._store, levels)) for k in self.keyframes_with_depth())
         traj = self.result() if trajectory is None else trajectory
         return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
@@ -295,7 +333,9 @@ class Odometry:
         kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels, self.config.selection)
         self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
         self._kf_order.append(k)
+        self._live.append(k)
         self._seg_kfs = [k]
+        self._retire_outside_window()
         self._candidates.clear()
         self._initialiser.reset()
         self._last_good, self._prev_good = np.array(T_world, dtype=float), None
@@ -432,6 +472,14 @@ class Odometry:
         return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(), status,
                            track=tr)
 
+    def _retire_outside_window(self) -> None:
+        """Retire the keyframes outside the current segment's last ``window``
+        (marginalised by the smoother, or of an earlier segment: final)."""
+        keep = set(self._seg_kfs[-self.config.window:])
+        for k in [k for k in self._live if k not in keep]:
+            self._kfs[k].retire(self._store)
+        self._live = [k for k in self._live if k in keep]
+
     def _add_candidate(self, cand: SupportCandidate) -> None:
         self._candidates.append(cand)
         cap = max(8 * self.config.n_support, 16)
@@ -484,14 +532,17 @@ class Odometry:
                                         cfg.scale_prior_weight, cfg.render_prior_weight))
         self._kfs[k] = kf
         self._kf_order.append(k)
+        self._live.append(k)
         self._seg_kfs.append(k)
         self._rel.pop(idx, None)
         t = time.perf_counter()
-        segment_kfs = [self._kfs[j] for j in self._seg_kfs]
+        # the mapper reads at most the window and the keyframe leaving it
+        segment_kfs = [self._kfs[j] for j in self._seg_kfs[-(cfg.window + 1):]]
         if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
             self._seg_kfs = self._seg_kfs[-2:]
         timings["mapping"] = time.perf_counter() - t
         self._candidates.clear()
+        self._retire_outside_window()
         T_new = self._kfs[k].keyframe.T_world_kf
         # the smoothed pose of the new keyframe replaces the tracked one
         # (the same world-frame correction moves the previous pose of the velocity model)

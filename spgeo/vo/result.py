@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, Iterable, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -64,7 +64,7 @@ class FrameResult:
 
 
 def save_run(directory: Union[str, Path], result: Trajectory, report: dict,
-             keyframes: Optional[Sequence[Tuple[int, np.ndarray, Keyframe]]] = None
+             keyframes: Optional[Iterable[Tuple[int, np.ndarray, Keyframe]]] = None
              ) -> Dict[str, object]:
     """Write a VO run into ``directory`` (created): ``trajectory.txt`` (every
     frame of ``result``, TUM, camera-to-world) with ``trajectory.status.txt``
@@ -87,10 +87,12 @@ def save_run(directory: Union[str, Path], result: Trajectory, report: dict,
 
 
 def write_keyframe_clouds(folder: Union[str, Path],
-                          keyframes: Sequence[Tuple[int, np.ndarray, Keyframe]]) -> List[Path]:
+                          keyframes: Iterable[Tuple[int, np.ndarray, Keyframe]]) -> List[Path]:
     """One PLY ``keyframe_<index:04d>.ply`` per keyframe ``(index, colour
     image for :meth:`PrimitiveSet.point_cloud`, Keyframe)`` in ``folder``
-    (created): the primitives' points in the world frame (VO units)."""
+    (created): the primitives' points in the world frame (VO units).
+    ``keyframes`` is read once, in order (a generator that reads each keyframe
+    back from disk keeps one in memory at a time)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written: List[Path] = []
