@@ -263,4 +263,6 @@ def test_cli_report_has_effective_config(depth_run):
     rep = json.loads((out / "report.json").read_text())
     assert rep["config"]["window"] == OdometryConfig().window
     assert rep["run_config"]["frontend"] == "depth"
-    assert rep["run_config"]["resolution"] == [320, 240] and "odometry" not in rep["run_config"]
+    # no --resolution: the run config keeps None (the rule), the run reports the size used
+    assert rep["run_config"]["resolution"] is None and "odometry" not in rep["run_config"]
+    assert rep["run"]["resolution"] == [320, 240]
