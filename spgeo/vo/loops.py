@@ -34,7 +34,7 @@ class SegmentLoopClosure:
 
     Attributes:
         accepted: one JSON-ready dict per accepted loop (segment, keyframe pair,
-            scale of ``S_cand_query``, matches, inliers, neighbour support, the
+            ``S_cand_query`` (4x4, as detected) and its scale, matches, inliers, neighbour support, the
             number of keyframes corrected and the range of their depth factors).
         seconds: total time spent (features, detection, correction).
     """
@@ -78,6 +78,7 @@ class SegmentLoopClosure:
             "segment": int(self.segment), "query_keyframe": int(loop.query_id),
             "candidate_keyframe": int(loop.candidate_id),
             "scale": float(sim3_parts(loop.S_cand_query)[2]),
+            "S_cand_query": np.asarray(loop.S_cand_query, dtype=float).tolist(),
             "matches": int(loop.n_matches), "inliers": int(loop.n_inliers),
             "inlier_ratio": float(loop.inlier_ratio),
             "neighbour_support": int(loop.neighbour_support),
