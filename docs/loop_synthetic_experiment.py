@@ -6,6 +6,7 @@ Renders make_trajectory(N_UNIQUE*STEP, SEED)[::STEP] at 160x120 as 0..N-1..0, ru
 (classical front-end) with loop closure off and on; prints ATE (Sim(3), positions), the
 last-vs-first distance in ground-truth units and the loop report.  With a 5th argument it
 prints each accepted loop's rotation / translation-direction error against ground truth.
+Environment LOOP_SIGMAS="0.1,0.05,0.02" sets PoseGraphConfig.loop_sigmas.
 """
 import sys, time, logging
 import numpy as np
@@ -23,8 +24,12 @@ scene = synthetic.SyntheticScene.generate(seed)
 step=int(sys.argv[4]); poses = synthetic.make_trajectory(N*step, seed)[::step]
 idx = list(palindrome(N, 2*N-1))
 views = {j: scene.render(cam, poses[j]).rgb for j in set(idx)}
+import os
+from spgeo.loop import PoseGraphConfig
+SIG = os.environ.get("LOOP_SIGMAS")     # e.g. "0.1,0.05,0.02": PoseGraphConfig.loop_sigmas
+PG = PoseGraphConfig() if not SIG else PoseGraphConfig(loop_sigmas=tuple(float(v) for v in SIG.split(",")))
 def run(on):
-    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on))
+    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG))
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     t=time.perf_counter()
     for i, j in enumerate(idx):
