@@ -90,6 +90,7 @@ class LoopCloser:
         self.config = config
         self.database = KeyframeDatabase(config.recognition)
         self.loops: List[LoopClosure] = []
+        self.n_rejected = 0     # candidates rejected by verification or the neighbour check
 
     def add_keyframe(self, kf_id: int, image: np.ndarray, depth: np.ndarray,
                      T_world_kf: np.ndarray) -> Optional[LoopClosure]:
@@ -123,11 +124,13 @@ class LoopCloser:
                               vcfg)
             if not ver.accepted:
                 log.debug("loop %d -> %d rejected: %s", query_id, cand.kf_id, ver.reason)
+                self.n_rejected += 1
                 continue
             support = self._neighbour_support(query_id, cand, features, ver.S_cand_query)
             if support < vcfg.min_neighbour_support:
                 log.debug("loop %d -> %d rejected: %d neighbours agree", query_id, cand.kf_id,
                           support)
+                self.n_rejected += 1
                 continue
             log.info("loop closed: keyframe %d -> %d (%d inliers of %d, %d neighbours agree)",
                      query_id, cand.kf_id, ver.n_inliers, ver.n_matches, support)

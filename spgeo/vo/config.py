@@ -9,6 +9,7 @@ from typing import Optional, Tuple
 
 from ..configs import config_repr
 from ..factors.photometric import PhotometricConfig
+from ..loop.config import LoopClosureConfig
 from ..sfm import SfMConfig
 from ..validation import InputError
 from .feature_retry import FeatureRetryConfig
@@ -240,6 +241,10 @@ class OdometryConfig:
         feature_retry: :class:`~spgeo.vo.feature_retry.FeatureRetryConfig`:
             when tracking against the latest keyframe fails, a PnP pose from
             features lifted with its primitive depth restarts the tracker.
+        loop_closure: :class:`~spgeo.loop.LoopClosureConfig` (docs/design.md
+            §5.2): with ``enabled``, keyframes are matched against older ones of
+            their map segment and a verified loop corrects the segment's
+            keyframes with a Sim(3) pose graph (default off).
     """
 
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -271,6 +276,7 @@ class OdometryConfig:
     max_lost_frames: int = 10
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
+    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
 
     def __post_init__(self) -> None:
         if self.init_method not in INIT_METHODS:

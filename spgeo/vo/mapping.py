@@ -150,6 +150,7 @@ class MapKeyframe:
     map_pixels: Optional[tuple] = None   # cached mapping pixels (pixels and image never change)
     prior_weights: Optional[np.ndarray] = None   # (N,) weights of the shape priors
     _final: Optional[tuple] = None   # retired: (T_world_kf, median depth, selection)
+    _log_scale_shift: float = 0.0    # retired: added to the stored log-scales (loop closure)
 
     @property
     def retired(self) -> bool:
@@ -185,7 +186,23 @@ class MapKeyframe:
         if self._final is None:
             return self.image, self.keyframe
         image, prims = store.get(self.index)
+        if self._log_scale_shift != 0.0:
+            prims = prims.with_log_scales(prims.log_scales + self._log_scale_shift)
         return image, Keyframe.build(image, prims, self._final[0], levels, self._final[2])
+
+    def correct(self, T_world_kf: np.ndarray, scale: float) -> None:
+        """Apply a loop correction (:class:`spgeo.loop.LoopCorrection`): the new
+        rigid pose and every depth multiplied by ``scale`` (log-scales ``+= log
+        scale``).  A retired keyframe keeps the shift and applies it when read
+        back (:meth:`restore`); its stored file is not rewritten."""
+        shift = float(np.log(scale))
+        T = np.array(T_world_kf, dtype=float)
+        if self._final is not None:
+            self._final = (T, self._final[1] * float(scale), self._final[2])
+            self._log_scale_shift += shift
+            return
+        prims = self.keyframe.primitives
+        self.keyframe = self.keyframe.rebuilt(prims.with_log_scales(prims.log_scales + shift), T)
 
 
 @dataclass

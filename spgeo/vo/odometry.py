@@ -39,6 +39,7 @@ from .config import OdometryConfig
 from .feature_retry import FeatureRetry
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
+from .loops import SegmentLoopClosure
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
@@ -102,6 +103,8 @@ class Odometry:
         self._mapper = WindowMapper(config)
         self._retry = FeatureRetry(camera, config.feature_retry)
         self._scale_checks: List[dict] = []
+        self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
+                       if config.loop_closure.enabled else None)
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -283,7 +286,7 @@ class Odometry:
             "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
             "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
                                   for k in ("track", "frontend", "scale_check", "mapping",
-                                            "init")},
+                                            "init", "loop")},
             "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
             "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
             "config": dataclasses.asdict(self.config),
@@ -291,6 +294,7 @@ class Odometry:
             "sfm": self._initialiser.reports,
             "scale_checks": self._scale_checks,
             "mapping": self._mapper.reports,
+            "loop_closures": None if self._loops is None else self._loops.report(),
             "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
                         "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
                        for f in self._frames],
@@ -535,15 +539,13 @@ class Odometry:
         self._live.append(k)
         self._seg_kfs.append(k)
         self._rel.pop(idx, None)
-        t = time.perf_counter()
-        # the mapper reads at most the window and the keyframe leaving it
-        segment_kfs = [self._kfs[j] for j in self._seg_kfs[-(cfg.window + 1):]]
-        if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
-            self._seg_kfs = self._seg_kfs[-2:]
-        timings["mapping"] = time.perf_counter() - t
+        closed = self._close_loop(timings)
+        self._map_new_keyframe(closed, timings)
         self._candidates.clear()
         self._retire_outside_window()
         T_new = self._kfs[k].keyframe.T_world_kf
+        if self._loops is not None:
+            self._loops.update_poses({j: self._kfs[j].T_world_kf for j in self._live})
         # the smoothed pose of the new keyframe replaces the tracked one
         # (the same world-frame correction moves the previous pose of the velocity model)
         if self._prev_good is not None:
@@ -552,3 +554,55 @@ class Odometry:
         self._brightness = np.zeros(2)
         return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
                            keyframe_index=k, track=track)
+
+    # ------------------------------------------------------------ loop closure
+    def _map_new_keyframe(self, closed: bool, timings: Dict[str, float]) -> None:
+        """Window update with the newest keyframe; after an applied loop
+        correction the window restarts from the previous and the new keyframe
+        (their corrected poses and scales; older keyframes stay as corrected)."""
+        t = time.perf_counter()
+        # the mapper reads at most the window and the keyframe leaving it
+        segment_kfs = [self._kfs[j] for j in self._seg_kfs[-(self.config.window + 1):]]
+        if closed:
+            self._mapper.reset()
+            segment_kfs = segment_kfs[-2:]
+        if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
+            self._seg_kfs = self._seg_kfs[-2:]
+        timings["mapping"] = time.perf_counter() - t
+
+    def _close_loop(self, timings: Dict[str, float]) -> bool:
+        """Register the new keyframe (and, in a new segment, its keyframe 0) with
+        the loop closer; apply an accepted loop's correction.  True when one was
+        applied."""
+        if self._loops is None:
+            return False
+        t = time.perf_counter()
+        corr = self._loops.add_keyframes(self._segment, [self._kfs[j] for j in self._seg_kfs
+                                                          if not self._kfs[j].retired])
+        if corr is not None:
+            self._apply_loop_correction(corr)
+        timings["loop"] = time.perf_counter() - t
+        return corr is not None
+
+    def _apply_loop_correction(self, corr) -> None:
+        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`: every
+        keyframe's pose and depths (:meth:`MapKeyframe.correct`; frames anchored
+        to a keyframe follow it in :meth:`result` through its pose and median
+        depth), the supporting frames' smoothed poses, the motion model's last
+        two good poses (anchored to the new keyframe) and the supporting-frame
+        candidates of the previous keyframe (translations in its depth units)."""
+        for k in corr.kf_ids:
+            self._kfs[k].correct(corr.T_world_kf[k], corr.scales[k])
+        sup = self._mapper.support_pose
+        for f in list(sup):
+            k = self._rel[f][0] if f in self._rel else None
+            if k in corr.W_new_old:
+                sup[f] = corr.frame_pose(k, sup[f])
+        new = self._seg_kfs[-1]
+        self._last_good = corr.frame_pose(new, self._last_good)
+        if self._prev_good is not None:
+            self._prev_good = corr.frame_pose(new, self._prev_good)
+        s_prev = corr.scales.get(self._seg_kfs[-2], 1.0)
+        for c in self._candidates:
+            c.T_kf_frame = c.T_kf_frame.copy()
+            c.T_kf_frame[:3, 3] *= s_prev

@@ -1,0 +1,95 @@
+"""Loop closure inside the VO (issue 23, docs/design.md §5.2): the wiring of
+:class:`spgeo.loop.LoopCloser` into :class:`spgeo.vo.Odometry`."""
+import numpy as np
+import pytest
+
+from spgeo import synthetic
+from spgeo.frame import Frame
+from spgeo.frontend import FrontEndConfig, make_frontend
+from spgeo.loop import LoopClosureConfig, LoopCorrection, sim3, sim3_parts
+from spgeo.vo import Odometry, OdometryConfig
+
+CAM = synthetic.default_camera(160, 120)
+
+
+def _palindrome(n_unique, step, seed=0):
+    """Frames 0 .. n-1 .. 0 of a subsampled synthetic trajectory (back to the start)."""
+    scene = synthetic.SyntheticScene.generate(seed)
+    poses = synthetic.make_trajectory(n_unique * step, seed)[::step]
+    order = list(range(n_unique)) + list(range(n_unique - 2, -1, -1))
+    views = {j: scene.render(CAM, poses[j]).rgb for j in range(n_unique)}
+    return [views[j] for j in order], poses[order]
+
+
+def _run(images, **loop):
+    cfg = OdometryConfig(kf_max_translation=0.03, loop_closure=LoopClosureConfig(**loop))
+    vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
+    for i, im in enumerate(images):
+        vo.track(Frame(im, CAM, float(i)))
+    return vo
+
+
+@pytest.fixture(scope="module")
+def short_run():
+    images, _ = _palindrome(14, 3)
+    return images, _run(images)
+
+
+def test_loop_closure_is_off_by_default_and_reports_none(short_run):
+    images, vo = short_run
+    assert OdometryConfig().loop_closure.enabled is False
+    assert vo.report()["loop_closures"] is None
+    same = _run(images, enabled=False)
+    assert np.array_equal(same.result().poses, vo.result().poses)
+
+
+def test_enabled_without_loop_changes_nothing(short_run):
+    """Registering keyframes only reads them: with no loop (the run is shorter than
+    the keyframe gap a loop needs) the trajectory is byte-identical."""
+    images, vo = short_run
+    on = _run(images, enabled=True)
+    rep = on.report()["loop_closures"]
+    assert rep["accepted"] == [] and rep["rejected"] >= 0
+    assert np.array_equal(on.result().poses, vo.result().poses)
+
+
+def test_a_correction_moves_keyframes_and_anchored_frames_together(short_run):
+    """A similarity applied to every keyframe (as a loop correction) moves every
+    frame of the trajectory by it: keyframes, supporting and tracked frames, and
+    the depths by its scale (a retired keyframe when read back too)."""
+    images, _ = short_run
+    vo = _run(images)
+    before = vo.result().poses
+    W = sim3(synthetic.camera_rotation(0.3, 0.1, -0.2), np.array([0.5, -0.2, 0.1]), 1.7)
+    ids = list(vo._kf_order)
+    moved = {k: W @ vo._kfs[k].T_world_kf for k in ids}
+    T_new = {k: sim3(*sim3_parts(moved[k])[:2]) for k in ids}
+    depth0 = [np.nanmedian(vo.keyframe(k).primitives.depth_map()) for k in ids]
+    vo._apply_loop_correction(LoopCorrection(ids, T_new, {k: 1.7 for k in ids},
+                                             {k: W for k in ids}, None))
+    after = vo.result().poses
+    for i, f in enumerate(vo.frames):
+        if str(f.status) in ("lost", "init"):
+            continue
+        R, t, _ = sim3_parts(W @ before[i])
+        np.testing.assert_allclose(after[i][:3, :3], R, atol=1e-9)
+        np.testing.assert_allclose(after[i][:3, 3], t, atol=1e-9)
+    depth1 = [np.nanmedian(vo.keyframe(k).primitives.depth_map()) for k in ids]
+    np.testing.assert_allclose(depth1, 1.7 * np.array(depth0), rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_palindrome_closes_a_loop_and_ends_nearer_its_start():
+    """Synthetic palindrome (the camera comes back to its first pose): a loop is
+    accepted and the last pose ends nearer the first than without loop closure."""
+    images, gt = _palindrome(80, 3)
+    off, on = _run(images), _run(images, enabled=True)
+    rep = on.report()["loop_closures"]
+    assert rep["accepted"], rep
+
+    def gap(vo):
+        P = vo.result().poses
+        return np.linalg.norm(P[-1, :3, 3] - P[0, :3, 3]) / np.linalg.norm(
+            P[:, :3, 3] - P[0, :3, 3], axis=1).max()
+
+    assert gap(on) < gap(off)
