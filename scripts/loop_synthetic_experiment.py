@@ -6,7 +6,8 @@ Renders make_trajectory(N_UNIQUE*STEP, SEED)[::STEP] at 160x120 as 0..N-1..0, ru
 (classical front-end) with loop closure off and on; prints ATE (Sim(3), positions), the
 last-vs-first distance in ground-truth units and the loop report.  With a 5th argument it
 prints each accepted loop's rotation / translation-direction error against ground truth.
-Environment LOOP_SIGMAS="0.1,0.05,0.02" sets PoseGraphConfig.loop_sigmas.
+Environment LOOP_SIGMAS="0.1,0.05,0.02" sets PoseGraphConfig.loop_sigmas, LOOP_HUBER its loop_huber,
+LOOP_REFINE=1 VerificationConfig.refine.
 """
 import sys, time, logging
 import numpy as np
@@ -28,8 +29,11 @@ import os
 from spgeo.loop import PoseGraphConfig
 SIG = os.environ.get("LOOP_SIGMAS")     # e.g. "0.1,0.05,0.02": PoseGraphConfig.loop_sigmas
 PG = PoseGraphConfig() if not SIG else PoseGraphConfig(loop_sigmas=tuple(float(v) for v in SIG.split(",")))
+from spgeo.loop import VerificationConfig
+VC = VerificationConfig(refine=os.environ.get("LOOP_REFINE", "0") == "1")   # LOOP_REFINE=1
+PG = replace(PG, loop_huber=float(os.environ.get("LOOP_HUBER", PG.loop_huber)))   # e.g. LOOP_HUBER=1
 def run(on):
-    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG))
+    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG, verification=VC))
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     t=time.perf_counter()
     for i, j in enumerate(idx):
@@ -49,7 +53,7 @@ if len(sys.argv) <= 5: a=run(False); b=run(True)
 from spgeo.loop.sim3 import sim3_parts
 from spgeo.geometry import rotation_angle_deg, invert_pose
 def check(on):
-    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on))
+    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, verification=VC))
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     for i, j in enumerate(idx):
         vo.track(Frame(views[j], cam, float(i)))

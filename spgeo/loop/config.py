@@ -65,6 +65,10 @@ class VerificationConfig:
             poses, must explain at least ``min_neighbour_inliers`` of the query's
             matches with that neighbour. 0 switches the check off.
         min_neighbour_inliers: see ``min_neighbour_support``.
+        refine: refine the RANSAC similarity on its inliers by reprojection in both
+            images (:func:`spgeo.loop.refine.refine_sim3`). Off by default: it cuts the
+            loops' rotation error (docs/results.md) but breaks the synthetic palindrome
+            of ``tests/test_vo_loop.py`` (last pose farther from the first).
     """
 
     reprojection_px: float = 3.0
@@ -76,6 +80,7 @@ class VerificationConfig:
     neighbour_radius: int = 2
     min_neighbour_support: int = 1
     min_neighbour_inliers: int = 15
+    refine: bool = False
 
     def __post_init__(self) -> None:
         if (not self.reprojection_px > 0 or not self.depth_tolerance > 0

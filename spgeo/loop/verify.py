@@ -19,6 +19,7 @@ from ..camera import PinholeCamera
 from ..twoview import TwoViewConfig, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 from .config import VerificationConfig
+from .refine import refine_sim3
 from .sim3 import sim3_inverse, umeyama
 
 __all__ = ["KeyframeFeatures", "extract_features", "match_features", "Sim3Verification",
@@ -165,6 +166,13 @@ def _ransac(P_q, P_c, uv_q, uv_c, cam_q, cam_c, config: VerificationConfig):
     return best, best_in
 
 
+def _refined(S: np.ndarray, inl: np.ndarray, args) -> np.ndarray:
+    """``S`` refined on the inliers ``inl`` of ``args`` (:func:`_ransac`'s), or ``S``."""
+    P_q, P_c, uv_q, uv_c, cam_q, cam_c = args
+    S_ref = refine_sim3(S, P_q[inl], P_c[inl], uv_q[inl], uv_c[inl], cam_q, cam_c)
+    return S if S_ref is None else S_ref
+
+
 def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarray,
                 config: VerificationConfig = VerificationConfig()) -> Sim3Verification:
     """Relative Sim(3) of a loop candidate from feature matches with depth in both keyframes.
@@ -187,6 +195,8 @@ def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarr
     args = (query.points[pairs[:, 1]], cand.points[pairs[:, 0]], query.keypoints[pairs[:, 1]],
             cand.keypoints[pairs[:, 0]], query.camera, cand.camera)
     S, inl = _ransac(*args, config)
+    if S is not None and config.refine and inl.sum() >= 4:
+        S = _refined(S, inl, args)
     n_in = int(inl.sum())
     ratio = n_in / m
     reason = ""
