@@ -39,7 +39,6 @@ import argparse
 import dataclasses
 import json
 import re
-import resource
 import subprocess
 import sys
 import time
@@ -48,6 +47,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from spgeo.apps.args import parse_resolution
+from spgeo.apps.memory import peak_rss_mb
 from spgeo.configs import apply_overrides, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_table, runner_config)
@@ -190,17 +190,12 @@ def run_cell(cell: Cell) -> Dict[str, object]:
     return row
 
 
-def _peak_rss_mb() -> float:
-    """This process's peak resident set size (Linux ``ru_maxrss`` is in KiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def _child_main(cell_json: str) -> int:
     """Entry point of a cell's subprocess: the row as one tagged JSON line on stdout."""
     d = json.loads(cell_json)
     d["resolution"] = tuple(d["resolution"])
     row = run_cell(Cell(**d))
-    row["peak_rss_mb"] = _peak_rss_mb()
+    row["peak_rss_mb"] = peak_rss_mb()
     sys.stdout.write(_RESULT_TAG + json.dumps(row, default=float) + "\n")
     return 0
 
