@@ -77,8 +77,7 @@ def extract_features(image: np.ndarray, camera: PinholeCamera, depth: np.ndarray
     vi = np.clip(np.round(v).astype(np.int64), 0, h - 1)
     z = depth[vi, ui] if len(pts) else np.zeros(0)
     ok = np.isfinite(z) & (z > 0)
-    X = np.stack([(pts[:, 0] - camera.cx) / camera.fx * z,
-                  (pts[:, 1] - camera.cy) / camera.fy * z, z], 1) if len(pts) else np.zeros((0, 3))
+    X = camera.unproject(pts, z)
     return KeyframeFeatures(pts, desc, np.where(ok[:, None], X, np.nan), camera)
 
 
@@ -116,11 +115,9 @@ class Sim3Verification:
 
 
 def _reprojection(points: np.ndarray, camera: PinholeCamera, uv: np.ndarray) -> np.ndarray:
-    z = points[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = camera.fx * points[:, 0] / z + camera.cx
-        v = camera.fy * points[:, 1] / z + camera.cy
-        err = np.hypot(u - uv[:, 0], v - uv[:, 1])
+    """Pixel distance of ``points`` projected by ``camera`` from ``uv``; inf behind it."""
+    proj, z = camera.project(points)
+    err = np.hypot(proj[:, 0] - uv[:, 0], proj[:, 1] - uv[:, 1])
     return np.where(z > 0, err, np.inf)
 
 
