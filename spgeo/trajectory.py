@@ -159,11 +159,14 @@ class Trajectory:
         all_t = np.concatenate([self.timestamps, stamps])
         order = np.argsort(all_t, kind="stable")
         poses = np.concatenate([self.poses, np.full((k, 4, 4), np.nan)])[order]
-        status = [(list(self.status) + [FrameStatus.SKIPPED] * k)[i] for i in order]
+        all_status = list(self.status) + [FrameStatus.SKIPPED] * k
+        status = [all_status[i] for i in order]
         is_kf = np.concatenate([self.is_keyframe, np.zeros(k, dtype=bool)])[order]
         seg = np.concatenate([self.segment, np.full(k, -1, dtype=int)])[order]
-        cols = {name: [(list(v) + ["nan"] * k)[i] for i in order]
-                for name, v in self.columns.items()}
+        cols = {}
+        for name, v in self.columns.items():
+            values = list(v) + ["nan"] * k
+            cols[name] = [values[i] for i in order]
         return Trajectory(all_t[order], poses, status, is_kf, seg, cols)
 
     def status_counts(self) -> Dict[str, int]:
