@@ -251,7 +251,8 @@ class VORun:
         ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
         paths ``"plot_topview"`` / ``"plot_error"``).  ``"run"`` holds
         :attr:`status` (``ok``, ``no_map``, ``interrupted``), the odometry's
-        ``init_failure`` and :attr:`memory` (peak and per-100-frame RSS, MiB).  ``ate``: a result of :meth:`ate` to reuse; ``title``:
+        ``init_failure`` and :attr:`memory` (peak and per-100-frame RSS, MiB).
+        ``ate``: a result of :meth:`ate` to reuse; ``title``:
         the plots' title (default the folder's name).  Returns the paths
         (``"clouds"``: a list).
         """

@@ -376,7 +376,8 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
                 continue
             r = loop.step(i, f)
             if config.progress:
-                bar.set_postfix({"fps": f"{len(loop.stamps) / max(time.perf_counter() - t0, 1e-9):.1f}",
+                fps = len(loop.stamps) / max(time.perf_counter() - t0, 1e-9)
+                bar.set_postfix({"fps": f"{fps:.1f}",
                                  "kf": loop.vo.n_keyframes, "lost": loop.counts["lost"],
                                  "skipped": loop.counts["skipped"], "status": r.status},
                                 refresh=False)

@@ -34,8 +34,8 @@ from .config import OdometryConfig
 from .mapping import MapKeyframe, apply_primitive_model
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection", "append_bounded",
-           "twoview_start"]
+__all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection",
+           "append_bounded", "twoview_start"]
 
 log = logging.getLogger(__name__)
 

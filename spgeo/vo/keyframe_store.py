@@ -46,12 +46,16 @@ class KeyframeStore:
         """The folder (None while a temporary store holds nothing)."""
         return self._folder
 
+    @staticmethod
+    def _name(k: int) -> str:
+        return f"keyframe_{int(k):06d}.pkl"
+
     def _path(self, k: int) -> Path:
         if self._folder is None:
             self._folder = Path(tempfile.mkdtemp(prefix="spgeo-vo-keyframes-"))
             self._finalizer = weakref.finalize(self, shutil.rmtree, str(self._folder), True)
         self._folder.mkdir(parents=True, exist_ok=True)
-        return self._folder / f"keyframe_{int(k):06d}.pkl"
+        return self._folder / self._name(k)
 
     def put(self, k: int, image: np.ndarray, primitives: PrimitiveSet) -> None:
         """Store keyframe ``k``'s input image and primitives (replaces a previous one)."""
@@ -64,7 +68,7 @@ class KeyframeStore:
     def get(self, k: int) -> Tuple[np.ndarray, PrimitiveSet]:
         """``(image, primitives)`` of keyframe ``k``, equal to what :meth:`put`
         stored.  Raises ``KeyError`` when ``k`` was never stored."""
-        path = None if self._folder is None else self._folder / f"keyframe_{int(k):06d}.pkl"
+        path = None if self._folder is None else self._folder / self._name(k)
         if path is None or not path.is_file():
             raise KeyError(f"keyframe {k} is not in the store")
         with open(path, "rb") as fh:

@@ -334,7 +334,8 @@ class Odometry:
         prims = apply_primitive_model(prims, self.config.primitive_model)
         timings["frontend"] = time.perf_counter() - t
         k = len(self._kf_order)
-        kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels, self.config.selection)
+        kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels,
+                            self.config.selection)
         self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
         self._kf_order.append(k)
         self._live.append(k)
@@ -516,7 +517,8 @@ class Odometry:
             timings["frontend"] = time.perf_counter() - t
             return None
         timings["frontend"] = time.perf_counter() - t
-        keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels, cfg.selection)
+        keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels,
+                                  cfg.selection)
         k = len(self._kf_order)
         prims = init.primitives
         if cfg.kf_scale_check and not self.frontend.uses_depth:
