@@ -238,6 +238,7 @@ def test_register_model_and_resolve(tmp_path, cache):
     # defaults by kind; registering a user name again replaces it
     assert models.register_model("my-n", src, kind="normals").preset == "generic-480x640"
     assert models.register_model("my-depth", src).preset == "generic-depth-518"
+    assert "generic-480x640" in NORMAL_PRESETS and "generic-depth-518" in DEPTH_PRESETS
     assert sorted(models.user_models()) == ["my-depth", "my-n"]
     # an explicit registry= mapping is used alone
     assert "my-depth" not in {e.name for e, _, _ in models.list_models(models.REGISTRY)}
@@ -324,3 +325,6 @@ def test_cli_register(tmp_path, cache, capsys):
     src.write_bytes(b"other")
     args = parser.parse_args(["models", "fetch", "fd"])
     assert args.func(args) == 2 and "sha256 mismatch" in capsys.readouterr().err
+    (cache / models.USER_REGISTRY_FILE).write_text("[]")
+    args = parser.parse_args(["models", "list"])
+    assert args.func(args) == 2 and "registry.json" in capsys.readouterr().err
