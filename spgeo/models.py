@@ -16,12 +16,26 @@ atomically.  An entry without a published sha256 is refused unless
 local ``.onnx`` file instead of a registry name.  Front-ends built from these
 names are in :mod:`spgeo.frontend.from_cache` (this module imports no front-end).
 
-The ``spgeo models list|fetch|path`` command is :mod:`spgeo.cli.models`.
+Two ways to use a local file, not to be confused:
+
+* :func:`register_local` installs a file *of a built-in entry* (one you
+  downloaded by hand) into the cache, checked against the entry's sha256.
+* :func:`register_model` records a *user model*: any local file under a new
+  name with its kind and preset, in ``<model dir>/registry.json``
+  (:data:`USER_REGISTRY_FILE`); the file stays where it is and its sha256 is
+  recorded and re-checked whenever it is resolved.  With ``registry=None`` (the
+  default), :func:`get_entry`, :func:`list_models`, :func:`model_path`,
+  :func:`resolve_model` and :func:`fetch_model` see the user entries beside
+  :data:`REGISTRY`; a ``registry=`` mapping given explicitly is used alone.
+
+The ``spgeo models list|fetch|path|register`` command is :mod:`spgeo.cli.models`.
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
+import re
 import os
 import shutil
 import tempfile
@@ -35,12 +49,20 @@ from typing import List, Mapping, Optional, Tuple, Union
 __all__ = [
     "ModelEntry", "REGISTRY", "ModelDownloadError", "model_dir", "list_models", "get_entry",
     "model_path", "fetch_model", "register_local", "resolve_model", "sha256_file",
+    "register_model", "user_models", "USER_KINDS", "USER_REGISTRY_FILE",
 ]
 
 logger = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
 KINDS = ("sam-encoder", "sam-decoder", "normals", "depth")
+#: kinds a user model (:func:`register_model`) may have
+USER_KINDS = ("depth", "normals")
+#: the user-model registry, in :func:`model_dir`
+USER_REGISTRY_FILE = "registry.json"
+#: preset recorded for a user model registered without one, by kind
+_DEFAULT_USER_PRESET = {"depth": "generic-depth-518", "normals": "generic-480x640"}
+_USER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
 _CHUNK = 1 << 20
 
 
@@ -63,6 +85,9 @@ class ModelEntry:
         filename: file name in the cache (default: the URL's last component).
         source: where the URL / checksum come from.
         notes: caveats (e.g. single-mask decoder, unverified convention).
+        local_path: user models (:func:`register_model`) only: the absolute path
+            of the file, which is used in place (not copied into the cache);
+            ``""`` for built-in entries.
     """
 
     name: str
@@ -75,6 +100,7 @@ class ModelEntry:
     filename: str = ""
     source: str = ""
     notes: str = ""
+    local_path: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -189,7 +215,10 @@ def model_dir(create: bool = False) -> Path:
 
 
 def _registry(registry: Optional[Mapping[str, ModelEntry]]) -> Mapping[str, ModelEntry]:
-    return REGISTRY if registry is None else registry
+    """``registry`` when given, else :data:`REGISTRY` plus the user models."""
+    if registry is not None:
+        return registry
+    return {**user_models(), **REGISTRY}
 
 
 def get_entry(name: str, registry: Optional[Mapping[str, ModelEntry]] = None) -> ModelEntry:
@@ -214,9 +243,10 @@ def list_models(registry: Optional[Mapping[str, ModelEntry]] = None
 
 def model_path(name: str, registry: Optional[Mapping[str, ModelEntry]] = None
                ) -> Tuple[Path, bool]:
-    """``(path, present)``: where model ``name`` lives in the cache and whether it is there."""
+    """``(path, present)``: where model ``name`` lives (in the cache; a user model: its
+    own file) and whether the file is there (its hash is not checked here)."""
     entry = get_entry(name, registry)
-    path = model_dir() / entry.filename
+    path = Path(entry.local_path) if entry.local_path else model_dir() / entry.filename
     return path, path.is_file()
 
 
@@ -231,6 +261,130 @@ def sha256_file(path: PathLike) -> str:
 
 def _record_hash(path: Path, sha: str) -> None:
     path.with_name(path.name + ".sha256").write_text(f"{sha}  {path.name}\n", encoding="utf-8")
+
+
+# ------------------------------------------------------------------ user models
+def _user_registry_path() -> Path:
+    return model_dir() / USER_REGISTRY_FILE
+
+
+def _user_entry(name: str, record: Mapping, where: Path) -> ModelEntry:
+    """A :class:`ModelEntry` from one ``registry.json`` record (``ValueError`` naming ``where``)."""
+    try:
+        path = Path(record["path"])
+        return ModelEntry(name, record["kind"], path.as_uri(), record["sha256"],
+                          int(record["size"]), record.get("licence", "unknown"),
+                          record["preset"], filename=path.name,
+                          source=f"user model ({where})", notes=record.get("notes", ""),
+                          local_path=str(path))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: bad record for user model {name!r}: {exc}") from exc
+
+
+def user_models() -> Mapping[str, ModelEntry]:
+    """The user models recorded by :func:`register_model` in ``<model dir>/registry.json``
+    (empty when the file does not exist).  ``ValueError`` naming the file when it is
+    not a valid registry; a record under a built-in name is ignored with a warning."""
+    where = _user_registry_path()
+    if not where.is_file():
+        return {}
+    try:
+        data = json.loads(where.read_text(encoding="utf-8"))
+        records = data["models"]
+        if not isinstance(records, dict):
+            raise TypeError("'models' is not an object")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{where}: not a readable spgeo user-model registry ({exc}); fix "
+                         f"or delete it") from exc
+    out = {}
+    for name, record in records.items():
+        if name in REGISTRY:
+            logger.warning("%s: user model %r ignored: the name is a built-in model", where, name)
+            continue
+        out[name] = _user_entry(name, record, where)
+    return out
+
+
+def _write_user_registry(entries: Mapping[str, ModelEntry]) -> Path:
+    """Write the user entries to ``registry.json`` atomically (temp file + ``os.replace``)."""
+    where = model_dir(create=True) / USER_REGISTRY_FILE
+    records = {e.name: {"kind": e.kind, "path": e.local_path, "sha256": e.sha256,
+                        "size": e.size, "preset": e.preset, "licence": e.licence,
+                        "notes": e.notes} for e in entries.values()}
+    text = json.dumps({"format": "spgeo-user-models", "version": 1, "models": records},
+                      indent=2, sort_keys=True) + "\n"
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{USER_REGISTRY_FILE}.", suffix=".part",
+                                    dir=str(where.parent))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+        os.replace(tmp_name, where)
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    return where
+
+
+def register_model(name: str, path: PathLike, kind: str = "depth", preset: Optional[str] = None,
+                   licence: str = "unknown", notes: str = "") -> ModelEntry:
+    """Record local file ``path`` as user model ``name`` (not to be confused with
+    :func:`register_local`, which installs the file of a *built-in* entry into the cache).
+
+    The file stays where it is; its absolute path, size and sha256 are written with
+    ``kind`` and ``preset`` to ``<model dir>/registry.json`` (atomically), so that
+    ``name`` resolves to it wherever a model name is accepted (:func:`resolve_model`
+    re-checks the sha256).  Registering a user name again replaces its record.
+
+    Args:
+        name: letters, digits and ``._+-``, starting with a letter or digit; not a
+            built-in name.
+        path: the model file.
+        kind: one of :data:`USER_KINDS` (``"depth"`` or ``"normals"``).
+        preset: config preset of that kind (``DEPTH_PRESETS`` / ``NORMAL_PRESETS`` of
+            :mod:`spgeo.frontend`; not checked here, the front-end checks it when it
+            builds the model).  ``None``: ``"generic-depth-518"`` for depth,
+            ``"generic-480x640"`` for normals.
+        licence, notes: free text kept with the record.
+
+    Returns the new entry.  Raises ``ValueError`` for a built-in or malformed name, a
+    kind outside :data:`USER_KINDS` or an unreadable ``registry.json``;
+    ``FileNotFoundError`` when ``path`` is not a file.
+    """
+    if name in REGISTRY:
+        raise ValueError(f"{name!r} is a built-in model name and cannot be registered; choose "
+                         f"another name")
+    if not _USER_NAME.match(name or ""):
+        raise ValueError(f"bad model name {name!r}: use letters, digits and ._+- (starting "
+                         f"with a letter or digit)")
+    if kind not in USER_KINDS:
+        raise ValueError(f"user model kind must be one of {USER_KINDS}, got {kind!r}")
+    src = Path(path).expanduser()
+    if not src.is_file():
+        raise FileNotFoundError(f"model file not found: {src}")
+    src = src.resolve()
+    entries = dict(user_models())
+    entries[name] = ModelEntry(
+        name, kind, src.as_uri(), sha256_file(src), src.stat().st_size, licence,
+        preset or _DEFAULT_USER_PRESET[kind], filename=src.name,
+        source=f"user model ({_user_registry_path()})", notes=notes, local_path=str(src))
+    where = _write_user_registry(entries)
+    logger.info("user model %s (%s, preset %s) -> %s, recorded in %s", name, kind,
+                entries[name].preset, src, where)
+    return entries[name]
+
+
+def _verified_user_file(entry: ModelEntry) -> Path:
+    """A user model's file after checking that it exists and still has its recorded sha256."""
+    path = Path(entry.local_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"user model {entry.name!r}: file not found: {path}; register "
+                                f"it again (`spgeo models register {entry.name} PATH`)")
+    sha = sha256_file(path)
+    if sha != entry.sha256:
+        raise ValueError(f"user model {entry.name!r}: sha256 mismatch for {path}: expected "
+                         f"{entry.sha256} (recorded), got {sha}; the file changed since it was "
+                         f"registered (register it again if that is intended)")
+    return path
 
 
 # ------------------------------------------------------------------ fetch
@@ -295,8 +449,13 @@ def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
             the download's size / sha256 does not match (the file is discarded).
         ModelDownloadError: no network / the URL could not be read; the message
             says where to place the file by hand.
+
+    A user model (:func:`register_model`) is not downloaded: its file is checked
+    (sha256) and returned.
     """
     entry = get_entry(name, registry)
+    if entry.local_path:
+        return _verified_user_file(entry)
     dest = model_dir() / entry.filename
     if dest.is_file() and not force:
         if entry.size is not None and dest.stat().st_size != entry.size:
@@ -343,13 +502,18 @@ def fetch_model(name: str, force: bool = False, allow_unverified: bool = False,
 
 def register_local(name: str, path: PathLike, allow_unverified: bool = False,
                    registry: Optional[Mapping[str, ModelEntry]] = None) -> Path:
-    """Install a local file as registry model ``name`` (copied into the cache).
+    """Install a local copy of the file of registry model ``name`` (a built-in
+    entry, e.g. downloaded by hand) into the cache.  To use a file of your own
+    under a new name, see :func:`register_model`.
 
     The file is checked against the entry's sha256 (mismatch: ``ValueError``);
     entries without one need ``allow_unverified=True`` and get the computed
-    hash recorded.  Returns the cache path.
+    hash recorded.  Returns the cache path.  ``ValueError`` for a user model.
     """
     entry = get_entry(name, registry)
+    if entry.local_path:
+        raise ValueError(f"{name!r} is a user model (file {entry.local_path}); use "
+                         f"register_model to record another file under that name")
     src = Path(path)
     if not src.is_file():
         raise FileNotFoundError(f"model file not found: {src}")
@@ -380,10 +544,14 @@ def resolve_model(name_or_path: PathLike, registry: Optional[Mapping[str, ModelE
     """A registry name or a path to a local file -> ``(path, entry or None)``.
 
     Registry models must already be in the cache (``FileNotFoundError`` says
-    how to fetch them); nothing is downloaded here.
+    how to fetch them); nothing is downloaded here.  A user model's file is
+    re-hashed: ``ValueError`` naming the file, the recorded and the actual
+    sha256 when it changed, ``FileNotFoundError`` when it is gone.
     """
     text = os.fspath(name_or_path)
     reg = _registry(registry)
+    if text in reg and reg[text].local_path:
+        return _verified_user_file(reg[text]), reg[text]
     if text in reg:
         path, present = model_path(text, reg)
         if not present:

@@ -374,7 +374,7 @@ def depth_model(path, coeffs=(0.0, 0.0, 1.0), kind: str = "inverse", input_size=
                 mean=(0.0, 0.0, 0.0), std=(1.0, 1.0, 1.0), scale: float = 1.0,
                 gain: float = 1.0, output_rank: int = 3, channels: int = 1,
                 input_rank: int = 4, input_name: str = "pixel_values",
-                output_name: str = "predicted_depth") -> Path:
+                output_name: str = "predicted_depth", in_channels: int = 3) -> Path:
     """A monocular depth network contract whose output is a known plane.
 
     For an input of (any, unless ``input_size``) size h x w, with normalised
@@ -385,7 +385,8 @@ def depth_model(path, coeffs=(0.0, 0.0, 1.0), kind: str = "inverse", input_size=
     scale`` undoing the front-end normalisation.  ``kind`` ``"inverse"``
     outputs ``q``, ``"depth"`` outputs ``1 / q``.  Output (1, h, w)
     (``output_rank=3``) or (1, channels, h, w) (``output_rank=4``).
-    ``input_rank=3`` declares a (3, h, w) input (a broken contract).
+    ``input_rank=3`` declares a (3, h, w) input and ``in_channels`` other than 3 an
+    input of that many channels (broken contracts).
     """
     h, w = input_size if input_size is not None else ("h", "w")
     a, b, c = (float(v) for v in coeffs)
@@ -442,7 +443,7 @@ def depth_model(path, coeffs=(0.0, 0.0, 1.0), kind: str = "inverse", input_size=
     else:
         nodes.append(helper.make_node("Identity", [out], [output_name]))
         out_shape = [1, channels, h, w]
-    in_shape = [1, 3, h, w] if input_rank == 4 else [3, h, w]
+    in_shape = [1, in_channels, h, w] if input_rank == 4 else [in_channels, h, w]
     graph = helper.make_graph(
         nodes, "depth",
         [helper.make_tensor_value_info(input_name, TensorProto.FLOAT, in_shape)],

@@ -1,8 +1,11 @@
-"""Model cache: directory, registry, verified download (file:// URLs, offline), CLI, factories."""
+"""Model cache: directory, registry, verified download (file:// URLs, offline), CLI, factories;
+user models (register_model, registry.json, `spgeo models register`)."""
 from __future__ import annotations
 
 import argparse
 import hashlib
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,3 +219,112 @@ def test_factories_from_cache_and_paths(tmp_path, cache):
     assert isinstance(nmodel, NormalModel) and nmodel.config.input_size == (480, 640)
     with pytest.raises(FileNotFoundError, match="spgeo models fetch"):
         from_cache.normal_model_from_cache("metric3d-vit-small-fp16")
+
+
+# ------------------------------------------------------------------ user models
+def test_register_model_and_resolve(tmp_path, cache):
+    src, sha = make_file(tmp_path, "mine.onnx")
+    entry_ = models.register_model("my-depth", src, kind="depth", preset="fastdepth",
+                                   licence="MIT", notes="test")
+    assert entry_.local_path == str(src.resolve()) and entry_.sha256 == sha
+    assert entry_.size == src.stat().st_size and entry_.preset == "fastdepth"
+    assert models.get_entry("my-depth") == entry_
+    assert models.resolve_model("my-depth") == (src.resolve(), entry_)
+    assert models.model_path("my-depth") == (src.resolve(), True)
+    assert models.fetch_model("my-depth", progress=False) == src.resolve()  # nothing to fetch
+    listed = {e.name: (p, present) for e, p, present in models.list_models()}
+    assert listed["my-depth"] == (src.resolve(), True) and "sam-vit-h-encoder" in listed
+    assert [p.name for p in cache.iterdir()] == [models.USER_REGISTRY_FILE]
+    # defaults by kind; registering a user name again replaces it
+    assert models.register_model("my-n", src, kind="normals").preset == "generic-480x640"
+    assert models.register_model("my-depth", src).preset == "generic-depth-518"
+    assert "generic-480x640" in NORMAL_PRESETS and "generic-depth-518" in DEPTH_PRESETS
+    assert sorted(models.user_models()) == ["my-depth", "my-n"]
+    # an explicit registry= mapping is used alone
+    assert "my-depth" not in {e.name for e, _, _ in models.list_models(models.REGISTRY)}
+    with pytest.raises(ValueError, match="is a user model"):
+        models.register_local("my-depth", src)
+
+
+def test_register_model_refusals(tmp_path, cache):
+    src, sha = make_file(tmp_path, "mine.onnx")
+    with pytest.raises(ValueError, match="'efficientsam-vitt-encoder' is a built-in"):
+        models.register_model("efficientsam-vitt-encoder", src)
+    for bad in ("", "a/b", "-x", "two words"):
+        with pytest.raises(ValueError, match="bad model name"):
+            models.register_model(bad, src)
+    with pytest.raises(ValueError, match="kind must be one of"):
+        models.register_model("m", src, kind="sam-encoder")
+    with pytest.raises(FileNotFoundError, match="nope.onnx"):
+        models.register_model("m", tmp_path / "nope.onnx")
+    assert not cache.exists()  # nothing written
+    models.register_model("m", src)
+    src.write_bytes(b"changed weights")
+    new_sha = hashlib.sha256(b"changed weights").hexdigest()
+    for call in (lambda: models.resolve_model("m"),
+                 lambda: from_cache.metric_depth_from_cache("m"),
+                 lambda: models.fetch_model("m", progress=False)):
+        with pytest.raises(ValueError) as exc:
+            call()
+        msg = str(exc.value)
+        assert str(src.resolve()) in msg and sha in msg and new_sha in msg
+    src.unlink()
+    with pytest.raises(FileNotFoundError, match="mine.onnx"):
+        models.resolve_model("m")
+    (cache / models.USER_REGISTRY_FILE).write_text("{not json")
+    with pytest.raises(ValueError, match="registry.json.*not a readable"):
+        models.get_entry("m")
+
+
+def test_user_registry_written_atomically(tmp_path, cache, monkeypatch):
+    src, _ = make_file(tmp_path, "mine.onnx")
+    models.register_model("a", src)
+    where = cache / models.USER_REGISTRY_FILE
+    before = where.read_text()
+    data = json.loads(before)
+    assert data["models"]["a"]["sha256"] == models.sha256_file(src)
+    calls = []
+
+    def failing_replace(tmp, dest):
+        calls.append((tmp, dest))
+        raise OSError("disk full")
+
+    monkeypatch.setattr(models.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="disk full"):
+        models.register_model("b", src)
+    (tmp, dest), = calls
+    assert dest == where and Path(tmp).parent == cache
+    assert where.read_text() == before  # the old registry is intact, the temp file removed
+    assert [p.name for p in cache.iterdir()] == [models.USER_REGISTRY_FILE]
+
+
+def test_cli_register(tmp_path, cache, capsys):
+    src, sha = make_file(tmp_path, "mine.onnx")
+    parser = _parser()
+    args = parser.parse_args(["models", "register", "fd", str(src), "--preset", "fastdepth"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "fd" in out and sha in out and "fastdepth" in out
+    args = parser.parse_args(["models", "list"])
+    assert args.func(args) == 0
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("* fd ")]
+    assert len(line) == 1 and "user:" in line[0] and str(src.resolve()) in line[0]
+    args = parser.parse_args(["models", "path", "fd"])
+    assert args.func(args) == 0 and capsys.readouterr().out.strip() == str(src.resolve())
+    for argv, err in [(["sam-vit-b-encoder", str(src)], "built-in"),
+                      (["x", str(src), "--preset", "nope"], "unknown depth preset 'nope'"),
+                      (["x", str(src), "--kind", "normals", "--preset", "fastdepth"],
+                       "unknown normals preset"),
+                      (["x", str(tmp_path / "nope.onnx")], "nope.onnx")]:
+        args = parser.parse_args(["models", "register", *argv])
+        assert args.func(args) == 2
+        captured = capsys.readouterr()
+        assert err in captured.err and captured.err.count("\n") == 1 and not captured.out
+    with pytest.raises(SystemExit):
+        parser.parse_args(["models", "register", "x", str(src), "--kind", "sam-encoder"])
+    src.write_bytes(b"other")
+    args = parser.parse_args(["models", "fetch", "fd"])
+    assert args.func(args) == 2 and "sha256 mismatch" in capsys.readouterr().err
+    (cache / models.USER_REGISTRY_FILE).write_text("[]")
+    args = parser.parse_args(["models", "list"])
+    assert args.func(args) == 2 and "registry.json" in capsys.readouterr().err

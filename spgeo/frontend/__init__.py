@@ -13,17 +13,23 @@
 * ``onnx-depth``: classical (or SAM) segments + normals of a monocular depth
   network's output (:class:`~spgeo.frontend.onnx_depth.OnnxDepthNormals`;
   reads no sensor depth; models via ``spgeo models``).
+
+Metric depth from one image (not a front-end): :class:`MetricDepthEstimator`
+(``predict_metric(image) -> metres``) and :func:`metric_depth_from_cache` (a
+metric-depth ONNX network, e.g. FastDepth with the ``"fastdepth"`` preset).
 """
 from __future__ import annotations
 
 from typing import Optional
 
-from .base import NormalEstimator, Segmentation, Segmenter, masks_to_segmentation
+from .base import (MetricDepthEstimator, NormalEstimator, Segmentation, Segmenter,
+                   masks_to_segmentation)
 from .pipeline import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, split_regions
 
 __all__ = [
     "FRONTENDS", "MONOCULAR_FRONTENDS", "FrontEndConfig", "LabelSegmenter", "NormalEstimator", "PrimitiveFrontEnd",
     "Segmentation", "Segmenter", "make_frontend", "masks_to_segmentation", "split_regions",
+    "MetricDepthEstimator", "metric_depth_from_cache",
 ]
 
 FRONTENDS = ("classical", "manhattan", "depth", "onnx", "onnx-depth")
@@ -75,3 +81,13 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
         return PrimitiveFrontEnd(seg, depth_normals_from_cache(**(normals or {})), config,
                                  name="onnx-depth")
     raise ValueError(f"unknown front-end {name!r}; choose one of {FRONTENDS}")
+
+
+def __getattr__(name: str):
+    """``spgeo.frontend.metric_depth_from_cache``: imported on first use
+    (:mod:`spgeo.frontend.from_cache` loads the ONNX adapters)."""
+    if name == "metric_depth_from_cache":
+        from . import from_cache
+
+        return from_cache.metric_depth_from_cache
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -16,8 +16,8 @@ import numpy as np
 
 from ..camera import PinholeCamera
 
-__all__ = ["Segmentation", "Segmenter", "NormalEstimator", "masks_to_segmentation",
-           "config_with_overrides"]
+__all__ = ["Segmentation", "Segmenter", "NormalEstimator", "MetricDepthEstimator",
+           "masks_to_segmentation", "config_with_overrides"]
 
 
 @dataclass
@@ -127,6 +127,22 @@ class NormalEstimator(Protocol):
 
     def estimate(self, image: np.ndarray, camera: PinholeCamera,
                  depth: Optional[np.ndarray] = None) -> np.ndarray:
+        ...
+
+
+@runtime_checkable
+class MetricDepthEstimator(Protocol):
+    """Predicts metric depth from one image (no sensor depth read).
+
+    ``predict_metric(image)``: ``image`` (H, W) grey or (H, W, 3) RGB, uint8 /
+    uint16 or float in [0, 1] (grey is used as RGB with equal channels);
+    returns float32 (H, W) depth in metres along the optical axis at the image
+    size, NaN where invalid.  Raises ``ValueError`` for a bad image or a model
+    that cannot give metric depth.  Implemented by
+    :class:`spgeo.frontend.onnx_depth.OnnxDepthNormals` with a metric config.
+    """
+
+    def predict_metric(self, image: np.ndarray) -> np.ndarray:
         ...
 
 

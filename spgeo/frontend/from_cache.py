@@ -13,7 +13,7 @@ from .onnx_normals import NormalModel
 from .onnx_sam import SegmentModel
 
 __all__ = ["sam_model_from_cache", "sam_frontend_from_cache", "normal_model_from_cache",
-           "depth_normals_from_cache"]
+           "depth_normals_from_cache", "metric_depth_from_cache"]
 
 
 def sam_model_from_cache(family: Optional[str] = "efficientsam-vitt",
@@ -92,3 +92,35 @@ def depth_normals_from_cache(name_or_path: PathLike = "depth-anything-v2-small",
     path, entry = resolve_model(name_or_path, registry)
     preset = preset or (entry.preset if entry else "generic-depth-518")
     return OnnxDepthNormals.from_path(path, preset=preset, **overrides)
+
+
+def metric_depth_from_cache(name_or_path: PathLike, preset: Optional[str] = None,
+                            registry: Optional[Mapping[str, ModelEntry]] = None,
+                            **overrides) -> OnnxDepthNormals:
+    """A metric-depth network (:class:`~spgeo.frontend.base.MetricDepthEstimator`:
+    :meth:`~spgeo.frontend.onnx_depth.OnnxDepthNormals.predict_metric`, metres) from
+    a registry name (built-in or registered with :func:`spgeo.models.register_model`)
+    or a path.
+
+    ``preset`` defaults to the registry entry's; for a path without an entry it
+    defaults to ``"fastdepth"`` (the metric preset; ``depth_normals_from_cache``'s
+    ``"generic-depth-518"`` is up to scale and would be refused).  ``overrides`` are
+    :class:`~spgeo.frontend.onnx_depth.DepthOnnxConfig` fields (e.g.
+    ``intra_op_num_threads=1``, or ``metric=True`` with another preset).
+
+    Raises:
+        ValueError: the resulting config is not metric (naming the model and
+            preset), an unknown preset, a model that breaks the preset's contract
+            (input not one 3-channel image of the preset's size, output not one
+            channel), or a user model whose file changed since it was registered.
+        FileNotFoundError: a registry model not in the cache, or a missing file.
+    """
+    path, entry = resolve_model(name_or_path, registry)
+    preset = preset or (entry.preset if entry else "fastdepth")
+    model = OnnxDepthNormals.from_path(path, preset=preset, **overrides)
+    if not model.config.metric:
+        raise ValueError(f"depth model {path}: preset {preset!r} is not metric (output_kind "
+                         f"{model.config.output_kind!r}), so it gives no depth in metres; use a "
+                         "metric preset such as 'fastdepth' (`spgeo models register NAME PATH "
+                         "--preset fastdepth`)")
+    return model

@@ -30,6 +30,12 @@ Resampling to the image size is done on inverse depth (bilinear), which is
 affine in the pixel coordinates on a plane, so planes stay planes.  Inverse
 depth at or below ``min_inverse`` (after the percentile normalisation: depth
 beyond ``1 / min_inverse`` times the near-range depth) is invalid (NaN depth).
+
+Metric depth: a config with ``metric=True`` (``"depth"`` or ``"inverse_depth"``
+outputs in metres / inverse metres, e.g. the ``"fastdepth"`` preset) also gives
+:meth:`OnnxDepthNormals.predict_metric`: the same inverse-depth resampling
+without the percentile normalisation, so the result is in metres
+(:class:`~spgeo.frontend.base.MetricDepthEstimator`).
 """
 from __future__ import annotations
 
@@ -85,6 +91,9 @@ class DepthOnnxConfig(ImageIOConfig):
             percentile-normalised output before inverting.  Default 0.
         min_inverse: normalised inverse depth at or below this is invalid.
             Default 1e-3.
+        metric: the output is metric (``"depth"``: metres, ``"inverse_depth"``:
+            1 / metres), which enables :meth:`OnnxDepthNormals.predict_metric`.
+            Not allowed with ``"disparity"`` (affine-invariant).  Default False.
         normals: :class:`~spgeo.frontend.depth_normals.DepthNormalEstimatorConfig`
             of the depth -> normals step (default PCA, holes filled from the
             nearest known normal).
@@ -97,6 +106,7 @@ class DepthOnnxConfig(ImageIOConfig):
     output_kind: str = "depth"
     disparity_shift: float = 0.0
     min_inverse: float = 1e-3
+    metric: bool = False
     normals: DepthNormalEstimatorConfig = field(
         default_factory=lambda: DepthNormalEstimatorConfig(fill_holes=True))
 
@@ -118,6 +128,9 @@ class DepthOnnxConfig(ImageIOConfig):
         if not np.isfinite(self.disparity_shift):
             raise ValueError(f"DepthOnnxConfig.disparity_shift must be finite, "
                              f"got {self.disparity_shift!r}")
+        if self.metric and self.output_kind == "disparity":
+            raise ValueError("DepthOnnxConfig.metric needs output_kind 'depth' or "
+                             "'inverse_depth' (a 'disparity' output is affine-invariant)")
         if not (self.min_inverse > 0):
             raise ValueError(f"DepthOnnxConfig.min_inverse must be > 0, got {self.min_inverse!r}")
         if not isinstance(self.normals, DepthNormalEstimatorConfig):
@@ -130,11 +143,20 @@ class DepthOnnxConfig(ImageIOConfig):
 #: ``pixel_values`` (1, 3, H, W) dynamic, output ``predicted_depth`` (1, H, W):
 #: affine-invariant relative inverse depth; DPT processor: keep aspect, side
 #: nearer 518 -> 518, multiples of 14, ImageNet mean / std on [0, 1]).
+#: ``fastdepth``: FastDepth (NYU Depth v2) exported to ONNX (input
+#: ``serving_default_input.1_0`` (1, 3, 224, 224) RGB in [0, 1], no mean / std,
+#: image stretched to 224 x 224; output ``StatefulPartitionedCall_0``
+#: (1, 1, 224, 224): metric depth in metres).
 DEPTH_PRESETS: Mapping[str, DepthOnnxConfig] = MappingProxyType({
     "generic-depth-518": DepthOnnxConfig(),
     "depth-anything-v2": DepthOnnxConfig(
         input_size=None, aspect_side=518, multiple_of=14, input_name="pixel_values",
         output_name="predicted_depth", output_kind="disparity"),
+    "fastdepth": DepthOnnxConfig(
+        input_size=(224, 224), resize_mode="stretch", input_range="0-1",
+        mean=(0.0, 0.0, 0.0), std=(1.0, 1.0, 1.0), channel_order="RGB", layout="NCHW",
+        output_layout="NCHW", input_name="serving_default_input.1_0",
+        output_name="StatefulPartitionedCall_0", output_kind="depth", metric=True),
 })
 
 
@@ -154,14 +176,36 @@ def network_input_size(height: int, width: int, side: int = 518,
     return (max(m, int(round(height * s / m)) * m), max(m, int(round(width * s / m)) * m))
 
 
+def _one_channel_output(session, name: Optional[str], layout: str, what: str) -> str:
+    """The name of the model's depth output (``name``, or its first output when ``None``);
+    ``ValueError`` naming ``what`` when it is missing, not rank 2-4, or declares a static
+    channel count other than 1 (rank 4, channel axis of ``layout``)."""
+    outputs = io_nodes(session, outputs=True)
+    name = name or next(iter(outputs))
+    if name not in outputs:
+        raise ValueError(f"{what}: expected output {name!r}, found outputs {list(outputs)}")
+    shape = list(outputs[name].shape)
+    if len(shape) not in (2, 3, 4):
+        raise ValueError(f"{what}: output {name!r} must be a one-channel map (rank 2-4), "
+                         f"model declares {shape}")
+    channels = shape[1 if layout == "NCHW" else 3] if len(shape) == 4 else 1
+    if isinstance(channels, int) and channels not in (1, -1):
+        raise ValueError(f"{what}: output {name!r} must be a one-channel map, model declares "
+                         f"{shape} ({channels} channels)")
+    return name
+
+
 class OnnxDepthNormals:
     """:class:`~spgeo.frontend.base.NormalEstimator`: depth network -> normals.
 
     ``estimate`` returns float32 (H, W, 3) unit normals in spgeo's convention
     (towards the camera), computed by :func:`normals_from_depth` from
     :meth:`predict_depth`.  ``uses_depth = False``: any sensor depth passed
-    to ``estimate`` is ignored.  Raises ``ValueError`` naming the model file
-    when the model breaks the contract (inputs, output shape, NaN output).
+    to ``estimate`` is ignored.  With a ``metric`` config it is also a
+    :class:`~spgeo.frontend.base.MetricDepthEstimator` (:meth:`predict_metric`).
+    Raises ``ValueError`` naming the model file when the model breaks the
+    contract (not one 3-channel image input of the config's static size, an
+    output that is not one channel, NaN output).
     """
 
     uses_depth = False
@@ -174,15 +218,8 @@ class OnnxDepthNormals:
         self.input_name, self.input_dtype = image_input(
             self.session, config.input_name, config.layout, config.input_size, self.what,
             "DepthOnnxConfig")
-        outputs = io_nodes(self.session, outputs=True)
-        self.output_name = config.output_name or next(iter(outputs))
-        if self.output_name not in outputs:
-            raise ValueError(f"{self.what}: expected output {self.output_name!r}, found outputs "
-                             f"{list(outputs)}")
-        shape = list(outputs[self.output_name].shape)
-        if len(shape) not in (2, 3, 4):
-            raise ValueError(f"{self.what}: output {self.output_name!r} must be a one-channel "
-                             f"map (rank 2-4), model declares {shape}")
+        self.output_name = _one_channel_output(self.session, config.output_name,
+                                               config.output_layout, self.what)
         in_shape = list(io_nodes(self.session)[self.input_name].shape)
         hw = in_shape[2:4] if config.layout == "NCHW" else in_shape[1:3]
         self.static_size = (tuple(hw) if all(isinstance(d, int) and d > 0 for d in hw)
@@ -225,18 +262,51 @@ class OnnxDepthNormals:
             raise ValueError(f"{self.what}: output contains NaN/inf")
         return uncrop(raw[..., 0], crop)
 
+    def _network_inverse(self, image: np.ndarray) -> np.ndarray:
+        """The output as inverse depth at the network's resolution, float32 (h, w)
+        (``"depth"``: ``1 / o``, 0 where ``o <= 0``; otherwise ``o``)."""
+        raw = self.predict_raw(image)
+        if self.config.output_kind == "depth":
+            with np.errstate(divide="ignore"):
+                raw = np.where(raw > 0, 1.0 / np.where(raw > 0, raw, 1.0), 0.0)
+        return raw.astype(np.float32)
+
+    def predict_metric(self, image: np.ndarray) -> np.ndarray:
+        """Metric depth in metres, float32 (H, W) at the image size, NaN where invalid.
+
+        ``image``: (H, W) grey or (H, W, 3) RGB, uint8 / uint16 or float in [0, 1]
+        (:func:`~spgeo.frontend.onnx_runtime.as_rgb01`; grey is repeated into 3
+        channels).  The output is resampled on inverse depth (bilinear) without any
+        normalisation; pixels with no positive inverse depth, or interpolated from a
+        network pixel without one, are NaN.  Raises
+        ``ValueError`` naming the model file when the config is not ``metric``
+        (an affine-invariant or up-to-scale model has no metric depth), for a
+        NaN / inf output or one with no valid pixel; ``InputError`` (a
+        ``ValueError``) for a bad image.
+        """
+        if not self.config.metric:
+            raise ValueError(f"{self.what}: not a metric-depth model (DepthOnnxConfig.metric "
+                             f"is False, output_kind {self.config.output_kind!r}); use "
+                             "predict_depth (depth up to scale) or a metric preset such as "
+                             "'fastdepth'")
+        h, w = np.asarray(image).shape[:2]
+        inv_net = self._network_inverse(image)
+        if not np.any(inv_net > 0):
+            raise ValueError(f"{self.what}: output has no positive {self.config.output_kind} "
+                             "value")
+        inv = resize_map(inv_net, h, w, bilinear=True)
+        # a pixel interpolated from an invalid network pixel is invalid too
+        full = resize_map((inv_net > 0).astype(np.float32), h, w, bilinear=True)
+        valid = (inv > 0) & (full > 1.0 - 1e-4)
+        with np.errstate(divide="ignore"):
+            return np.where(valid, 1.0 / np.where(valid, inv, 1.0), np.nan).astype(np.float32)
+
     def predict_depth(self, image: np.ndarray) -> np.ndarray:
         """Depth up to an unknown global scale, float32 (H, W) at the image size, NaN
         where invalid (see the module docstring for each output kind)."""
         cfg = self.config
-        raw = self.predict_raw(image)
         h, w = np.asarray(image).shape[:2]
-        if cfg.output_kind == "depth":
-            with np.errstate(divide="ignore"):
-                inv = np.where(raw > 0, 1.0 / np.where(raw > 0, raw, 1.0), 0.0)
-        else:
-            inv = raw
-        inv = resize_map(inv.astype(np.float32), h, w, bilinear=True)
+        inv = resize_map(self._network_inverse(image), h, w, bilinear=True)
         positive = inv[inv > 0]
         if positive.size == 0:
             raise ValueError(f"{self.what}: output has no positive {cfg.output_kind} value")
