@@ -1,0 +1,61 @@
+"""``spgeo eval vo_long_run`` (evaluation/vo/long_run.py): the long-run VO benchmark on a
+synthetic-loop smoke run, and its argument errors."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from spgeo.cli.eval import PROTOCOLS
+from spgeo.evaluation.vo import long_run
+from spgeo.evaluation.vo.long_run import TABLE, VARIANTS, main, run_config
+
+
+def test_registered_and_variants_make_configs():
+    assert PROTOCOLS["vo_long_run"] == "vo.long_run"
+    assert run_config("7scenes", "default").odometry.loop_closure.enabled is False
+    cfg = run_config("synthetic-loop", "loops")
+    assert cfg.odometry.loop_closure.enabled is True
+    assert cfg.resolution == (160, 120) and cfg.progress is False
+    assert set(VARIANTS) >= {"default", "loops"}
+
+
+def test_palindrome_cap_keeps_the_return():
+    order = long_run._order(300, 40, loop=True)
+    assert len(order) <= 40 and order[0] == order[-1] == 0 and max(order) == 19
+    assert long_run._order(51, 60, loop=False) == list(range(51))
+
+
+@pytest.mark.parametrize("flag, known, name", [("--sequences", "synthetic-loop", "moon"),
+                                               ("--variants", "default", "turbo")])
+def test_unknown_name_exits_2_naming_it(tmp_path, capsys, flag, known, name):
+    assert main(["--out", str(tmp_path), flag, f"{known},{name}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and repr(name) in err[0]
+    assert not (tmp_path / "long_run.json").exists()
+
+
+@pytest.mark.slow
+def test_synthetic_loop_smoke(tmp_path, capsys):
+    """Two runs (each its own process) of a short synthetic loop: one row each with a
+    finite, small ATE, the loop report only where loop closure is on, and the table."""
+    rc = main(["--out", str(tmp_path), "--sequences", "synthetic-loop", "--frames", "40",
+               "--variants", "default,loops", "--timeout", "300"])
+    printed = capsys.readouterr().out
+    assert rc == 0
+    data = json.loads((tmp_path / "long_run.json").read_text())
+    rows = {r["variant"]: r for r in data["rows"]}
+    assert list(rows) == ["default", "loops"]
+    for r in rows.values():
+        assert r["error"] is None and r["sequence"] == "synthetic-loop"
+        assert r["frames"] <= 40 and r["tracked"] + r["lost"] == r["frames"]
+        assert math.isfinite(r["ate_m"]) and 0 <= r["ate_m"] < 0.2
+        assert r["peak_rss_mb"] > 0 and r["fps"] > 0 and r["end_err_m"] is not None
+        assert (tmp_path / f"synthetic-loop.{r['variant']}" / "report.json").is_file()
+    assert rows["default"]["loops_accepted"] is None
+    assert rows["loops"]["loops_accepted"] is not None and rows["loops"]["loops_rejected"] >= 0
+    md = (tmp_path / "long_run.md").read_text()
+    header = "| " + " | ".join(h for h, _, _ in TABLE) + " |"
+    assert header in md and header in printed
+    assert md.count("| synthetic-loop |") == 2
