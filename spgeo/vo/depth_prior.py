@@ -3,8 +3,8 @@ of each keyframe becomes a weak prior on the keyframe's scale.
 
 A monocular map has one free scale, and the window mapper passes it from
 keyframe to keyframe through rendered depth, so it drifts.  With a depth
-model given (:class:`MetricDepthModel`, e.g.
-:meth:`spgeo.frontend.onnx_depth.OnnxDepthNormals.predict_metric`), each new
+model given (:class:`~spgeo.frontend.base.MetricDepthEstimator`, e.g.
+:func:`spgeo.frontend.metric_depth_from_cache`), each new
 keyframe's image goes through the network once; every primitive's log-scale
 that best fits the network's depth is stored (:class:`DepthTargets`, a few
 numbers per primitive, not the depth map).  When the keyframe enters the
@@ -26,32 +26,21 @@ there (``ValueError`` at :class:`~spgeo.vo.Odometry` construction).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional, Protocol, Sequence, runtime_checkable
+from typing import Optional, Sequence
 
 import numpy as np
 
 import gtsam
 
 from ..factors.priors import mean_log_scale_prior
+from ..frontend.base import MetricDepthEstimator
 from ..primitives import PrimitiveSet
 
-__all__ = ["MetricDepthModel", "DepthTargets", "depth_targets", "keyframe_scale_prior",
+__all__ = ["DepthTargets", "depth_targets", "keyframe_scale_prior",
            "weighted_median", "check_depth_model"]
 
 #: fewest pixels with network depth for a primitive to take part
 MIN_POINTS = 20
-
-
-@runtime_checkable
-class MetricDepthModel(Protocol):
-    """Anything that predicts metric depth from one image.
-
-    ``predict_metric(image)``: ``image`` float32 (H, W, 3) RGB or (H, W) grey
-    in [0, 1]; returns float32 (H, W) depth in metres along the optical axis,
-    NaN where invalid.
-    """
-
-    def predict_metric(self, image: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -88,7 +77,7 @@ class DepthTargets:
         return np.isfinite(self.log_scales) & (self.n_points >= MIN_POINTS)
 
 
-def check_depth_model(model: Optional[MetricDepthModel], frontend, config) -> None:
+def check_depth_model(model: Optional[MetricDepthEstimator], frontend, config) -> None:
     """``ValueError`` when a depth model cannot anchor the VO's scale: it has
     no ``predict_metric``, the front-end uses depth (scales already metric) or
     ``config.primitive_model`` is ``"planar"`` (no log-scale variables)."""
@@ -96,7 +85,7 @@ def check_depth_model(model: Optional[MetricDepthModel], frontend, config) -> No
         return
     if not callable(getattr(model, "predict_metric", None)):
         raise ValueError(f"depth model {model!r} has no predict_metric(image) method "
-                         "(spgeo.vo.depth_prior.MetricDepthModel)")
+                         "(spgeo.frontend.MetricDepthEstimator)")
     if getattr(frontend, "uses_depth", False):
         raise ValueError("a depth model anchors a monocular front-end's scale; the front-end "
                          f"{getattr(frontend, 'name', frontend)!r} reads sensor depth already")
@@ -114,7 +103,7 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(v[order][np.searchsorted(cw, 0.5 * cw[-1])])
 
 
-def depth_targets(model: MetricDepthModel, image: np.ndarray,
+def depth_targets(model: MetricDepthEstimator, image: np.ndarray,
                   primitives: PrimitiveSet) -> DepthTargets:
     """The network's depth of ``image`` fitted to each primitive's shape.
 

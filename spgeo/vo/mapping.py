@@ -410,7 +410,8 @@ class WindowMapper:
                                                    1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
             else:
                 batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
-        if kf.depth_targets is not None and not self._planar:
+        import os as _os
+        if kf.depth_targets is not None and not self._planar and not _os.environ.get("DP_NOPRIOR"):
             prior = keyframe_scale_prior(kf.depth_targets,
                                          [kf_scale_key(kf.index, i) for i in range(th.shape[0])],
                                          th[:, 0], cfg.depth_prior_sigma)

@@ -31,12 +31,12 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..frame import Frame
-from ..frontend import PrimitiveFrontEnd
+from ..frontend import MetricDepthEstimator, PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig
-from .depth_prior import DepthTargets, MetricDepthModel, check_depth_model, depth_targets
+from .depth_prior import DepthTargets, check_depth_model, depth_targets
 from .feature_retry import FeatureRetry
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
@@ -67,7 +67,7 @@ class Odometry:
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
         depth_model: optional metric depth network
-            (:class:`~spgeo.vo.depth_prior.MetricDepthModel`), run once per
+            (:class:`~spgeo.frontend.MetricDepthEstimator`), run once per
             keyframe: a weak scale prior per keyframe and the map's initial
             scale (:mod:`spgeo.vo.depth_prior`).  Default None: classical
             monocular scale.  ``ValueError`` with a depth-using front-end (its
@@ -84,7 +84,7 @@ class Odometry:
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
                  store: Optional[KeyframeStore] = None,
-                 depth_model: Optional[MetricDepthModel] = None) -> None:
+                 depth_model: Optional[MetricDepthEstimator] = None) -> None:
         if frontend is None:
             raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
         check_depth_model(depth_model, frontend, config)
@@ -557,6 +557,16 @@ class Odometry:
             self._scale_checks.append({"keyframe": k, "frame": idx,
                                        **dataclasses.asdict(check)})
             timings["scale_check"] = time.perf_counter() - t
+        import os as _os
+        _beta = float(_os.environ.get("DP_BETA", "0"))
+        if targets is not None and _beta > 0:
+            c = targets.offset(prims.log_scales)
+            if c is not None:
+                self._dp_hist = getattr(self, "_dp_hist", []) + [c]
+                K = int(_os.environ.get("DP_K", "5"))
+                corr = _beta * float(np.median(self._dp_hist[-K:]))
+                prims = prims.with_log_scales(prims.log_scales + corr)
+                self._dp_hist = [h - corr for h in self._dp_hist]
         prims = apply_primitive_model(prims, cfg.primitive_model)
         keyframe = keyframe.rebuilt(prims, T_world)
         kf = MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._segment,
