@@ -8,9 +8,6 @@ GTSAM's prior factors so every graph uses the same conventions).
 * :func:`planar_slope_prior` -- pulls a planar primitive's slopes ``(a, b)``
   towards fronto-parallel, leaving its inverse depth ``c`` nearly free.
 * :func:`brightness_prior` -- keeps an affine brightness ``(a, b)`` near 0.
-* :func:`mean_log_scale_prior` -- pulls a weighted mean of several log-scales
-  (one keyframe's primitives) to a value: a scale prior on the keyframe as a
-  whole that leaves the primitives' relative scales free.
 """
 from __future__ import annotations
 
@@ -21,7 +18,7 @@ import numpy as np
 import gtsam
 
 __all__ = ["LOG_SCALE_PRIOR_WEIGHT", "log_scale_prior", "pose_gauge_prior",
-           "planar_slope_prior", "brightness_prior", "mean_log_scale_prior", "LogScalePrior"]
+           "planar_slope_prior", "brightness_prior", "LogScalePrior"]
 
 LOG_SCALE_PRIOR_WEIGHT = 1e-5
 """The paper's weight of the scale prior in few-view SfM."""
@@ -62,39 +59,3 @@ def brightness_prior(key: int, sigmas: Sequence[float] = (0.3, 0.3)) -> gtsam.Pr
     """Prior keeping an affine brightness ``(a, b)`` near ``(0, 0)``."""
     return gtsam.PriorFactorVector(key, np.zeros(2),
                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
-
-
-def mean_log_scale_prior(keys: Sequence[int], weights: Sequence[float], target: float,
-                         sigma: float) -> gtsam.CustomFactor:
-    """Prior ``(sum_i w_i s_i - target) / sigma`` on 1-vector log-scale variables.
-
-    Args:
-        keys: the log-scale variables' keys (1-vectors), at least one.
-        weights: one weight per key, finite and >= 0, summing to 1 (e.g. the
-            primitives' shares of the pixels the target was measured on).
-        target: the weighted mean log-scale the variables are pulled to.
-        sigma: standard deviation of that mean, in log units (> 0).
-
-    The error is linear in the variables: its Jacobian with respect to
-    ``s_i`` is ``w_i`` (1x1).  Raises ``ValueError`` on mismatched lengths,
-    negative / non-finite weights, weights not summing to 1, or ``sigma <= 0``.
-    """
-    keys = [int(k) for k in keys]
-    w = np.asarray(weights, dtype=float).reshape(-1)
-    if not keys or w.size != len(keys):
-        raise ValueError(f"mean_log_scale_prior: {len(keys)} keys and {w.size} weights")
-    if not (np.all(np.isfinite(w)) and np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-9):
-        raise ValueError("mean_log_scale_prior: weights must be finite, >= 0 and sum to 1")
-    if not (sigma > 0 and np.isfinite(target)):
-        raise ValueError(f"mean_log_scale_prior: sigma must be > 0 and target finite, got "
-                         f"sigma={sigma}, target={target}")
-    blocks = [np.array([[wi]]) for wi in w]
-
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians) -> np.ndarray:
-        mean = sum(wi * float(values.atVector(k)[0]) for wi, k in zip(w, keys))
-        if jacobians is not None:
-            for j, block in enumerate(blocks):
-                jacobians[j] = block
-        return np.array([mean - float(target)])
-
-    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(sigma)), keys, error)

@@ -171,32 +171,6 @@ def test_priors_weights_and_gauge():
     assert planar_slope_prior(k, 0.5, slope_sigma=0.2).error(vals) == pytest.approx(0.5)
 
 
-def test_mean_log_scale_prior_value_and_jacobian():
-    from spgeo.factors.priors import mean_log_scale_prior
-
-    keys = [gtsam.symbol("s", i) for i in range(3)]
-    vals = gtsam.Values()
-    for k, v in zip(keys, (0.1, -0.4, 0.9)):
-        vals.insert(k, np.array([v]))
-    w = np.array([0.5, 0.3, 0.2])
-    f = mean_log_scale_prior(keys, w, target=0.2, sigma=0.1)
-    mean = 0.5 * 0.1 + 0.3 * -0.4 + 0.2 * 0.9
-    assert f.unwhitenedError(vals)[0] == pytest.approx(mean - 0.2)
-    assert f.error(vals) == pytest.approx(0.5 * ((mean - 0.2) / 0.1) ** 2)
-    A, _ = f.linearize(vals).jacobian()          # whitened: rows divided by sigma
-    order = list(f.linearize(vals).keys())
-    for j, k in enumerate(keys):
-        num = numerical_jacobian(f, vals, k, [])
-        assert np.allclose(num, [[w[j]]], atol=1e-8)
-        assert A[0, order.index(k)] * 0.1 == pytest.approx(num[0, 0], abs=1e-8)
-    with pytest.raises(ValueError, match="sum to 1"):
-        mean_log_scale_prior(keys, [0.5, 0.5, 0.5], 0.0, 0.1)
-    with pytest.raises(ValueError, match="keys"):
-        mean_log_scale_prior(keys, [1.0], 0.0, 0.1)
-    with pytest.raises(ValueError, match="sigma"):
-        mean_log_scale_prior(keys, w, 0.0, 0.0)
-
-
 @pytest.mark.parametrize("model", ["scaled", "planar"])
 @pytest.mark.parametrize("normalise", ["valid", "all", "none"])
 def test_factor_group_equals_individual_factors(model, normalise):

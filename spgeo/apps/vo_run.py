@@ -126,10 +126,6 @@ class VORunConfig:
         normal_model: ``onnx``: normal-network registry name or ``.onnx`` path
             (default None: ``metric3d-vit-small-fp16``); ``onnx-depth``: the
             depth network's (default None: ``depth-anything-v2-small``).
-        depth_model: metric depth network (registry name, user-registered name
-            or ``.onnx`` path; :func:`spgeo.frontend.metric_depth_from_cache`)
-            anchoring the monocular scale (:mod:`spgeo.vo.depth_prior`);
-            default None: none.
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
@@ -146,7 +142,6 @@ class VORunConfig:
     progress: bool = True
     sam_family: Optional[str] = None
     normal_model: Optional[str] = None
-    depth_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
 
@@ -332,12 +327,7 @@ class _Loop:
             log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
                         "(fx and fy scale differently)", size[0], size[1],
                         camera.width, camera.height)
-        depth_model = None
-        if self.config.depth_model is not None:
-            from ..frontend import metric_depth_from_cache
-
-            depth_model = metric_depth_from_cache(self.config.depth_model)
-        self.vo = Odometry(self.cam, self.config.odometry, fe, depth_model=depth_model)
+        self.vo = Odometry(self.cam, self.config.odometry, fe)
 
     def step(self, i: int, f: Frame):
         """Track frame ``i``; returns its :class:`~spgeo.vo.result.FrameResult`."""

@@ -64,8 +64,6 @@ def _run_config(args: argparse.Namespace):
         explicit["sam_family"] = args.sam_family
     if args.normal_model is not None:
         explicit["normal_model"] = args.normal_model
-    if args.depth_model is not None:
-        explicit["depth_model"] = args.depth_model
     if explicit:
         cfg = apply_overrides(cfg, explicit)
     return resolve_config(cfg, sets=args.set, route="odometry")
@@ -145,10 +143,6 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--normal-model", default=None,
                    help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16); "
                         "onnx-depth: depth model (default depth-anything-v2-small)")
-    p.add_argument("--depth-model", default=None, metavar="NAME|PATH",
-                   help="metric depth network (registry or `spgeo models register` name, or "
-                        ".onnx path; a bare path is read with the fastdepth preset): a weak "
-                        "per-keyframe scale prior for a monocular front-end")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_rerun_argument(p, "the frames, keyframe clouds and trajectories live")

@@ -127,7 +127,7 @@ _ODOMETRY_CHECKS = (
     ("init_min_parallax", ">= 0"), ("kf_max_rotation_deg", "> 0"),
     ("kf_max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
     ("kf_scale_check_min_parallax", ">= 0"), ("kf_scale_check_max_change", "> 0"),
-    ("keyframe_levels", ">= 1"), ("depth_prior_sigma", "> 0"))
+    ("keyframe_levels", ">= 1"))
 
 
 @config_repr
@@ -190,10 +190,6 @@ class OdometryConfig:
             depth): large against the noise that moved unobservable scales,
             small against the photometric information of a primitive seen
             with parallax.
-        depth_prior_sigma: with a depth model given to
-            :class:`~spgeo.vo.Odometry`: standard deviation (log units) of each
-            keyframe's scale prior from the network's metric depth
-            (:mod:`spgeo.vo.depth_prior`); unused without one.
         render_tolerance: the window's keyframes are rendered into a new
             keyframe with this log-depth tolerance of
             :func:`~spgeo.vo.rendering.render_depth`: depths within it of a
@@ -268,7 +264,6 @@ class OdometryConfig:
     primitive_model: str = "integrated"
     scale_prior_weight: float = 1e-5
     render_prior_weight: float = 1e-2
-    depth_prior_sigma: float = 0.1
     render_tolerance: float = 0.2
     kf_scale_check: bool = True
     kf_scale_check_min_parallax: float = 0.01

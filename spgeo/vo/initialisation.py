@@ -198,9 +198,6 @@ class Initialiser:
             ``kf_*`` overlap thresholds, ``primitive_model``, ``tracker``).
         camera: the frames' intrinsics.
         uses_depth: whether the front-end uses depth (metric primitives).
-        keep_scale: a monocular map keeps keyframe 0's depth scale through the
-            SfM of keyframe 1 in its first segment too (a depth model set it;
-            later segments always keep the previous map's).
 
     Attributes:
         failure: why the last keyframe-1 SfM was refused (None: none yet in
@@ -209,12 +206,10 @@ class Initialiser:
         reports: one dict per SfM tried (all segments).
     """
 
-    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool,
-                 keep_scale: bool = False) -> None:
+    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool) -> None:
         self.config = config
         self.camera = camera
         self.uses_depth = bool(uses_depth)
-        self.keep_scale = bool(keep_scale)
         self.reports: List[dict] = []
         self.reset()
 
@@ -337,10 +332,9 @@ class Initialiser:
         new_prims = sfm.primitives
         if self.config.primitive_model != "integrated":
             new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
-        if not self.uses_depth and (segment > 0 or self.keep_scale):
+        if not self.uses_depth and segment > 0:
             # a re-initialised monocular segment keeps the previous map's depth scale
-            # (keyframe 0's primitives were set to it by Odometry._reinitialise), a map
-            # started at a depth model's scale keeps that
+            # (keyframe 0's primitives were set to it by Odometry._reinitialise)
             med = np.median(np.exp(kf0.keyframe.primitives.scaled_log_depth()))
             med_new = np.median(np.exp(new_prims.scaled_log_depth()))
             c = float(np.log(med / med_new))

@@ -18,8 +18,7 @@ to its initial value; a new keyframe's primitives whose scale was rendered
 from the map (or, with a depth-using front-end, all of them) get the stronger
 ``render_prior_weight``: the render is a measurement of their scale (after a
 pure rotation the photometric factors between the two keyframes carry no
-parallax).  A keyframe with the depth model's scales (``MapKeyframe.depth_targets``)
-also gets their mean-log-scale prior (:mod:`spgeo.vo.depth_prior`).
+parallax).
 Smoother timestamps are keyframe indices (a supporting frame carries its
 keyframe's) and the lag keeps ``window`` keyframes: older keys are
 *marginalised* (their information stays as a linear prior), not dropped.
@@ -59,7 +58,6 @@ from ..factors.priors import brightness_prior, log_scale_prior, planar_slope_pri
 from ..primitives import PrimitiveSet
 from ..sfm.graph import gtsam_error_line
 from .config import PRIMITIVE_MODELS, OdometryConfig
-from .depth_prior import DepthTargets, keyframe_scale_prior
 from .tracking import Keyframe
 
 __all__ = ["WindowMapper", "MapKeyframe", "SupportCandidate", "kf_pose_key", "kf_scale_key",
@@ -151,7 +149,6 @@ class MapKeyframe:
     segment: int = 0
     map_pixels: Optional[tuple] = None   # cached mapping pixels (pixels and image never change)
     prior_weights: Optional[np.ndarray] = None   # (N,) weights of the shape priors
-    depth_targets: Optional[DepthTargets] = None  # the depth model's scales (depth_prior)
     _final: Optional[tuple] = None   # retired: (T_world_kf, median depth, selection)
     _log_scale_shift: float = 0.0    # retired: added to the stored log-scales (loop closure)
 
@@ -179,7 +176,7 @@ class MapKeyframe:
         store.put(self.index, self.image, kf.primitives)
         self._final = (kf.T_world_kf.copy(), float(kf.median_depth), kf.selection)
         self.image = self.keyframe = None
-        self.map_pixels = self.prior_weights = self.depth_targets = None
+        self.map_pixels = self.prior_weights = None
 
     def restore(self, store, levels: int) -> Tuple[np.ndarray, Keyframe]:
         """``(input image, Keyframe)``: the live ones, or for a retired keyframe
@@ -410,13 +407,6 @@ class WindowMapper:
                                                    1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
             else:
                 batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
-        import os as _os
-        if kf.depth_targets is not None and not self._planar and not _os.environ.get("DP_NOPRIOR"):
-            prior = keyframe_scale_prior(kf.depth_targets,
-                                         [kf_scale_key(kf.index, i) for i in range(th.shape[0])],
-                                         th[:, 0], cfg.depth_prior_sigma)
-            if prior is not None:
-                batch.graph.add(prior)
 
     def _add_group(self, batch: "_Batch", group: Optional[PhotometricFactorGroup], bkey: int,
                    b0, t: int) -> int:

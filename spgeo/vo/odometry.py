@@ -31,12 +31,11 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..frame import Frame
-from ..frontend import MetricDepthEstimator, PrimitiveFrontEnd
+from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig
-from .depth_prior import DepthTargets, check_depth_model, depth_targets
 from .feature_retry import FeatureRetry
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
@@ -66,12 +65,6 @@ class Odometry:
         store: where keyframes that left the window keep their image and
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
-        depth_model: optional metric depth network
-            (:class:`~spgeo.frontend.MetricDepthEstimator`), run once per
-            keyframe: a weak scale prior per keyframe and the map's initial
-            scale (:mod:`spgeo.vo.depth_prior`).  Default None: classical
-            monocular scale.  ``ValueError`` with a depth-using front-end (its
-            scales are metric already) or a planar ``primitive_model``.
 
     Memory: after a frame is processed only its :class:`FrameResult` (pose,
     status, timings, the small :class:`TrackResult`) and relative pose stay;
@@ -83,18 +76,15 @@ class Odometry:
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
-                 store: Optional[KeyframeStore] = None,
-                 depth_model: Optional[MetricDepthEstimator] = None) -> None:
+                 store: Optional[KeyframeStore] = None) -> None:
         if frontend is None:
             raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
-        check_depth_model(depth_model, frontend, config)
         if not isinstance(config, OdometryConfig):
             raise TypeError(f"Odometry: config must be an OdometryConfig, got "
                             f"{type(config).__name__}")
         self.camera = check_camera(camera, "Odometry: camera")
         self.config = config
         self.frontend = frontend
-        self.depth_model = depth_model
         self._frames: List[FrameResult] = []
         self._kfs: Dict[int, MapKeyframe] = {}
         self._kf_order: List[int] = []
@@ -103,8 +93,7 @@ class Odometry:
         # frame -> (kf, T_kf_frame, the keyframe's median depth when it was tracked)
         self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
         self._candidates: List[SupportCandidate] = []
-        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth,
-                                        keep_scale=depth_model is not None)
+        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
         self._segment = 0
         self._seg_kfs: List[int] = []          # keyframes of the current segment
         self._last_good: Optional[np.ndarray] = None
@@ -296,8 +285,8 @@ class Odometry:
             "seconds_total": float(np.sum(tot)),
             "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
             "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
-                                  for k in ("track", "frontend", "depth_model", "scale_check",
-                                            "mapping", "init", "loop")},
+                                  for k in ("track", "frontend", "scale_check", "mapping",
+                                            "init", "loop")},
             "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
             "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
             "config": dataclasses.asdict(self.config),
@@ -334,34 +323,20 @@ class Odometry:
             raise ValueError("the front-end produced no primitive")
         return prims
 
-    def _depth_targets(self, image: np.ndarray, prims: PrimitiveSet,
-                       timings: Dict[str, float]) -> Optional[DepthTargets]:
-        """The depth model's scales of a new keyframe's primitives (None without a model)."""
-        if self.depth_model is None:
-            return None
-        t = time.perf_counter()
-        targets = depth_targets(self.depth_model, image, prims)
-        timings["depth_model"] = time.perf_counter() - t
-        return targets
-
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
         """Keyframe 0 of a map segment at ``T_world``."""
         t = time.perf_counter()
         prims = self._primify(frame)
-        timings["frontend"] = time.perf_counter() - t
-        targets = self._depth_targets(frame.image, prims, timings)
         if not self.frontend.uses_depth:
             s0 = 0.0 if median_depth is None else float(np.log(median_depth))
-            network = None if targets is None else targets.offset(np.zeros(len(prims)))
-            s0 = s0 if network is None else network
             prims = prims.with_log_scales(np.full(len(prims), s0))
         prims = apply_primitive_model(prims, self.config.primitive_model)
+        timings["frontend"] = time.perf_counter() - t
         k = len(self._kf_order)
         kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels,
                             self.config.selection)
-        self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment,
-                                   depth_targets=targets)
+        self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
         self._kf_order.append(k)
         self._live.append(k)
         self._seg_kfs = [k]
@@ -542,7 +517,6 @@ class Odometry:
             timings["frontend"] = time.perf_counter() - t
             return None
         timings["frontend"] = time.perf_counter() - t
-        targets = self._depth_targets(frame.image, prims, timings)
         keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels,
                                   cfg.selection)
         k = len(self._kf_order)
@@ -557,22 +531,11 @@ class Odometry:
             self._scale_checks.append({"keyframe": k, "frame": idx,
                                        **dataclasses.asdict(check)})
             timings["scale_check"] = time.perf_counter() - t
-        import os as _os
-        _beta = float(_os.environ.get("DP_BETA", "0"))
-        if targets is not None and _beta > 0:
-            c = targets.offset(prims.log_scales)
-            if c is not None:
-                self._dp_hist = getattr(self, "_dp_hist", []) + [c]
-                K = int(_os.environ.get("DP_K", "5"))
-                corr = _beta * float(np.median(self._dp_hist[-K:]))
-                prims = prims.with_log_scales(prims.log_scales + corr)
-                self._dp_hist = [h - corr for h in self._dp_hist]
         prims = apply_primitive_model(prims, cfg.primitive_model)
         keyframe = keyframe.rebuilt(prims, T_world)
         kf = MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._segment,
                  prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
-                                        cfg.scale_prior_weight, cfg.render_prior_weight),
-                 depth_targets=targets)
+                                        cfg.scale_prior_weight, cfg.render_prior_weight))
         self._kfs[k] = kf
         self._kf_order.append(k)
         self._live.append(k)
