@@ -181,3 +181,31 @@ def test_refine_with_planar_primitives(frames):
         ids = prims.primitive_ids
         rho = th[ids, 0] * x + th[ids, 1] * y + th[ids, 2]
         np.testing.assert_allclose(np.exp(-prims.scaled_log_depth()), rho, rtol=2e-3)
+
+
+@pytest.mark.slow
+def test_run_odometry_refine_reports_time_and_memory(frames, tmp_path):
+    """VORunConfig.refine: the runner refines after the last frame; report.json has
+    "refine" (seconds, costs, iterations) and the peak RSS before it."""
+    from spgeo.apps.vo_run import VORunConfig, run_odometry
+
+    cfg = VORunConfig(resolution=(160, 120), frontend="depth", progress=False, refine=True,
+                      odometry=OdometryConfig(window=2, kf_max_translation=0.02))
+    run = run_odometry(frames, cfg)
+    run.save(tmp_path / "out")
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert rep["refine"]["status"] == "ok" and rep["refine"]["seconds"] > 0
+    assert rep["refine"]["iterations"] >= 1
+    assert rep["run"]["memory"]["peak_rss_mb_before_refine"] > 0
+    assert rep["run_config"]["refine"] is True
+
+
+def test_cli_refine_flag_sets_the_run_config():
+    from spgeo.cli import build_parser
+    from spgeo.cli.vo import _run_config
+
+    parse = build_parser().parse_args
+    args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y", "--refine"])
+    assert _run_config(args).refine is True
+    args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y"])
+    assert _run_config(args).refine is False

@@ -31,9 +31,11 @@ constraints are not in the graph (a loop correction already moved the map).
 
 Memory: a segment's keyframes are restored from the
 :class:`~spgeo.vo.keyframe_store.KeyframeStore` (retired ones) and all their
-pyramids, points and factor groups live at once while the segment is
-optimised (peak: about one live window's keyframes times the segment's
-keyframe count over the window), then are dropped before the next segment.
+images, pyramids, points and factor groups live at once while the segment is
+optimised, then are dropped before the next segment: unlike the VO's memory,
+bounded by the window, the peak grows linearly with the number of keyframes
+of the largest segment (``run.memory`` of ``report.json`` has the peak RSS
+before and after the refinement).
 
 A gtsam ``RuntimeError`` (e.g. an indeterminant system) or non-finite
 estimate leaves the segment unchanged (``status`` ``"failed"``).

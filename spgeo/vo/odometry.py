@@ -333,6 +333,8 @@ class Odometry:
         after the last frame; tracking may go on (the window restarts at the
         next keyframe from the previous keyframe and the new one, as after a
         loop correction).  Its report is :meth:`report`'s ``"refine"``.
+        Memory: every keyframe of a segment is held at once while it is
+        optimised (:mod:`spgeo.vo.global_ba`), beyond the window's bound.
         Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
         res = refine_keyframes([self._kfs[k] for k in self._kf_order], self._store,
                                self.config, config)
