@@ -17,9 +17,10 @@ last ``window`` keyframes; a keyframe that leaves the window is final.
   values (default weight: the weak ``OdometryConfig.scale_prior_weight``;
   ``GlobalBAConfig.shape_prior_weight``);
 * gauge: the segment's first keyframe pose has a tight prior
-  (``mapping.GAUGE_SIGMA``) and the *scale gauge* fixes the distance between
-  the positions of the segment's first two keyframes at its current value
-  (:class:`_DistanceGauge`, sigma :data:`SCALE_GAUGE_SIGMA` in log units).
+  (``mapping.GAUGE_SIGMA``) and the *scale gauge* fixes the length of the
+  baseline between the segment's first two keyframes (its component along
+  the initial baseline direction, linear in the positions) at its current
+  value (:class:`_DistanceGauge`, relative sigma :data:`SCALE_GAUGE_SIGMA`).
   That pair is the segment's initialisation pair, which the VO creates only
   with parallax (:class:`spgeo.vo.initialisation.Initialiser`), so its
   distance is not degenerate; the gauge works for every primitive model.
@@ -63,9 +64,9 @@ __all__ = ["GlobalBAConfig", "GlobalBAResult", "refine_keyframes", "SCALE_GAUGE_
 
 log = logging.getLogger(__name__)
 
-#: sigma (log units) of the scale gauge: log of the distance between the segment's
-#: first two keyframe positions, relative to its value before the adjustment
-SCALE_GAUGE_SIGMA = 1e-4
+#: sigma of the scale gauge: the length of the baseline between the segment's first
+#: two keyframe positions (along its initial direction), relative to its initial length
+SCALE_GAUGE_SIGMA = 1e-3
 
 
 @dataclass(frozen=True)
@@ -146,25 +147,29 @@ class GlobalBAResult:
 
 
 class _DistanceGauge:
-    """Scale gauge: ``log |t_b - t_a| - log d0`` of two Pose3 keys (1 row)."""
+    """Scale gauge of two Pose3 keys (1 row): ``u0 . (t_b - t_a) / d0 - 1``,
+    the baseline's length along its initial direction ``u0`` relative to its
+    initial length ``d0`` (linear in the positions: no curvature when the
+    baseline turns, so a tight sigma keeps the system well conditioned)."""
 
-    def __init__(self, key_a: int, key_b: int, distance: float, sigma: float) -> None:
-        if not distance > 0:
+    def __init__(self, key_a: int, key_b: int, baseline: np.ndarray, sigma: float) -> None:
+        baseline = np.asarray(baseline, dtype=np.float64).reshape(3)
+        self.d0 = float(np.linalg.norm(baseline))
+        if not self.d0 > 1e-12:
             raise ValueError("scale gauge: the two keyframes are at the same position")
-        self.log_d0 = float(np.log(distance))
+        self.u0 = baseline / self.d0
         self.factor = gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(sigma)),
                                          [int(key_a), int(key_b)], self._error)
 
     def _error(self, this, values: gtsam.Values, H) -> np.ndarray:
         pa, pb = values.atPose3(this.keys()[0]), values.atPose3(this.keys()[1])
         d = np.asarray(pb.translation()) - np.asarray(pa.translation())
-        n = max(float(np.linalg.norm(d)), 1e-12)
         if H is not None:
             # retraction T Exp(omega, v): the position moves by R v to first order
-            u = d / n ** 2
+            u = self.u0 / self.d0
             H[0] = np.concatenate([np.zeros(3), -u @ pa.rotation().matrix()]).reshape(1, 6)
             H[1] = np.concatenate([np.zeros(3), u @ pb.rotation().matrix()]).reshape(1, 6)
-        return np.array([np.log(n) - self.log_d0])
+        return np.array([float(self.u0 @ d) / self.d0 - 1.0])
 
 
 def _restored(kf: MapKeyframe, store, levels: int) -> MapKeyframe:
@@ -180,9 +185,8 @@ def _build(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
     appended to ``groups``).  Raises ValueError when the first two keyframes
     share a position (no scale gauge)."""
     first = kfs[0]
-    d0 = float(np.linalg.norm(kfs[1].keyframe.T_world_kf[:3, 3]
-                              - first.keyframe.T_world_kf[:3, 3]))
-    gauge = _DistanceGauge(kf_pose_key(first.index), kf_pose_key(kfs[1].index), d0,
+    baseline = kfs[1].keyframe.T_world_kf[:3, 3] - first.keyframe.T_world_kf[:3, 3]
+    gauge = _DistanceGauge(kf_pose_key(first.index), kf_pose_key(kfs[1].index), baseline,
                            SCALE_GAUGE_SIGMA)
     batch = FactorBatch()
     w = config.scale_prior_weight if ba.shape_prior_weight is None else ba.shape_prior_weight
