@@ -132,6 +132,12 @@ class VORunConfig:
         blas_threads: BLAS threads while the run lasts (threadpoolctl; default
             1: the VO's matrices are small, and idle BLAS workers spinning on
             the other core slow the main thread); None leaves BLAS as it is.
+        refine: after the last frame (not after an interrupted run), the
+            global photometric bundle adjustment of all keyframes
+            (:meth:`spgeo.vo.Odometry.refine`, default
+            :class:`~spgeo.vo.global_ba.GlobalBAConfig`); its seconds and costs
+            are ``report.json``'s ``"refine"``, the peak RSS before it
+            ``run.memory.peak_rss_mb_before_refine`` (default False).
     """
 
     resolution: Optional[Tuple[int, int]] = None
@@ -144,6 +150,7 @@ class VORunConfig:
     normal_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
+    refine: bool = False
 
     def __post_init__(self) -> None:
         if self.resolution is not None:
@@ -398,12 +405,21 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
                 f"{loop.skipped[0].reason}"
                 if loop.skipped else "no frames (empty sequence or frame selection)")
         raise ValueError(f"run_odometry: {what}")
+    memory_before = None
+    if loop.config.refine and not interrupted:
+        memory_before = loop.memory.report()["peak_rss_mb"]
+        ba = loop.vo.refine()
+        log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
+                 ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost, %d skipped", n, wall,
              n / max(wall, 1e-9), loop.vo.n_keyframes, loop.counts["lost"], len(loop.skipped))
     return VORun(loop.vo, loop.gt, np.array(loop.stamps, dtype=np.float64), loop.names, wall,
                  n / max(wall, 1e-9), loop.config, interrupted,
-                 resolution=loop.cam.size, skipped=loop.skipped, memory=loop.memory.report())
+                 resolution=loop.cam.size, skipped=loop.skipped,
+                 memory={**loop.memory.report(),
+                         **({} if memory_before is None
+                            else {"peak_rss_mb_before_refine": memory_before})})
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,

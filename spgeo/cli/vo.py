@@ -4,7 +4,7 @@
              [--resolution WxH] [--strict] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
-             [--export-colmap DIR [--all-frames]]
+             [--export-colmap DIR [--all-frames]] [--refine]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -60,6 +60,8 @@ def _run_config(args: argparse.Namespace):
         explicit["progress"] = False
     if args.strict:
         explicit["strict"] = True
+    if args.refine:
+        explicit["refine"] = True
     if args.sam_family is not None:
         explicit["sam_family"] = args.sam_family
     if args.normal_model is not None:
@@ -143,6 +145,9 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--normal-model", default=None,
                    help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16); "
                         "onnx-depth: depth model (default depth-anything-v2-small)")
+    p.add_argument("--refine", action="store_true",
+                   help="after the last frame, a global photometric bundle adjustment of all "
+                        "keyframes (seconds and costs under \"refine\" in report.json)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_rerun_argument(p, "the frames, keyframe clouds and trajectories live")

@@ -20,7 +20,7 @@ from ..geometry import check_pose, invert_pose
 from .config import LoopClosureConfig
 from .database import Candidate, KeyframeDatabase
 from .pose_graph import PoseGraphResult, Sim3Edge, odometry_edges, optimise_sim3_pose_graph
-from .sim3 import sim3, sim3_parts
+from .sim3 import moved_frame, sim3, sim3_parts
 from .verify import KeyframeFeatures, count_inliers, extract_features, verify_sim3
 
 __all__ = ["LoopClosure", "LoopCorrection", "LoopCloser"]
@@ -72,8 +72,7 @@ class LoopCorrection:
         """Corrected rigid camera-to-world pose of a (non-key)frame anchored to keyframe
         ``kf_id``, from its old ``T_world_frame``: the frame moves with the keyframe's map
         (its offset from the keyframe grows by the keyframe's scale)."""
-        R, t, _ = sim3_parts(self.W_new_old[kf_id] @ check_pose(T_world_frame, "T_world_frame"))
-        return sim3(R, t)
+        return moved_frame(self.W_new_old[kf_id], check_pose(T_world_frame, "T_world_frame"))
 
 
 class LoopCloser:

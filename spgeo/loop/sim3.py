@@ -19,7 +19,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 __all__ = ["sim3", "sim3_parts", "sim3_inverse", "check_sim3", "to_gtsam", "from_gtsam",
-           "sim3_difference", "umeyama"]
+           "sim3_difference", "umeyama", "moved_frame"]
 
 
 def sim3(R: np.ndarray, t: np.ndarray, s: float = 1.0) -> np.ndarray:
@@ -77,6 +77,17 @@ def sim3_difference(S_a: np.ndarray, S_b: np.ndarray) -> Tuple[float, float, flo
     R, t, s = sim3_parts(sim3_inverse(S_a) @ S_b)
     angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
     return float(angle), float(np.linalg.norm(t)), float(abs(np.log(s)))
+
+
+def moved_frame(W_new_old: np.ndarray, T_world_frame: np.ndarray) -> np.ndarray:
+    """Rigid 4x4 camera-to-world pose of a frame anchored to a keyframe whose map
+    moved by the world similarity ``W_new_old`` (``S_world_kf(new) @
+    inv(T_world_kf(old))``, the keyframe's depth factor as its scale): the frame
+    moves with the keyframe's map, its offset from the keyframe multiplied by
+    the scale, its rotation turned as the keyframe's."""
+    R, t, _ = sim3_parts(np.asarray(W_new_old, dtype=np.float64)
+                         @ np.asarray(T_world_frame, dtype=np.float64))
+    return sim3(R, t)
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Optional[np.ndarray]:

@@ -61,7 +61,9 @@ from .config import PRIMITIVE_MODELS, OdometryConfig
 from .tracking import Keyframe
 
 __all__ = ["WindowMapper", "MapKeyframe", "SupportCandidate", "kf_pose_key", "kf_scale_key",
-           "kf_brightness_key", "support_pose_key", "apply_primitive_model"]
+           "kf_brightness_key", "support_pose_key", "apply_primitive_model", "FactorBatch",
+           "shape_values", "with_shape_values", "mapping_pixels", "pair_factor_group",
+           "add_keyframe_variables", "add_factor_group", "link_keyframe_pair"]
 
 log = logging.getLogger(__name__)
 
@@ -204,6 +206,22 @@ class MapKeyframe:
         prims = self.keyframe.primitives
         self.keyframe = self.keyframe.rebuilt(prims.with_log_scales(prims.log_scales + shift), T)
 
+    def replace_state(self, keyframe: Keyframe, store) -> None:
+        """Take the pose and primitives of ``keyframe`` (this keyframe rebuilt
+        with new shapes and pose, e.g. by the global bundle adjustment: same
+        image and primitive pixels).  A live keyframe keeps it as its
+        ``keyframe``; a retired one rewrites its primitives in ``store`` (a
+        :class:`~spgeo.vo.keyframe_store.KeyframeStore`; any loop-closure shift
+        is then part of them) and keeps the new pose and median depth."""
+        if self._final is None:
+            self.keyframe = keyframe
+            return
+        image, _ = store.get(self.index)
+        store.put(self.index, image, keyframe.primitives)
+        self._final = (np.array(keyframe.T_world_kf, dtype=float), float(keyframe.median_depth),
+                       self._final[2])
+        self._log_scale_shift = 0.0
+
 
 @dataclass
 class SupportCandidate:
@@ -214,6 +232,142 @@ class SupportCandidate:
     image: np.ndarray
     T_kf_frame: np.ndarray
     brightness: np.ndarray
+
+
+# ------------------------------------------------------------ shared graph building
+# The window smoother and the global bundle adjustment (spgeo.vo.global_ba) build
+# keyframe variables and photometric factor groups with these functions only.
+def shape_values(keyframe: Keyframe, primitive_model: str) -> np.ndarray:
+    """``(N, dim)`` shape variables of a keyframe's primitives: ``(N, 1)``
+    log-scales, or with ``primitive_model == "planar"`` the ``(N, 3)``
+    inverse-depth planes ``(a, b, c)`` of :meth:`PrimitiveSet.fit_planes`."""
+    prims = keyframe.primitives
+    if primitive_model == "planar":
+        return prims.fit_planes()
+    return prims.log_scales.reshape(-1, 1)
+
+
+def with_shape_values(keyframe: Keyframe, thetas: np.ndarray, primitive_model: str,
+                      T_world_kf: np.ndarray) -> Keyframe:
+    """The keyframe rebuilt at pose ``T_world_kf`` (4x4 camera-to-world) with
+    the shape variables ``thetas`` (as :func:`shape_values` returns them)."""
+    prims = keyframe.primitives
+    if primitive_model == "planar":
+        prims = prims.with_planes(thetas)[0]
+    else:
+        prims = prims.with_log_scales(np.asarray(thetas)[:, 0])
+    return keyframe.rebuilt(prims, T_world_kf)
+
+
+def mapping_pixels(config: OdometryConfig, ref: MapKeyframe):
+    """Mapping pixels of a (live) keyframe: ``(entries, compact ids, primitive
+    index, reference intensities)`` or None when no primitive has enough
+    pixels: the pixels of level ``map_level``; with ``map_pixel_fraction < 1``
+    its highest-gradient fraction (at least ``min_level_pixels`` per
+    primitive).  Cached in ``ref.map_pixels`` (mapping changes scales and pose,
+    never pixels or image)."""
+    cfg = config
+    if ref.map_pixels is not None:
+        return ref.map_pixels[0]
+    data = ref.keyframe.level_data(cfg.map_level, 1, cfg.tracker.min_level_pixels, None)
+    out = None
+    if data.prim_index.size:
+        entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
+        if cfg.map_pixel_fraction < 1.0:
+            # central differences, as the factors' bilinear image derivatives
+            img = ref.keyframe.pyramid.images[cfg.map_level].astype(np.float64)
+            gy, gx = np.gradient(img)
+            mag = np.hypot(gx, gy)
+            w = ref.keyframe.primitives.camera.width
+            stride = 2 ** cfg.map_level
+            pix = ref.keyframe.primitives.pixels[entries]
+            g = mag[(pix // w) // stride, (pix % w) // stride]
+            thr = np.quantile(g, 1.0 - cfg.map_pixel_fraction)
+            order = np.lexsort((-g, ids))                  # by primitive, strongest first
+            rank = np.empty(ids.size, dtype=np.int64)
+            starts = np.concatenate([[0], np.cumsum(np.bincount(ids))[:-1]])
+            rank[order] = np.arange(ids.size) - starts[ids[order]]
+            keep = (g >= thr) | (rank < cfg.tracker.min_level_pixels)
+            entries, ids, ref_int = entries[keep], ids[keep], ref_int[keep]
+        out = (entries, ids, data.prim_index, ref_int)
+    ref.map_pixels = (out,)
+    return out
+
+
+def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
+                      tgt_image: np.ndarray, tgt_camera: PinholeCamera,
+                      bkey: int) -> Optional[PhotometricFactorGroup]:
+    """The photometric factors of ``ref``'s primitives (its :func:`mapping_pixels`)
+    observed in a target: pose key ``tgt_key``, grey image ``tgt_image`` (H, W)
+    of camera ``tgt_camera`` (level ``map_level``), brightness key ``bkey``.
+    None when ``ref`` has no mapping pixel."""
+    sel = mapping_pixels(config, ref)
+    if sel is None:
+        return None
+    entries, ids, prim_index, ref_int = sel
+    prims = ref.keyframe.primitives
+    rays = prims.camera.rays().reshape(-1, 3)[prims.pixels[entries]]
+    shape = (PlanarShape(rays) if config.primitive_model == "planar"
+             else ScaledShape(rays, prims.log_depth[entries]))
+    counts = np.bincount(ids, minlength=prim_index.size)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    keys = [kf_scale_key(ref.index, i) for i in prim_index]
+    return PhotometricFactorGroup(kf_pose_key(ref.index), tgt_key, keys, shape, offsets,
+                                  ref_int, tgt_image, tgt_camera, bkey,
+                                  config.tracker.photometric, n_pixels=counts.astype(float),
+                                  chunk=max(1, config.map_chunk // shape.dim))
+
+
+def add_keyframe_variables(batch: "FactorBatch", kf: MapKeyframe, config: OdometryConfig,
+                           prior_weights: Optional[np.ndarray] = None) -> None:
+    """A (live) keyframe's pose and shape variables at their current values,
+    with the shapes' priors (weights ``prior_weights`` (N,), default
+    ``kf.prior_weights``, else ``scale_prior_weight``; planar: the slope prior
+    too); timestamps ``kf.index``."""
+    batch.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
+    th = shape_values(kf.keyframe, config.primitive_model)
+    pw = prior_weights if prior_weights is not None else kf.prior_weights
+    if pw is None:
+        pw = np.full(th.shape[0], config.scale_prior_weight)
+    for i in range(th.shape[0]):
+        key = kf_scale_key(kf.index, i)
+        batch.insert(key, th[i].copy(), kf.index)
+        if config.primitive_model == "planar":
+            batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
+                                               1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
+        else:
+            batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
+
+
+def add_factor_group(batch: "FactorBatch", group: Optional[PhotometricFactorGroup], bkey: int,
+                     b0, t: int, groups: List[PhotometricFactorGroup]) -> int:
+    """A factor group (None: nothing) with its brightness variable (initial
+    ``b0``, timestamp ``t``) and prior, appended to ``groups``; its factor count."""
+    if group is None:
+        return 0
+    for f in group.factors:
+        batch.graph.add(f)
+    groups.append(group)
+    batch.insert(bkey, np.asarray(b0, dtype=float), t)
+    batch.graph.add(brightness_prior(bkey, BRIGHTNESS_PRIOR_SIGMA))
+    return len(group)
+
+
+def link_keyframe_pair(batch: "FactorBatch", config: OdometryConfig, a: MapKeyframe,
+                       b: MapKeyframe, t: int, groups: List[PhotometricFactorGroup]) -> int:
+    """Photometric factors between two live keyframes in both directions (a's
+    primitives in b's image and b's in a's, level ``map_level``), each
+    direction with its brightness (:func:`kf_brightness_key`, initial 0,
+    timestamp ``t``); the groups go to ``groups``.  Returns the factor count."""
+    lvl = config.map_level
+    n = 0
+    for ref, tgt in ((a, b), (b, a)):
+        bkey = kf_brightness_key(ref.index, tgt.index)
+        g = pair_factor_group(config, ref, kf_pose_key(tgt.index),
+                              tgt.keyframe.pyramid.images[lvl],
+                              tgt.keyframe.pyramid.cameras[lvl], bkey)
+        n += add_factor_group(batch, g, bkey, np.zeros(2), t, groups)
+    return n
 
 
 class WindowMapper:
@@ -256,71 +410,14 @@ class WindowMapper:
         return self.smoother.calculateEstimate()
 
     # ------------------------------------------------------------ factors
-    @property
-    def _planar(self) -> bool:
-        return self.config.primitive_model == "planar"
-
-    def _shape_values(self, kf: MapKeyframe) -> np.ndarray:
-        """(N, dim) initial shape variables of a keyframe's primitives."""
-        prims = kf.keyframe.primitives
-        if self._planar:
-            return prims.fit_planes()
-        return prims.log_scales.reshape(-1, 1)
-
-    def _shape_model(self, prims: PrimitiveSet, entries: np.ndarray, rays: np.ndarray):
-        return PlanarShape(rays) if self._planar else ScaledShape(rays, prims.log_depth[entries])
-
     def _group(self, ref: MapKeyframe, tgt_key: int, tgt_image: np.ndarray,
                tgt_camera: PinholeCamera, bkey: int) -> Optional[PhotometricFactorGroup]:
-        """Photometric factors of ref's primitives observed in a target (map level)."""
-        cfg = self.config
-        sel = self._map_pixels(ref)
-        if sel is None:
-            return None
-        entries, ids, prim_index, ref_int = sel
-        prims = ref.keyframe.primitives
-        rays = prims.camera.rays().reshape(-1, 3)[prims.pixels[entries]]
-        shape = self._shape_model(prims, entries, rays)
-        counts = np.bincount(ids, minlength=prim_index.size)
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        keys = [kf_scale_key(ref.index, i) for i in prim_index]
-        return PhotometricFactorGroup(kf_pose_key(ref.index), tgt_key, keys, shape, offsets,
-                                      ref_int, tgt_image, tgt_camera, bkey,
-                                      cfg.tracker.photometric, n_pixels=counts.astype(float),
-                                      chunk=max(1, cfg.map_chunk // shape.dim))
+        """:func:`pair_factor_group` with this mapper's configuration."""
+        return pair_factor_group(self.config, ref, tgt_key, tgt_image, tgt_camera, bkey)
 
     def _map_pixels(self, ref: MapKeyframe):
-        """Mapping pixels of a keyframe: ``(entries, compact ids, primitive
-        index, reference intensities)``: the map level's pixels; with ``map_pixel_fraction < 1`` the
-        highest-gradient fraction of the map level's pixels (at least
-        ``min_level_pixels`` per primitive).  Cached per keyframe (mapping
-        changes its scales and pose, never its pixels or image)."""
-        cfg = self.config
-        if ref.map_pixels is not None:
-            return ref.map_pixels[0]
-        data = ref.keyframe.level_data(cfg.map_level, 1, cfg.tracker.min_level_pixels, None)
-        out = None
-        if data.prim_index.size:
-            entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
-            if cfg.map_pixel_fraction < 1.0:
-                # central differences, as the factors' bilinear image derivatives
-                img = ref.keyframe.pyramid.images[cfg.map_level].astype(np.float64)
-                gy, gx = np.gradient(img)
-                mag = np.hypot(gx, gy)
-                w = ref.keyframe.primitives.camera.width
-                stride = 2 ** cfg.map_level
-                pix = ref.keyframe.primitives.pixels[entries]
-                g = mag[(pix // w) // stride, (pix % w) // stride]
-                thr = np.quantile(g, 1.0 - cfg.map_pixel_fraction)
-                order = np.lexsort((-g, ids))                  # by primitive, strongest first
-                rank = np.empty(ids.size, dtype=np.int64)
-                starts = np.concatenate([[0], np.cumsum(np.bincount(ids))[:-1]])
-                rank[order] = np.arange(ids.size) - starts[ids[order]]
-                keep = (g >= thr) | (rank < cfg.tracker.min_level_pixels)
-                entries, ids, ref_int = entries[keep], ids[keep], ref_int[keep]
-            out = (entries, ids, data.prim_index, ref_int)
-        ref.map_pixels = (out,)
-        return out
+        """:func:`mapping_pixels` with this mapper's configuration."""
+        return mapping_pixels(self.config, ref)
 
     # ------------------------------------------------------------ update
     def map_keyframe(self, segment_kfs: Sequence[MapKeyframe],
@@ -369,7 +466,7 @@ class WindowMapper:
         """One smoother update with the newest keyframe ``kfs[-1]``; raises
         :class:`_UpdateFailed` when gtsam raises."""
         new, prev = kfs[-1], kfs[-2]
-        batch = _Batch()
+        batch = FactorBatch()
         if len(kfs) == 2:
             self._add_keyframe(batch, prev)
             batch.graph.add(pose_gauge_prior(kf_pose_key(prev.index), prev.keyframe.T_world_kf,
@@ -392,44 +489,18 @@ class WindowMapper:
                              "seconds": secs, "keys_in_window": int(est.size())})
         log.debug("mapping kf %d: %d + %d factors, %.2f s", new.index, n_pair, n_sup, secs)
 
-    def _add_keyframe(self, batch: "_Batch", kf: MapKeyframe) -> None:
+    def _add_keyframe(self, batch: "FactorBatch", kf: MapKeyframe) -> None:
         """A keyframe's pose and shape variables, with the shapes' priors."""
-        cfg = self.config
-        batch.insert(kf_pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
-        th = self._shape_values(kf)
-        pw = (np.full(th.shape[0], cfg.scale_prior_weight) if kf.prior_weights is None
-              else kf.prior_weights)
-        for i in range(th.shape[0]):
-            key = kf_scale_key(kf.index, i)
-            batch.insert(key, th[i].copy(), kf.index)
-            if self._planar:
-                batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
-                                                   1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
-            else:
-                batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
+        add_keyframe_variables(batch, kf, self.config)
 
-    def _add_group(self, batch: "_Batch", group: Optional[PhotometricFactorGroup], bkey: int,
-                   b0, t: int) -> int:
+    def _add_group(self, batch: "FactorBatch", group: Optional[PhotometricFactorGroup],
+                   bkey: int, b0, t: int) -> int:
         """A factor group with its brightness variable and prior; its factor count."""
-        if group is None:
-            return 0
-        for f in group.factors:
-            batch.graph.add(f)
-        self._groups.append(group)
-        batch.insert(bkey, np.asarray(b0, dtype=float), t)
-        batch.graph.add(brightness_prior(bkey, BRIGHTNESS_PRIOR_SIGMA))
-        return len(group)
+        return add_factor_group(batch, group, bkey, b0, t, self._groups)
 
-    def _link_keyframes(self, batch: "_Batch", prev: MapKeyframe, new: MapKeyframe) -> int:
+    def _link_keyframes(self, batch: "FactorBatch", prev: MapKeyframe, new: MapKeyframe) -> int:
         """Photometric factors of the new keyframe pair, both directions."""
-        lvl = self.config.map_level
-        n = 0
-        for ref, tgt in ((prev, new), (new, prev)):
-            bkey = kf_brightness_key(ref.index, tgt.index)
-            g = self._group(ref, kf_pose_key(tgt.index), tgt.keyframe.pyramid.images[lvl],
-                            tgt.keyframe.pyramid.cameras[lvl], bkey)
-            n += self._add_group(batch, g, bkey, np.zeros(2), new.index)
-        return n
+        return link_keyframe_pair(batch, self.config, prev, new, new.index, self._groups)
 
     def _choose_support(self, candidates: Sequence[SupportCandidate]) -> List[SupportCandidate]:
         """Supporting frames of the previous keyframe: evenly spaced among its tracked frames."""
@@ -440,7 +511,7 @@ class WindowMapper:
             return [candidates[i] for i in pick]
         return []
 
-    def _add_support(self, batch: "_Batch", prev: MapKeyframe,
+    def _add_support(self, batch: "FactorBatch", prev: MapKeyframe,
                      chosen: Sequence[SupportCandidate]) -> int:
         """The supporting frames' poses and their factors from ``prev``."""
         lvl = self.config.map_level
@@ -456,7 +527,7 @@ class WindowMapper:
             self._support_frames.append(c.frame)
         return n_sup
 
-    def _solve(self, batch: "_Batch"):
+    def _solve(self, batch: "FactorBatch"):
         """``(estimate, seconds)`` of the smoother update with ``batch``."""
         t = time.perf_counter()
         try:
@@ -478,12 +549,7 @@ class WindowMapper:
             if not (np.all(np.isfinite(T)) and np.all(np.isfinite(th))):
                 log.warning("mapping produced non-finite values for keyframe %d; kept", j)
                 continue
-            prims = kf.keyframe.primitives
-            if self._planar:
-                prims = prims.with_planes(th)[0]
-            else:
-                prims = prims.with_log_scales(th[:, 0])
-            kf.keyframe = kf.keyframe.rebuilt(prims, T)
+            kf.keyframe = with_shape_values(kf.keyframe, th, self.config.primitive_model, T)
         for f in self._support_frames[-(self.config.window + 1) * max(self.config.n_support, 1):]:
             key = support_pose_key(f)
             if est.exists(key):
@@ -492,8 +558,9 @@ class WindowMapper:
                     self.support_pose[f] = T
 
 
-class _Batch:
-    """The new factors, values and key timestamps of one smoother update."""
+class FactorBatch:
+    """New factors, values and key timestamps: of one smoother update, or (the
+    timestamps unused) a whole graph (:mod:`spgeo.vo.global_ba`)."""
 
     def __init__(self) -> None:
         self.graph = gtsam.NonlinearFactorGraph()

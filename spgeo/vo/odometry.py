@@ -33,14 +33,17 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
+from ..loop.sim3 import moved_frame, sim3
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
+from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
-from .mapping import MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model
+from .mapping import (MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model,
+                      with_shape_values)
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
@@ -105,6 +108,8 @@ class Odometry:
         self._scale_checks: List[dict] = []
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
+        self._refine_report: Optional[dict] = None      # the last refine()'s
+        self._restart_window = False                    # after refine(): like a loop
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -295,6 +300,7 @@ class Odometry:
             "scale_checks": self._scale_checks,
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
+            "refine": self._refine_report,
             "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
                         "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
                        for f in self._frames],
@@ -314,6 +320,57 @@ class Odometry:
         traj = self.result() if trajectory is None else trajectory
         return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
+
+    # ------------------------------------------------------------ global refinement
+    def refine(self, config: GlobalBAConfig = GlobalBAConfig()) -> GlobalBAResult:
+        """Global photometric bundle adjustment of every keyframe
+        (:func:`spgeo.vo.global_ba.refine_keyframes`), applied to the map: each
+        keyframe's pose and shapes (retired ones rewritten in the keyframe
+        store), and every other frame moves with its keyframe's correction (in
+        :meth:`result`: frames tracked against a keyframe through its pose and
+        median depth; supporting frames' smoothed poses by the keyframe's
+        similarity correction, :func:`spgeo.loop.sim3.moved_frame`).  Meant
+        after the last frame; tracking may go on (the window restarts at the
+        next keyframe from the previous keyframe and the new one, as after a
+        loop correction).  Its report is :meth:`report`'s ``"refine"``.
+        Memory: every keyframe of a segment is held at once while it is
+        optimised (:mod:`spgeo.vo.global_ba`), beyond the window's bound.
+        Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
+        res = refine_keyframes([self._kfs[k] for k in self._kf_order], self._store,
+                               self.config, config)
+        if res.T_world_kf:
+            self._apply_refinement(res)
+        self._refine_report = res.report()
+        return res
+
+    def _apply_refinement(self, res: GlobalBAResult) -> None:
+        """Move the keyframes of ``res`` and the frames anchored to them
+        (:meth:`refine`); the window restarts at the next keyframe."""
+        levels, W = self.config.keyframe_levels, {}
+        for k, T in res.T_world_kf.items():
+            mk = self._kfs[k]
+            T_old, med_old = mk.T_world_kf, mk.median_depth
+            kf = mk.restore(self._store, levels)[1]
+            mk.replace_state(with_shape_values(kf, res.shapes[k], self.config.primitive_model, T),
+                             self._store)
+            W[k] = sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
+        sup = self._mapper.support_pose
+        for f in list(sup):
+            k = self._rel[f][0] if f in self._rel else None
+            if k in W:
+                sup[f] = moved_frame(W[k], sup[f])
+        last = self._seg_kfs[-1] if self._seg_kfs else None
+        if last in W:
+            self._last_good = moved_frame(W[last], self._last_good)
+            if self._prev_good is not None:
+                self._prev_good = moved_frame(W[last], self._prev_good)
+            s = float(np.cbrt(np.linalg.det(W[last][:3, :3])))
+            for c in self._candidates:
+                c.T_kf_frame = c.T_kf_frame.copy()
+                c.T_kf_frame[:3, 3] *= s
+            self._restart_window = True
+        if self._loops is not None:
+            self._loops.update_poses({j: self._kfs[j].T_world_kf for j in self._live})
 
     # ------------------------------------------------------------ stages
     def _primify(self, frame: Frame) -> PrimitiveSet:
@@ -565,7 +622,8 @@ class Odometry:
         t = time.perf_counter()
         # the mapper reads at most the window and the keyframe leaving it
         segment_kfs = [self._kfs[j] for j in self._seg_kfs[-(self.config.window + 1):]]
-        if closed:
+        if closed or self._restart_window:
+            self._restart_window = False
             self._mapper.reset()
             segment_kfs = segment_kfs[-2:]
         if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
