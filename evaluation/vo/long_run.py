@@ -198,6 +198,9 @@ SEQUENCES: Dict[str, LongRunSequence] = {
 VARIANTS: Dict[str, Mapping[str, Any]] = {
     "default": {},
     "loops": {"odometry.loop_closure.enabled": True},
+    "refine": {"refine": True},
+    "refine-held": {"refine": True, "refinement.shape_prior_weight": 1e-2},
+    "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
 }
 
 

@@ -53,6 +53,7 @@ from ..frame import Frame
 from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, FrontEndConfig, PrimitiveFrontEnd,
                         make_frontend)
 from ..vo import Odometry, OdometryConfig
+from ..vo.global_ba import GlobalBAConfig
 from ..validation import MAX_IMAGE_SIDE, FrameReadError, InputError
 from .memory import RssCheckpoints
 from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
@@ -134,10 +135,10 @@ class VORunConfig:
             the other core slow the main thread); None leaves BLAS as it is.
         refine: after the last frame (not after an interrupted run), the
             global photometric bundle adjustment of all keyframes
-            (:meth:`spgeo.vo.Odometry.refine`, default
-            :class:`~spgeo.vo.global_ba.GlobalBAConfig`); its seconds and costs
-            are ``report.json``'s ``"refine"``, the peak RSS before it
-            ``run.memory.peak_rss_mb_before_refine`` (default False).
+            (:meth:`spgeo.vo.Odometry.refine` with ``refinement``); its seconds
+            and costs are ``report.json``'s ``"refine"``, the peak RSS before
+            it ``run.memory.peak_rss_mb_before_refine`` (default False).
+        refinement: :class:`~spgeo.vo.global_ba.GlobalBAConfig` of ``refine``.
     """
 
     resolution: Optional[Tuple[int, int]] = None
@@ -151,6 +152,7 @@ class VORunConfig:
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
     refine: bool = False
+    refinement: GlobalBAConfig = field(default_factory=GlobalBAConfig)
 
     def __post_init__(self) -> None:
         if self.resolution is not None:
@@ -408,7 +410,7 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
     memory_before = None
     if loop.config.refine and not interrupted:
         memory_before = loop.memory.report()["peak_rss_mb"]
-        ba = loop.vo.refine()
+        ba = loop.vo.refine(loop.config.refinement)
         log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
                  ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)

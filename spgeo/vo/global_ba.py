@@ -53,6 +53,7 @@ import numpy as np
 
 import gtsam
 
+from ..configs import config_repr
 from ..factors.photometric_group import release_groups
 from ..factors.priors import pose_gauge_prior
 from ..sfm.graph import gtsam_error_line
@@ -69,6 +70,7 @@ log = logging.getLogger(__name__)
 SCALE_GAUGE_SIGMA = 1e-3
 
 
+@config_repr
 @dataclass(frozen=True)
 class GlobalBAConfig:
     """Options of :func:`refine_keyframes`.
