@@ -10,6 +10,7 @@ import pytest
 
 pycolmap = pytest.importorskip("pycolmap")
 
+from spgeo.vo import OdometryConfig
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.frontend import FrontEndConfig, make_frontend  # noqa: E402
@@ -27,7 +28,7 @@ def vo_run():
     scene = synthetic.SyntheticScene.generate(0)
     frames = synthetic.render_frames(scene, CAM, synthetic.make_trajectory(40, 0)[::2],
                                      supersample=2)
-    run = run_odometry(frames, VORunConfig(resolution=(160, 120), frontend="depth",
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)), frontend="depth",
                                            progress=False))
     return run, frames
 

@@ -192,8 +192,9 @@ def test_run_odometry_refine_reports_time_and_memory(frames, tmp_path):
     "refine" (seconds, costs, iterations) and the peak RSS before it."""
     from spgeo.apps.vo_run import VORunConfig, run_odometry
 
-    cfg = VORunConfig(resolution=(160, 120), frontend="depth", progress=False, refine=True,
-                      odometry=OdometryConfig(window=2, kf_max_translation=0.02))
+    cfg = VORunConfig(frontend="depth", progress=False, refine=True,
+                      odometry=OdometryConfig(resolution=(160, 120), window=2,
+                                              kf_max_translation=0.02))
     run = run_odometry(frames, cfg)
     run.save(tmp_path / "out")
     rep = json.loads((tmp_path / "out" / "report.json").read_text())

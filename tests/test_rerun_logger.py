@@ -11,6 +11,7 @@ import pytest
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
+from spgeo.vo import OdometryConfig
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.cli import main  # noqa: E402
@@ -34,7 +35,7 @@ def logged(tmp_path_factory):
             online.append(np.array(result.T_world_cam, dtype=float))
             viewer.on_frame(frame, result, odometry)
 
-        run = run_odometry(frames, VORunConfig(resolution=(160, 120), frontend="depth",
+        run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)), frontend="depth",
                                                progress=False), on_frame=hook)
         viewer.finish(run.odometry)
     rows = {}
@@ -147,7 +148,7 @@ def test_rerun_is_not_imported_without_the_option():
         cam = synthetic.default_camera(64, 48)
         scene = synthetic.SyntheticScene.generate(0)
         frames = synthetic.render_frames(scene, cam, synthetic.make_trajectory(3, 0))
-        run = run_odometry(frames, VORunConfig(resolution=(64, 48), frontend="depth",
+        run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(64, 48)), frontend="depth",
                                                progress=False))
         build_parser().parse_args(["vo", "--dataset", "7scenes", "x", "--out", "y"])
         assert run.n_frames == 3

@@ -8,6 +8,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
+from spgeo.vo import OdometryConfig
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.trajectory_plots import (ERROR_NAME, TOPVIEW_NAME,  # noqa: E402
                                          write_reconstruction_topview, write_trajectory_plots)
@@ -78,7 +79,7 @@ def test_vo_run_save_writes_the_plots(tmp_path):
     cam = synthetic.default_camera(80, 60)
     frames = synthetic.render_frames(synthetic.SyntheticScene.generate(0), cam,
                                      synthetic.make_trajectory(12, 0)[::2])
-    run = run_odometry(frames, VORunConfig(resolution=(80, 60), frontend="depth",
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(80, 60)), frontend="depth",
                                            progress=False))
     ate = run.ate()
     paths = run.save(tmp_path / "run", ate=ate)
@@ -88,6 +89,6 @@ def test_vo_run_save_writes_the_plots(tmp_path):
     # no ground truth: no plots
     for f in frames:
         f.T_world_cam = None
-    paths = run_odometry(frames, VORunConfig(resolution=(80, 60), frontend="depth",
+    paths = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(80, 60)), frontend="depth",
                                              progress=False)).save(tmp_path / "nogt")
     assert "plot_topview" not in paths and not (tmp_path / "nogt" / TOPVIEW_NAME).exists()

@@ -13,6 +13,7 @@ from spgeo.cli import main
 from spgeo.evaluation.trajectory import read_status, read_tum
 from spgeo.frame import Frame
 from spgeo.apps.vo_run import VORunConfig, run_dataset, run_odometry
+from spgeo.vo import OdometryConfig
 from spgeo.apps.args import parse_resolution
 
 N = 20
@@ -173,7 +174,7 @@ def test_parse_resolution():
         with pytest.raises(ValueError):
             parse_resolution(bad)
     with pytest.raises(ValueError):
-        VORunConfig(resolution=(0, 120))
+        OdometryConfig(resolution=(0, 120))
     # the shared parser behind it: 'native' and the minimum size are the caller's choice
     from spgeo.apps.args import parse_resolution as parse_any
     assert parse_any("native", allow_native=True) is None
@@ -206,7 +207,7 @@ class _NoDepthFrame:
 def test_run_odometry_library(frames):
     """Library runner: monocular never reads Frame.depth; ground truth kept per
     frame; the image is resized to the requested resolution."""
-    cfg = VORunConfig(resolution=(80, 60), progress=False)
+    cfg = VORunConfig(odometry=OdometryConfig(resolution=(80, 60)), progress=False)
     run = run_odometry((_NoDepthFrame(f) for f in frames[:4]), cfg)
     assert run.n_frames == 4 and len(run.gt_poses) == 4
     np.testing.assert_allclose(run.gt_poses[2], frames[2].T_world_cam)
@@ -263,6 +264,6 @@ def test_cli_report_has_effective_config(depth_run):
     rep = json.loads((out / "report.json").read_text())
     assert rep["config"]["window"] == OdometryConfig().window
     assert rep["run_config"]["frontend"] == "depth"
-    # no --resolution: the run config keeps None (the rule), the run reports the size used
-    assert rep["run_config"]["resolution"] is None and "odometry" not in rep["run_config"]
+    # no --resolution: the config keeps None (the rule), the run reports the size used
+    assert rep["config"]["resolution"] is None and "odometry" not in rep["run_config"]
     assert rep["run"]["resolution"] == [320, 240]

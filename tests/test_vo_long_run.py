@@ -17,7 +17,7 @@ def test_registered_and_variants_make_configs():
     assert run_config("7scenes", "default").odometry.loop_closure.enabled is False
     cfg = run_config("synthetic-loop", "loops")
     assert cfg.odometry.loop_closure.enabled is True
-    assert cfg.resolution == (160, 120) and cfg.progress is False
+    assert cfg.odometry.resolution == (160, 120) and cfg.progress is False
     assert set(VARIANTS) >= {"default", "loops"}
 
 

@@ -1,6 +1,6 @@
 """Robust recordings (issue 23): an unreadable frame is skipped, not fatal
 (``--strict`` keeps the abort), and the default processing size keeps the
-input's aspect ratio (:func:`spgeo.apps.vo_run.processing_size`).
+input's aspect ratio (:func:`spgeo.vo.processing.processing_size`).
 
 Small synthetic sequences: a 7-Scenes-style folder (640x480 PNGs, depth, poses)
 and a plain folder of 2:1 images with ``camera.json`` and ``depth/*.npy``."""
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from spgeo import synthetic
-from spgeo.apps.vo_run import (DEFAULT_TARGET_PIXELS, SIZE_MULTIPLE, VORunConfig,
-                               processing_size, run_dataset, run_odometry)
+from spgeo.apps.vo_run import VORunConfig, run_dataset, run_odometry
+from spgeo.vo import OdometryConfig
+from spgeo.vo.processing import DEFAULT_TARGET_PIXELS, SIZE_MULTIPLE, processing_size
 from spgeo.camera import PinholeCamera
 from spgeo.cli import main
 from spgeo.datasets import open_dataset
@@ -74,8 +75,10 @@ def _vo(folder, out, *extra):
 # ------------------------------------------------------------ resolution rule
 def test_processing_size_rule():
     assert DEFAULT_TARGET_PIXELS == 320 * 240
-    for size in ((640, 480), (1280, 960), (160, 120), (320, 240)):
+    for size in ((640, 480), (1280, 960), (320, 240)):
         assert processing_size(size) == (320, 240)
+    for size in ((160, 120), (320, 160), (37, 21)):        # not upsampled
+        assert processing_size(size) == size
     for size in ((1241, 376), (640, 320), (1920, 1080), (480, 640)):
         w, h = processing_size(size)
         assert w % SIZE_MULTIPLE == 0 and h % SIZE_MULTIPLE == 0
@@ -90,14 +93,15 @@ def test_processing_size_rule():
 def test_explicit_resolution_wins_and_compare_follows_the_rule():
     from spgeo.evaluation.vo.compare import DEFAULT_RESOLUTION, VOCompareConfig, compare_size
 
-    assert VORunConfig().resolution is None
-    assert VORunConfig().size_for((1241, 376)) == processing_size((1241, 376))
-    assert VORunConfig(resolution=(160, 120)).size_for((1241, 376)) == (160, 120)
-    assert VORunConfig(target_pixels=160 * 120).size_for((640, 480)) == (160, 120)
+    assert OdometryConfig().resolution is None
+    assert OdometryConfig().processing_size_for((1241, 376)) == processing_size((1241, 376))
+    assert OdometryConfig(resolution=(160, 120)).processing_size_for((1241, 376)) == (160, 120)
+    assert OdometryConfig(target_pixels=160 * 120).processing_size_for((640, 480)) == (160, 120)
     with pytest.raises(InputError):
-        VORunConfig(target_pixels=0)
+        OdometryConfig(target_pixels=0)
     assert VOCompareConfig().resolution == DEFAULT_RESOLUTION
-    assert compare_size(DEFAULT_RESOLUTION, (1241, 376)) == VORunConfig().size_for((1241, 376))
+    assert (compare_size(DEFAULT_RESOLUTION, (1241, 376))
+            == OdometryConfig().processing_size_for((1241, 376)))
     assert compare_size(None, (1241, 376)) is None
     assert compare_size((64, 48), (1241, 376)) == (64, 48)
 
@@ -126,7 +130,7 @@ def test_non_4_3_folder_keeps_the_aspect_ratio(tmp_path):
     report = json.loads((out / "report.json").read_text())
     w, h = report["run"]["resolution"]
     assert (w, h) == processing_size((320, 160))
-    assert abs((w / h) / 2.0 - 1) < 0.03 and report["run_config"]["resolution"] is None
+    assert abs((w / h) / 2.0 - 1) < 0.03 and report["config"]["resolution"] is None
     assert report["run"]["n_frames"] == 8 and report["run"]["n_skipped"] == 0
 
 

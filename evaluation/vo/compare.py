@@ -3,7 +3,7 @@ feature baseline and the COLMAP reference, with Sim(3)-aligned ATE.
 
 :func:`compare_vo` resizes the frames once (``cv2.INTER_AREA``, by default to
 the processing size ``spgeo vo`` would choose, :data:`DEFAULT_RESOLUTION`
-``"auto"``: :meth:`spgeo.apps.vo_run.VORunConfig.size_for`, 320x240 for 4:3
+``"auto"``: :meth:`spgeo.vo.OdometryConfig.processing_size_for`, 320x240 for 4:3
 input, the input's aspect ratio otherwise; depth with nearest
 neighbour, only kept for an oracle method) and runs every requested method on
 exactly those frames:
@@ -52,7 +52,8 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 from tqdm import tqdm
 
-from spgeo.apps.vo_run import VORunConfig
+
+from spgeo.vo import OdometryConfig
 from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
                              setup_logging)
 from spgeo.frame import Frame, resize_frame
@@ -82,8 +83,8 @@ METHOD_LABELS = {
 #: Methods that read the sensor depth (not monocular: oracle).
 ORACLE_METHODS = ("spgeo-depth",)
 #: ``resolution`` value meaning "the processing size ``spgeo vo`` chooses for
-#: these frames" (:meth:`spgeo.apps.vo_run.VORunConfig.size_for` of the default
-#: :class:`~spgeo.apps.vo_run.VORunConfig`, the one rule of both tools).
+#: these frames" (:meth:`spgeo.vo.OdometryConfig.processing_size_for` of the
+#: default :class:`~spgeo.vo.OdometryConfig`, the one rule of both tools).
 AUTO_RESOLUTION = "auto"
 #: What every method sees by default: :data:`AUTO_RESOLUTION`.
 DEFAULT_RESOLUTION = AUTO_RESOLUTION
@@ -98,7 +99,7 @@ def compare_size(resolution: Union[None, str, Tuple[int, int]],
         if resolution != AUTO_RESOLUTION:
             raise ValueError(f"resolution must be (width, height), None or "
                              f"{AUTO_RESOLUTION!r}, got {resolution!r}")
-        return VORunConfig().size_for(tuple(input_size))
+        return OdometryConfig().processing_size_for(tuple(input_size))
     return None if resolution is None else (int(resolution[0]), int(resolution[1]))
 
 

@@ -168,8 +168,8 @@ def run_cell(cell: Cell) -> Dict[str, object]:
         from spgeo.apps.vo_run import VORunConfig, run_dataset
 
         run = run_dataset("7scenes", cell.path, f"0:{cell.frames}",
-                          VORunConfig(resolution=cell.resolution, frontend=cell.frontend,
-                                      odometry=cfg, progress=False))
+                          VORunConfig(frontend=cell.frontend, progress=False,
+                                      odometry=dataclasses.replace(cfg, resolution=cell.resolution)))
         ate = run.ate() or {}
         ates = {lab: None if a is None else {"rmse_m": a.rmse, "percent": a.rmse_percent_of_length}
                 for lab, a in ate.items()}

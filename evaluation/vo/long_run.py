@@ -191,7 +191,7 @@ SEQUENCES: Dict[str, LongRunSequence] = {
     "kitti": LongRunSequence(_kitti),
     "synthetic-loop": LongRunSequence(
         _synthetic_loop, loop=True,
-        overrides={"resolution": SYNTHETIC_LOOP["size"], "odometry.kf_max_translation": 0.03}),
+        overrides={"odometry.resolution": SYNTHETIC_LOOP["size"], "odometry.kf_max_translation": 0.03}),
 }
 
 #: ``--variants`` name -> :class:`~spgeo.apps.vo_run.VORunConfig` overrides (dotted names).

@@ -95,7 +95,7 @@ def measure(frames, n_frames: int, every: int = 300, frontend: str = "classical"
 
     cfg = VORunConfig(frontend=frontend, progress=False)
     if size is not None:
-        cfg = replace(cfg, resolution=tuple(int(v) for v in size))
+        cfg = replace(cfg, odometry=replace(cfg.odometry, resolution=tuple(int(v) for v in size)))
     run_odometry(frames, cfg, n_frames=n_frames, on_frame=hook)
     return rows
 

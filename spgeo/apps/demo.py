@@ -402,10 +402,11 @@ def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
             out_root: Path) -> VORow:
     """One :func:`spgeo.apps.vo_run.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
     from ..io.tum import write_tum
+    from ..vo import OdometryConfig
     from .vo_run import VORunConfig, run_odometry
 
-    run = run_odometry(frames, VORunConfig(resolution=tuple(config.vo_size), frontend=frontend,
-                                           progress=False))
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=tuple(config.vo_size)),
+                                           frontend=frontend, progress=False))
     res = run.result()
     good = np.array([s != "lost" for s in res.statuses])
     ate = run.ate()

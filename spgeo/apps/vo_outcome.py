@@ -75,8 +75,8 @@ class VORun:
         interrupted: the run was stopped by Ctrl-C (``KeyboardInterrupt``)
             between or during frames; it holds the frames processed before.
         resolution: the processing ``(width, height)`` the VO saw
-            (:meth:`VORunConfig.size_for`; None only for a hand-made VORun:
-            ``config.resolution``).
+            (:meth:`spgeo.vo.OdometryConfig.processing_size_for`; None only
+            for a hand-made VORun: ``config.odometry.resolution``).
         skipped: the frames skipped as unreadable, in input order; they are
             not among the processed frames above (no pose, no ATE).
         memory: resident memory of the run
@@ -112,8 +112,9 @@ class VORun:
 
     @property
     def processing_size(self) -> Tuple[int, int]:
-        """``(width, height)`` the VO saw: :attr:`resolution`, else ``config.resolution``."""
-        size = self.resolution if self.resolution is not None else self.config.resolution
+        """``(width, height)`` the VO saw: :attr:`resolution`, else
+        ``config.odometry.resolution``."""
+        size = self.resolution if self.resolution is not None else self.config.odometry.resolution
         return (int(size[0]), int(size[1]))
 
     def trajectory(self) -> Trajectory:

@@ -3,11 +3,11 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth
 (an application: the ATE comes from :mod:`spgeo.evaluation.trajectory`).
 
 * :func:`run_odometry`: frames (any iterable of :class:`~spgeo.frame.Frame`)
-  -> :class:`VORun`.  Every image is resized to the processing size
-  (:meth:`VORunConfig.size_for` of the first frame's size: ``resolution`` when
-  set, else about ``target_pixels`` pixels with the input's aspect ratio,
-  :func:`processing_size`; ``cv2.INTER_AREA``, the camera with
-  :meth:`PinholeCamera.resized`); the
+  -> :class:`VORun`.  Every image is resized to the VO's processing size
+  (:meth:`spgeo.vo.OdometryConfig.processing_size_for` of the first frame's
+  size: ``odometry.resolution`` when set, else about ``odometry.target_pixels``
+  pixels with the input's aspect ratio, :mod:`spgeo.vo.processing`, as
+  :class:`spgeo.vo.Odometry` does with full-size frames); the
   depth map is resized (``cv2.INTER_NEAREST``) and passed on **only** when the
   front-end uses depth (``frontend.uses_depth``): with a monocular front-end
   the runner never touches ``Frame.depth``.  A frame of a random-access
@@ -53,14 +53,14 @@ from ..frame import Frame
 from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, FrontEndConfig, PrimitiveFrontEnd,
                         make_frontend)
 from ..vo import Odometry, OdometryConfig
+from ..vo.processing import resize_for_vo
 from ..vo.global_ba import GlobalBAConfig
-from ..validation import MAX_IMAGE_SIDE, FrameReadError, InputError
+from ..validation import FrameReadError
 from .memory import RssCheckpoints
 from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
 
 __all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset", "run_vo",
-           "make_vo_frontend", "blas_threads", "processing_size", "DEFAULT_TARGET_PIXELS",
-           "SIZE_MULTIPLE", "ATE_LABELS"]
+           "make_vo_frontend", "blas_threads", "ATE_LABELS"]
 
 log = logging.getLogger(__name__)
 
@@ -73,43 +73,12 @@ FrameHook = Callable[[Frame, Any, Any], None]
 
 
 
-#: Default processing area in pixels (:attr:`VORunConfig.target_pixels`): that of 320x240.
-DEFAULT_TARGET_PIXELS = 320 * 240
-#: Processing widths and heights of :func:`processing_size` are multiples of this
-#: (the keyframe pyramid halves the image twice and stays on whole pixels).
-SIZE_MULTIPLE = 8
-
-
-def processing_size(input_size: Tuple[int, int], target_pixels: int = DEFAULT_TARGET_PIXELS,
-                    multiple: int = SIZE_MULTIPLE) -> Tuple[int, int]:
-    """The default processing ``(width, height)`` for an input of ``input_size``
-    ``(width, height)`` pixels: about ``target_pixels`` pixels with the input's
-    aspect ratio, i.e. ``sqrt(target_pixels * W / H)`` by ``sqrt(target_pixels * H / W)``,
-    each rounded to the nearest multiple of ``multiple`` (at least ``multiple``).
-    A 4:3 input with the default target gives exactly 320x240, whatever its size.
-    The size may exceed the input's (small inputs are upsampled).  Raises
-    :class:`~spgeo.validation.InputError` for non-positive sizes or target."""
-    w, h = (int(v) for v in input_size)
-    if w <= 0 or h <= 0 or int(target_pixels) <= 0 or int(multiple) <= 0:
-        raise InputError(f"processing_size: input size {input_size!r}, target_pixels "
-                         f"{target_pixels!r} and multiple {multiple!r} must be positive")
-    m = int(multiple)
-    out = [max(m, int(round(np.sqrt(target_pixels * a / b) / m)) * m) for a, b in ((w, h), (h, w))]
-    return min(out[0], MAX_IMAGE_SIDE), min(out[1], MAX_IMAGE_SIDE)
-
-
 @config_repr
 @dataclass(frozen=True)
 class VORunConfig:
     """Options of :func:`run_odometry` / :func:`run_dataset`.
 
     Attributes:
-        resolution: ``(width, height)`` in pixels the frames are resized to
-            before the VO sees them, also the front-end's working size; default
-            None: :func:`processing_size` of the first frame's size with
-            ``target_pixels`` (the input's aspect ratio kept; 4:3 gives 320x240).
-        target_pixels: processing area in pixels when ``resolution`` is None
-            (default :data:`DEFAULT_TARGET_PIXELS`, that of 320x240).
         strict: abort on a frame whose file cannot be read
             (:class:`~spgeo.validation.FrameReadError` propagates); default False:
             such a frame is skipped with a warning naming the file, marked
@@ -141,8 +110,6 @@ class VORunConfig:
         refinement: :class:`~spgeo.vo.global_ba.GlobalBAConfig` of ``refine``.
     """
 
-    resolution: Optional[Tuple[int, int]] = None
-    target_pixels: int = DEFAULT_TARGET_PIXELS
     strict: bool = False
     frontend: str = "classical"
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
@@ -155,18 +122,6 @@ class VORunConfig:
     refinement: GlobalBAConfig = field(default_factory=GlobalBAConfig)
 
     def __post_init__(self) -> None:
-        if self.resolution is not None:
-            res = tuple(self.resolution)
-            if len(res) != 2 or not all(isinstance(v, (int, np.integer))
-                                        and 0 < v <= MAX_IMAGE_SIDE for v in res):
-                raise InputError(f"VORunConfig.resolution must be None or (width, height) "
-                                 f"integers in [1, {MAX_IMAGE_SIDE}] pixels, got "
-                                 f"{self.resolution!r}")
-            object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
-        tp = self.target_pixels
-        if isinstance(tp, bool) or not isinstance(tp, (int, np.integer)) or not 64 <= tp <= 2 ** 26:
-            raise InputError(f"VORunConfig.target_pixels must be an integer in [64, 2**26], "
-                             f"got {tp!r}")
         if self.frontend not in FRONTENDS:
             raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
                              f"got {self.frontend!r}")
@@ -175,18 +130,12 @@ class VORunConfig:
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
 
-    def size_for(self, input_size: Tuple[int, int]) -> Tuple[int, int]:
-        """The processing ``(width, height)`` for frames of ``input_size``:
-        ``resolution`` when set, else :func:`processing_size` with ``target_pixels``."""
-        if self.resolution is not None:
-            return self.resolution
-        return processing_size(input_size, self.target_pixels)
-
 
 def make_vo_frontend(config: VORunConfig = VORunConfig(),
                      size: Optional[Tuple[int, int]] = None) -> PrimitiveFrontEnd:
     """The front-end named by ``config.frontend`` with working size ``size``
-    (default ``config.resolution``; None when both are None: the frames' size).
+    (default ``config.odometry.resolution``; None when both are None: the
+    frames' size).
 
     ``onnx`` and ``onnx-depth`` raise ``FileNotFoundError`` when their models are
     not in the cache (``sam_family`` / ``normal_model`` name them; for
@@ -196,35 +145,9 @@ def make_vo_frontend(config: VORunConfig = VORunConfig(),
     if config.frontend in ("onnx", "onnx-depth"):
         sam = {"family": config.sam_family} if config.sam_family else None
         normals = {"name_or_path": config.normal_model} if config.normal_model else None
-    size = config.resolution if size is None else tuple(size)
+    size = config.odometry.resolution if size is None else tuple(size)
     return make_frontend(config.frontend, FrontEndConfig(working_size=size),
                          sam=sam, normals=normals)
-
-
-def _resize_frame(frame: Frame, camera, size: Tuple[int, int], use_depth: bool,
-                  index: int) -> Frame:
-    """``frame`` resized to ``size`` for the VO (not :func:`spgeo.frame.resize_frame`:
-    no undistortion, ``camera`` given, no ground truth or meta, depth only with
-    ``use_depth`` and a ``ValueError`` naming the frame when it is missing)."""
-    import cv2
-
-    image = np.asarray(frame.image)
-    if image.dtype != np.float32:
-        from ..images import to_float_image
-
-        image = to_float_image(image)
-    if (image.shape[1], image.shape[0]) != tuple(size):
-        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    depth = None
-    if use_depth:
-        if frame.depth is None:
-            raise ValueError(f"frame {index} ({frame.name!r}) has no depth but the front-end "
-                             "uses depth (open the data set with depth, or use a monocular "
-                             "front-end)")
-        depth = np.asarray(frame.depth, dtype=np.float32)
-        if (depth.shape[1], depth.shape[0]) != tuple(size):
-            depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
-    return Frame(image, camera, float(frame.timestamp), depth, None, frame.name)
 
 
 def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
@@ -241,7 +164,7 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
         config: :class:`VORunConfig`.
         frontend: an already-built front-end (overrides ``config.frontend``;
             its working size should be the processing size,
-            :meth:`VORunConfig.size_for`).
+            :meth:`spgeo.vo.OdometryConfig.processing_size_for`).
         n_frames: total for the progress bar (default ``len(frames)`` when
             available).
         on_frame: optional hook called after every tracked frame as
@@ -328,22 +251,22 @@ class _Loop:
 
     def _open(self, camera: PinholeCamera) -> None:
         """The processing size, front-end and :class:`Odometry` from the first frame's camera."""
-        size = self.config.size_for(camera.size)
+        size = self.config.odometry.processing_size_for(camera.size)
         fe = self.frontend if self.frontend is not None else make_vo_frontend(self.config, size)
-        self.cam_in, self.cam = camera, camera.resized(*size)
         ain, aout = camera.width / camera.height, size[0] / size[1]
         if abs(ain / aout - 1.0) > 0.01:
             log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
                         "(fx and fy scale differently)", size[0], size[1],
                         camera.width, camera.height)
-        self.vo = Odometry(self.cam, self.config.odometry, fe)
+        self.vo = Odometry(camera, self.config.odometry, fe)
+        self.cam_in, self.cam = camera, self.vo.camera
 
     def step(self, i: int, f: Frame):
         """Track frame ``i``; returns its :class:`~spgeo.vo.result.FrameResult`."""
         if self.vo is None:
             self._open(f.camera)
         ts = _checked_stamp(i, f, self.cam_in, self.stamps)
-        small = _resize_frame(f, self.cam, self.cam.size, bool(self.vo.frontend.uses_depth), i)
+        small = resize_for_vo(f, self.cam, bool(self.vo.frontend.uses_depth), i)
         r = self.vo.track(small)
         self.gt.append(None if f.T_world_cam is None
                        else np.asarray(f.T_world_cam, dtype=np.float64).copy())
@@ -453,7 +376,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     if len(seq) == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
     log.info("VO on %s (%s): %d frames, camera %r, processing size %s", seq.name, kind,
-             len(seq), seq.camera, config.size_for(seq.camera.size))
+             len(seq), seq.camera, config.odometry.processing_size_for(seq.camera.size))
     return run_odometry(seq, config, frontend, n_frames=len(seq), on_frame=on_frame)
 
 
@@ -461,12 +384,14 @@ def run_vo(frames: Iterable[Frame], resolution: Optional[Tuple[int, int]] = None
            frontend: str = "classical", config: OdometryConfig = OdometryConfig(),
            progress: bool = True) -> Tuple[Odometry, List[Optional[np.ndarray]], float]:
     """VO over a frame sequence resized to ``resolution`` (width, height pixels;
-    default None: :func:`processing_size` of the frames' size, as ``spgeo vo``).
+    default None: ``config.resolution``, else the processing size of the
+    frames' size, as ``spgeo vo``).
 
     Returns ``(odometry, ground-truth camera-to-world poses (None per frame
     without), frames per wall-clock second)``; see :func:`run_odometry`.
     """
-    res = None if resolution is None else tuple(resolution)
-    run = run_odometry(frames, VORunConfig(resolution=res, frontend=frontend,
-                                           odometry=config, progress=progress))
+    if resolution is not None:
+        config = replace(config, resolution=tuple(resolution))
+    run = run_odometry(frames, VORunConfig(frontend=frontend, odometry=config,
+                                           progress=progress))
     return run.odometry, run.gt_poses, run.fps

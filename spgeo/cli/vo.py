@@ -11,7 +11,7 @@ name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
 explicit options (``--resolution``, ``--strict``, ``--frontend``, ...) override
 ``--config``, and ``--set`` overrides both.  Without ``--resolution`` the
 processing size keeps the input's aspect ratio at about 320x240 pixels
-(:func:`spgeo.apps.vo_run.processing_size`).  A frame whose file cannot be read
+(:func:`spgeo.vo.processing.processing_size`).  A frame whose file cannot be read
 is skipped (status ``skipped``, listed in report.json) unless ``--strict``,
 which stops with exit code 2 naming the file.
 """
@@ -53,7 +53,7 @@ def _run_config(args: argparse.Namespace):
     cfg = resolve_config(VORunConfig(), args.config_file, route="odometry")
     explicit = {}
     if args.resolution is not None:
-        explicit["resolution"] = parse_resolution(args.resolution)
+        explicit["odometry.resolution"] = parse_resolution(args.resolution)
     if args.frontend is not None:
         explicit["frontend"] = args.frontend
     if args.no_progress:

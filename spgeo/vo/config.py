@@ -7,13 +7,16 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
+import numpy as np
+
 from ..configs import config_repr
 from ..factors.photometric import PhotometricConfig
 from ..loop.config import LoopClosureConfig
 from ..sfm import SfMConfig
-from ..validation import InputError
+from ..validation import MAX_IMAGE_SIDE, InputError
 from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
+from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
 __all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS", "INIT_METHODS"]
 
@@ -139,6 +142,14 @@ class OdometryConfig:
     docs/results.md).
 
     Attributes:
+        resolution: ``(width, height)`` in pixels the VO works at (frames of
+            the input camera's size are resized to it,
+            :mod:`spgeo.vo.processing`); default None:
+            :func:`~spgeo.vo.processing.processing_size` of the input camera's
+            size with ``target_pixels`` (its aspect ratio kept; 4:3 gives 320x240).
+        target_pixels: processing area in pixels when ``resolution`` is None
+            (default :data:`~spgeo.vo.processing.DEFAULT_TARGET_PIXELS`, that of
+            320x240; in [64, 2**26]).
         tracker: :class:`TrackerConfig` of frame-to-keyframe tracking.
         kf_min_valid_fraction: new keyframe when fewer of the latest
             keyframe's primitive pixels project into the frame (default 0.6).
@@ -247,6 +258,8 @@ class OdometryConfig:
             keyframes with a Sim(3) pose graph (default off).
     """
 
+    resolution: Optional[Tuple[int, int]] = None
+    target_pixels: int = DEFAULT_TARGET_PIXELS
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     kf_min_valid_fraction: float = 0.6
     kf_max_translation: float = 0.2
@@ -279,6 +292,7 @@ class OdometryConfig:
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
 
     def __post_init__(self) -> None:
+        self._check_size()
         if self.init_method not in INIT_METHODS:
             raise InputError(f"OdometryConfig.init_method must be one of {INIT_METHODS}, "
                              f"got {self.init_method!r}")
@@ -293,6 +307,28 @@ class OdometryConfig:
             raise InputError("OdometryConfig.map_level must be in [0, keyframe_levels)")
         if not 1 <= self.init_min_gap <= self.init_max_gap:
             raise InputError("OdometryConfig: 1 <= init_min_gap <= init_max_gap required")
+
+    def _check_size(self) -> None:
+        if self.resolution is not None:
+            res = tuple(self.resolution)
+            if len(res) != 2 or not all(isinstance(v, (int, np.integer))
+                                        and 0 < v <= MAX_IMAGE_SIDE for v in res):
+                raise InputError(f"OdometryConfig.resolution must be None or (width, height) "
+                                 f"integers in [1, {MAX_IMAGE_SIDE}] pixels, got "
+                                 f"{self.resolution!r}")
+            object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        tp = self.target_pixels
+        if isinstance(tp, bool) or not isinstance(tp, (int, np.integer)) or not 64 <= tp <= 2 ** 26:
+            raise InputError(f"OdometryConfig.target_pixels must be an integer in [64, 2**26], "
+                             f"got {tp!r}")
+
+    def processing_size_for(self, input_size: Tuple[int, int]) -> Tuple[int, int]:
+        """The ``(width, height)`` the VO works at for input frames of ``input_size``:
+        ``resolution`` when set, else :func:`~spgeo.vo.processing.processing_size`
+        with ``target_pixels``."""
+        if self.resolution is not None:
+            return self.resolution
+        return processing_size(input_size, self.target_pixels)
 
     @property
     def selection(self) -> Optional[PixelSelectionConfig]:

@@ -42,6 +42,7 @@ from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
+from .processing import resize_for_vo
 from .mapping import (MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model,
                       with_shape_values)
 from .rendering import init_scales_from_render, render_primitives
@@ -61,10 +62,14 @@ class Odometry:
     """Streaming monocular VO (module docstring).
 
     Args:
-        camera: intrinsics of the input frames.
+        camera: intrinsics of the input frames (:attr:`input_camera`).  The
+            VO works at ``config.processing_size_for(camera.size)``
+            (:mod:`spgeo.vo.processing`; :attr:`camera` is ``camera`` resized to
+            it): :meth:`track` resizes frames of the input size, so a loop over
+            full-size frames processes what ``spgeo vo`` processes.
         config: :class:`OdometryConfig`.
-        frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes
-            (give it a small ``working_size``, e.g. 160x120).
+        frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes (its
+            working size: the processing size, or None for the image's).
         store: where keyframes that left the window keep their image and
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
@@ -85,7 +90,8 @@ class Odometry:
         if not isinstance(config, OdometryConfig):
             raise TypeError(f"Odometry: config must be an OdometryConfig, got "
                             f"{type(config).__name__}")
-        self.camera = check_camera(camera, "Odometry: camera")
+        self.input_camera = check_camera(camera, "Odometry: camera")
+        self.camera = self.input_camera.resized(*config.processing_size_for(camera.size))
         self.config = config
         self.frontend = frontend
         self._frames: List[FrameResult] = []
@@ -104,7 +110,7 @@ class Odometry:
         self._brightness = np.zeros(2)
         self._n_lost = 0
         self._mapper = WindowMapper(config)
-        self._retry = FeatureRetry(camera, config.feature_retry)
+        self._retry = FeatureRetry(self.camera, config.feature_retry)
         self._scale_checks: List[dict] = []
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
@@ -113,8 +119,10 @@ class Odometry:
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
-        """Process the next frame (a :class:`~spgeo.frame.Frame`; its depth is
-        read only by a depth-using front-end).
+        """Process the next frame (a :class:`~spgeo.frame.Frame` at the input
+        camera's size, resized here by :func:`~spgeo.vo.processing.resize_for_vo`,
+        or already at the processing size; its depth is read only by a
+        depth-using front-end).
 
         Returns the frame's online :class:`FrameResult` (also in :attr:`frames`),
         final except for one case: a frame returned while its segment waits for
@@ -127,8 +135,9 @@ class Odometry:
 
         Raises:
             TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
-            InputError: (a ``ValueError``) the image's (H, W) is not the
-                camera's, it holds NaN / inf, or the timestamp is not finite or
+            InputError: (a ``ValueError``) the image's (H, W) is neither the
+                input camera's nor the processing camera's, it holds NaN / inf,
+                or the timestamp is not finite or
                 not strictly after the previous frame's (seconds, or frame
                 numbers for data without time); the frame is not processed.
         """
@@ -138,10 +147,14 @@ class Odometry:
             raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
                             f"{type(frame).__name__}")
         image = np.asarray(frame.image)
-        if image.ndim not in (2, 3) or tuple(image.shape[:2]) != self.camera.shape:
+        if image.ndim not in (2, 3) or tuple(image.shape[:2]) not in (self.camera.shape,
+                                                                       self.input_camera.shape):
             raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image of shape "
-                             f"{image.shape} does not match the camera's (H, W) "
-                             f"{self.camera.shape}")
+                             f"{image.shape} does not match the input camera's (H, W) "
+                             f"{self.input_camera.shape}")
+        if tuple(image.shape[:2]) != self.camera.shape:
+            frame = resize_for_vo(frame, self.camera, bool(self.frontend.uses_depth), idx)
+            image = frame.image
         if not np.all(np.isfinite(image)):
             raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image contains "
                              "NaN or inf")

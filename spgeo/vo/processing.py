@@ -1,0 +1,80 @@
+"""The VO's processing size and the resizing of input frames to it.
+
+:class:`spgeo.vo.Odometry` works at one processing size: its camera is the
+input camera resized (:meth:`~spgeo.camera.PinholeCamera.resized`) to
+``OdometryConfig.resolution`` when set, else to :func:`processing_size` of
+the input size with ``OdometryConfig.target_pixels`` (about that many pixels,
+the input's aspect ratio kept; 4:3 gives 320x240; smaller inputs are kept).  Frames given at the input
+size are resized by :func:`resize_for_vo` inside ``Odometry.track``, so a
+library loop over full-size frames and ``spgeo vo`` process the same pixels.
+"""
+from __future__ import annotations
+
+from typing import Tuple
+
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..frame import Frame
+from ..validation import MAX_IMAGE_SIDE, InputError
+
+__all__ = ["DEFAULT_TARGET_PIXELS", "SIZE_MULTIPLE", "processing_size", "resize_for_vo"]
+
+#: Default processing area in pixels (``OdometryConfig.target_pixels``): that of 320x240.
+DEFAULT_TARGET_PIXELS = 320 * 240
+#: Processing widths and heights of :func:`processing_size` are multiples of this
+#: (the keyframe pyramid halves the image twice and stays on whole pixels).
+SIZE_MULTIPLE = 8
+
+
+def processing_size(input_size: Tuple[int, int], target_pixels: int = DEFAULT_TARGET_PIXELS,
+                    multiple: int = SIZE_MULTIPLE) -> Tuple[int, int]:
+    """The default processing ``(width, height)`` for an input of ``input_size``
+    ``(width, height)`` pixels: the input size itself when it has at most
+    ``target_pixels`` pixels (small inputs are not upsampled), else about
+    ``target_pixels`` pixels with the input's aspect ratio, i.e.
+    ``sqrt(target_pixels * W / H)`` by ``sqrt(target_pixels * H / W)``, each
+    rounded to the nearest multiple of ``multiple`` (at least ``multiple``).
+    A 4:3 input of at least 320x240 with the default target gives exactly
+    320x240.  Raises :class:`~spgeo.validation.InputError` for non-positive
+    sizes or target."""
+    w, h = (int(v) for v in input_size)
+    if w <= 0 or h <= 0 or int(target_pixels) <= 0 or int(multiple) <= 0:
+        raise InputError(f"processing_size: input size {input_size!r}, target_pixels "
+                         f"{target_pixels!r} and multiple {multiple!r} must be positive")
+    if w * h <= int(target_pixels):
+        return w, h
+    m = int(multiple)
+    out = [max(m, int(round(np.sqrt(target_pixels * a / b) / m)) * m) for a, b in ((w, h), (h, w))]
+    return min(out[0], MAX_IMAGE_SIDE), min(out[1], MAX_IMAGE_SIDE)
+
+
+def resize_for_vo(frame: Frame, camera: PinholeCamera, use_depth: bool, index: int) -> Frame:
+    """``frame`` at ``camera``'s size, as the VO reads it: float32 image resized
+    with ``cv2.INTER_AREA``; depth (resized with ``cv2.INTER_NEAREST``) only
+    when ``use_depth``; no ground truth or meta (not
+    :func:`spgeo.frame.resize_frame`: no undistortion, the camera is given).
+
+    Raises ``ValueError`` naming frame ``index`` when ``use_depth`` and the
+    frame has no depth.
+    """
+    import cv2
+
+    size = camera.size
+    image = np.asarray(frame.image)
+    if image.dtype != np.float32:
+        from ..images import to_float_image
+
+        image = to_float_image(image)
+    if (image.shape[1], image.shape[0]) != tuple(size):
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    depth = None
+    if use_depth:
+        if frame.depth is None:
+            raise ValueError(f"frame {index} ({frame.name!r}) has no depth but the front-end "
+                             "uses depth (open the data set with depth, or use a monocular "
+                             "front-end)")
+        depth = np.asarray(frame.depth, dtype=np.float32)
+        if (depth.shape[1], depth.shape[0]) != tuple(size):
+            depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
+    return Frame(image, camera, float(frame.timestamp), depth, None, frame.name)
