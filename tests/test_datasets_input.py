@@ -62,6 +62,8 @@ def test_camera_from_fov_and_spec():
     with pytest.raises(InputError, match="not both"):
         CameraSpec((1, 2, 3, 4), 60)
     assert CameraSpec.from_options(None, None) is None
+    with pytest.raises(InputError, match="--fov 150 degrees does not fit a 1080x1920"):
+        camera_from_fov(1080, 1920, 150)        # portrait: the vertical view is too wide
 
 
 def test_guess_camera_default_and_exif(tmp_path, caplog):

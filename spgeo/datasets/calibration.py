@@ -82,8 +82,12 @@ def camera_from_fov(width: int, height: int, fov_deg: float) -> PinholeCamera:
     """
     fov = check_fov(fov_deg)
     f = 0.5 * int(width) / math.tan(math.radians(fov) / 2.0)
-    return PinholeCamera(f, f, (int(width) - 1) / 2.0, (int(height) - 1) / 2.0,
-                         int(width), int(height))
+    try:
+        return PinholeCamera(f, f, (int(width) - 1) / 2.0, (int(height) - 1) / 2.0,
+                             int(width), int(height))
+    except InputError as exc:
+        raise InputError(f"--fov {fov_deg} degrees does not fit a {width}x{height} image: "
+                         f"{exc}") from None
 
 
 def camera_from_focal_35mm(width: int, height: int, focal_35mm: float) -> PinholeCamera:

@@ -10,8 +10,8 @@
   frame that fails to decode raises :class:`~spgeo.validation.FrameReadError`
   naming the file and frame, as an unreadable image of a folder does.
 * :class:`CameraStream` (``"camera"``): a live camera by device index; an
-  iterable (no length) of frames stamped with the seconds since the first
-  frame (``time.monotonic``).  It ends when the camera stops giving frames, at
+  iterable (no length), read once, of frames stamped with the seconds since
+  the first frame (``time.monotonic``, kept strictly increasing).  It ends when the camera stops giving frames, at
   the end of the ``frames`` selection, or on Ctrl-C in the consumer.
 
 Neither has a calibration file: the camera is the one given (``camera=`` a
@@ -269,7 +269,7 @@ class CameraStream(CameraSource):
         return number >= start and (number - start) % step == 0, False
 
     def __iter__(self) -> Iterator[Frame]:
-        t0, number, bgr = None, 0, self._first
+        t0, last, number, bgr = None, None, 0, self._first
         try:
             while bgr is not None:
                 keep, over = self._wanted(number)
@@ -278,8 +278,10 @@ class CameraStream(CameraSource):
                 now = time.monotonic()
                 t0 = now if t0 is None else t0
                 if keep:
+                    stamp = now - t0 if last is None else max(now - t0, last + 1e-6)
+                    last = stamp
                     yield Frame(image=self._finish_image(_to_rgb(bgr)), camera=self.camera,
-                                timestamp=now - t0, name=f"{number:06d}",
+                                timestamp=stamp, name=f"{number:06d}",
                                 meta={"dataset": "camera", "camera_index": self.index,
                                       "frame_number": number})
                 number += 1
