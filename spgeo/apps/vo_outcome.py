@@ -83,6 +83,10 @@ class VORun:
             (:meth:`spgeo.apps.memory.RssCheckpoints.report`: ``peak_rss_mb``
             at the end of the loop, ``rss_mb``: frames processed -> RSS then);
             ``report.json``'s ``run.memory``.
+        intrinsics: where the input camera came from and its values
+            (a reader's ``intrinsics``: ``source`` ``"file"`` | ``"given"`` |
+            ``"guessed"``, ``fx fy cx cy width height distortion detail``);
+            ``report.json``'s ``intrinsics`` when set (:func:`run_dataset` sets it).
     """
 
     odometry: Odometry
@@ -96,6 +100,7 @@ class VORun:
     resolution: Optional[Tuple[int, int]] = None
     skipped: List[SkippedFrame] = field(default_factory=list)
     memory: Dict[str, object] = field(default_factory=dict)
+    intrinsics: Optional[Dict[str, object]] = None
 
     @property
     def keyframe_images(self) -> "Mapping[int, np.ndarray]":
@@ -243,6 +248,7 @@ class VORun:
         ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
         keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
         ``"run"`` (processing resolution, front-end, wall time, FPS, ``n_skipped``),
+        ``"intrinsics"`` (:attr:`intrinsics`, when set),
         ``"skipped"`` (one :meth:`SkippedFrame.to_dict` per skipped frame; such a
         frame is ``skipped`` in the status file and has no line in
         ``trajectory.txt``), ``"run_config"``
@@ -270,6 +276,8 @@ class VORun:
             # the odometry's own configuration is the report's "config"
             "run_config": {k: v for k, v in config_to_dict(self.config).items()
                            if k != "odometry"}}
+        if self.intrinsics is not None:
+            extra["intrinsics"] = dict(self.intrinsics)
         if with_ate:
             ate = self.ate() if ate is None else ate
             extra["ate"] = self.ate_report(ate) if ate is not None else None

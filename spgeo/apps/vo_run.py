@@ -354,11 +354,16 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     """Open a data set with :func:`spgeo.datasets.open_dataset` and run the VO.
 
     Args:
-        kind: ``"tum"``, ``"7scenes"``, ``"icl"`` or ``"folder"``.
-        path: the sequence folder.
+        kind: a key of :data:`spgeo.datasets.DATASET_KINDS` (``"tum"``,
+            ``"7scenes"``, ``"icl"``, ``"folder"``, ``"kitti"``, ``"euroc"``,
+            ``"video"``, ``"camera"``).
+        path: the sequence folder, video file or camera index.
         frames: ``"A:B[:S]"`` selection by frame number (default None: all).
         config, frontend, on_frame: as for :func:`run_odometry`.
-        reader_options: further reader-config fields (e.g. ``calibration="fr1"``).
+        reader_options: further reader-config fields (e.g. ``calibration="fr1"``)
+            or ``given_camera`` (:func:`~spgeo.datasets.open_dataset`).
+
+    The run's ``intrinsics`` (``report.json``) is the reader's ``intrinsics``.
 
     With a monocular front-end the data set is opened with ``load_depth=False``
     (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
@@ -373,11 +378,15 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     if opts["load_depth"] is False and uses_depth:
         raise ValueError("the front-end uses depth: the data set must be read with depth")
     seq = open_dataset(kind, path, frames=frames, **opts)
-    if len(seq) == 0:
+    n = len(seq) if hasattr(seq, "__len__") else None      # a live camera has no length
+    if n == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
-    log.info("VO on %s (%s): %d frames, camera %r, processing size %s", seq.name, kind,
-             len(seq), seq.camera, config.odometry.processing_size_for(seq.camera.size))
-    return run_odometry(seq, config, frontend, n_frames=len(seq), on_frame=on_frame)
+    log.info("VO on %s (%s): %s frames, camera %r, processing size %s", seq.name, kind,
+             "live" if n is None else n, seq.camera,
+             config.odometry.processing_size_for(seq.camera.size))
+    run = run_odometry(seq, config, frontend, n_frames=n, on_frame=on_frame)
+    run.intrinsics = seq.intrinsics
+    return run
 
 
 def run_vo(frames: Iterable[Frame], resolution: Optional[Tuple[int, int]] = None,

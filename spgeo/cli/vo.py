@@ -1,6 +1,7 @@
 """``spgeo vo``: argument wiring for :func:`spgeo.apps.vo_run.run_dataset`.
 
-    spgeo vo --dataset {tum,7scenes,icl,folder} PATH [--frames A:B[:STEP]]
+    spgeo vo --dataset {tum,7scenes,icl,folder,kitti,euroc,video,camera} PATH
+             [--frames A:B[:STEP]] [--intrinsics fx,fy,cx,cy | --fov DEGREES]
              [--resolution WxH] [--strict] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
@@ -13,7 +14,10 @@ explicit options (``--resolution``, ``--strict``, ``--frontend``, ...) override
 processing size keeps the input's aspect ratio at about 320x240 pixels
 (:func:`spgeo.vo.processing.processing_size`).  A frame whose file cannot be read
 is skipped (status ``skipped``, listed in report.json) unless ``--strict``,
-which stops with exit code 2 naming the file.
+which stops with exit code 2 naming the file.  ``--intrinsics`` / ``--fov``
+replace the input's camera (:class:`spgeo.datasets.CameraSpec`); without them an
+input with no calibration (a video, a camera, a folder without intrinsics) gets
+guessed intrinsics, with a warning; ``report.json``'s ``intrinsics`` says which.
 """
 from __future__ import annotations
 
@@ -22,7 +26,7 @@ import sys
 
 from ..frontend import FRONTENDS
 from ..validation import InputError
-from ..apps.args import DATASET_KINDS, parse_resolution
+from ..apps.args import DATASET_KINDS, parse_intrinsics, parse_resolution
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
 from .rerun_args import add_rerun_argument, open_rerun
@@ -38,9 +42,12 @@ qz qw', camera-to-world; timestamps are frame numbers for data sets without
 timestamps such as 7-Scenes), OUT/keyframes.txt, OUT/trajectory.status.txt,
 OUT/report.json (with the per-frame and keyframe-only Sim(3) ATE under "ate"
 when the data set has ground truth, the OdometryConfig under "config" and the
-rest of the run config under "run_config") and keyframe point clouds in
-OUT/clouds/.  The classical and onnx front-ends never read depth; 'depth' uses
-the sensor depth (RGB-D / oracle).  A frame whose image (or depth) file cannot
+rest of the run config under "run_config", the input camera under
+"intrinsics" with "source": "file", "given" (--intrinsics / --fov) or
+"guessed" (no calibration: EXIF focal length, else a default field of view;
+also a warning on stderr)) and keyframe point clouds in OUT/clouds/.  The
+classical and onnx front-ends never read depth; 'depth' uses the sensor depth
+(RGB-D / oracle).  A frame whose image (or depth) file cannot
 be read is skipped with a warning: status 'skipped' in
 OUT/trajectory.status.txt, no pose, not in the ATE, listed under "skipped" in
 OUT/report.json; --strict stops instead (exit code 2)."""
@@ -71,6 +78,17 @@ def _run_config(args: argparse.Namespace):
     return resolve_config(cfg, sets=args.set, route="odometry")
 
 
+def _given_camera(args: argparse.Namespace):
+    """The :class:`~spgeo.datasets.CameraSpec` of ``--intrinsics`` / ``--fov``
+    (None without either); :class:`InputError` naming a bad value."""
+    from ..datasets import CameraSpec
+
+    if args.intrinsics is not None and args.fov is not None:
+        raise InputError("give --intrinsics or --fov, not both")
+    values = None if args.intrinsics is None else parse_intrinsics(args.intrinsics)
+    return CameraSpec.from_options(values, args.fov)
+
+
 def _run(args: argparse.Namespace) -> int:
     from ..apps.vo_run import run_dataset
     from ..io.outputs import StagedFolder
@@ -80,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--dataset KIND must be one of {', '.join(DATASET_KINDS)}, "
                          f"got {kind!r}")
     cfg = _run_config(args)
+    given = _given_camera(args)
     staged = StagedFolder(args.out, "--out", "spgeo vo")   # checked before the run
     if args.export_colmap:
         from ..io.colmap_export import check_export_directory
@@ -87,8 +106,11 @@ def _run(args: argparse.Namespace) -> int:
         check_export_directory(args.export_colmap, args.out)
     elif args.all_frames:
         raise InputError("--all-frames needs --export-colmap DIR")
+    if args.all_frames and kind.lower() == "camera":
+        raise InputError("--all-frames cannot re-read a live camera")
     with open_rerun(args) as viewer:
-        run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer)
+        run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer,
+                          given_camera=given)
         if viewer is not None:
             viewer.finish(run.odometry)
     ate = run.ate()
@@ -113,7 +135,8 @@ def _run(args: argparse.Namespace) -> int:
         if args.all_frames:     # re-read the frames: the run keeps only the keyframes' images
             from ..datasets import open_dataset
 
-            frames = open_dataset(kind.lower(), path, frames=args.frames, load_depth=False)
+            frames = open_dataset(kind.lower(), path, frames=args.frames, load_depth=False,
+                                  given_camera=given)
         model = run.export_colmap(args.export_colmap, frames)
         what = "all frames not lost" if args.all_frames else "keyframes"
         print(f"wrote the COLMAP model {model} ({what}, images in {args.export_colmap}/images)")
@@ -126,9 +149,17 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
         "vo", help="monocular visual odometry on a data set -> trajectory, keyframes, ATE",
         description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), required=True,
-                   help=f"data-set kind ({', '.join(DATASET_KINDS)}) and sequence folder")
+                   help=f"data-set kind ({', '.join(DATASET_KINDS)}) and sequence folder, "
+                        "video file or camera index")
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
-                   help="frame numbers A <= n < B, every STEP-th (default: all)")
+                   help="frame numbers A <= n < B, every STEP-th (default: all; a camera "
+                        "stops at B)")
+    p.add_argument("--intrinsics", default=None, metavar="fx,fy,cx,cy",
+                   help="camera intrinsics in pixels of the input images (replace the "
+                        "data set's calibration; no distortion)")
+    p.add_argument("--fov", default=None, metavar="DEGREES",
+                   help="horizontal field of view in (10, 170) degrees, principal point at "
+                        "the centre (instead of --intrinsics)")
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "

@@ -7,6 +7,11 @@
 * :class:`ICLSequence` (``"icl"``): ICL-NUIM PNG release, converted to the
   OpenCV camera convention.
 * :class:`FolderSequence` (``"folder"``): plain image folder + intrinsics.
+* :class:`KITTISequence` (``"kitti"``): KITTI odometry ``sequences/XX`` folder.
+* :class:`EuRoCSequence` (``"euroc"``): EuRoC MAV sequence (``mav0/cam0``).
+* :class:`VideoSequence` (``"video"``): a video file (``cv2.VideoCapture``).
+* :class:`CameraStream` (``"camera"``): a live camera by device index (an
+  iterable without length, not a :class:`FrameSequence`).
 * :class:`ScanNetScene`: one ScanNet scene in the SensReader export layout
   (:mod:`spgeo.datasets.scannet`; not an :func:`open_dataset` kind).
 * :class:`VOIDDataset`: VOID depth-completion samples (:mod:`spgeo.datasets.void`;
@@ -14,21 +19,31 @@
 
 :func:`open_dataset` is the factory the CLI uses (the kinds in quotes above); :func:`parse_frame_range`
 parses ``--frames A:B[:S]`` (selection by frame number ``A <= n < B``, step S).
+Calibration when there is none (:mod:`spgeo.datasets.calibration`):
+``open_dataset(..., given_camera=CameraSpec(...))`` replaces any reader's camera,
+and the readers without a calibration file guess one (a warning); every reader's
+``intrinsics`` says which (``source`` ``"file"`` | ``"given"`` | ``"guessed"``).
 The 9-frame TUM fr1/desk sample ships with the package: :func:`bundled_tum_path`,
 :func:`load_bundled_tum`.
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
 
-from .common import FrameSelection, FrameSequence, parse_frame_range, select_frames
+from .calibration import (DEFAULT_HFOV_DEG, CameraSpec, camera_from_fov, guess_camera,
+                          intrinsics_report)
+from .common import (CameraSource, FrameSelection, FrameSequence, parse_frame_range,
+                     select_frames)
+from .euroc import EuRoCConfig, EuRoCSequence
 from .folder import FolderConfig, FolderSequence
 from .icl import ICL_CAMERA, ICLConfig, ICLSequence, icl_pose_to_opencv
+from .kitti import KITTIConfig, KITTISequence
 from .scannet import ScanNetConfig, ScanNetScene
 from .sevenscenes import SEVEN_SCENES_CAMERA, SevenScenesConfig, SevenScenesSequence
 from .tum import (TUM_CALIBRATIONS, TUMConfig, TUMSequence, associate, interpolate_poses,
                   read_tum_groundtruth, read_tum_list, tum_camera)
+from .video import CameraStream, VideoConfig, VideoSequence
 from .void import VOIDDataset, VOIDSample
 from .warp import photometric_error, warp_image
 
@@ -38,7 +53,10 @@ __all__ = [
     "associate", "interpolate_poses", "read_tum_list", "read_tum_groundtruth",
     "SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA", "ICLConfig",
     "ICLSequence", "ICL_CAMERA", "icl_pose_to_opencv", "FolderConfig", "FolderSequence",
-    "ScanNetConfig", "ScanNetScene", "VOIDDataset", "VOIDSample",
+    "ScanNetConfig", "ScanNetScene", "VOIDDataset", "VOIDSample", "KITTIConfig",
+    "KITTISequence", "EuRoCConfig", "EuRoCSequence", "VideoConfig", "VideoSequence",
+    "CameraStream", "CameraSource", "CameraSpec", "camera_from_fov", "guess_camera",
+    "intrinsics_report", "DEFAULT_HFOV_DEG",
     "DATASET_KINDS", "open_dataset", "bundled_tum_path", "load_bundled_tum",
 ]
 
@@ -48,28 +66,50 @@ DATASET_KINDS = {
     "7scenes": SevenScenesSequence,
     "icl": ICLSequence,
     "folder": FolderSequence,
+    "kitti": KITTISequence,
+    "euroc": EuRoCSequence,
+    "video": VideoSequence,
+    "camera": CameraStream,
 }
+
+#: Kinds whose reader takes a given camera at construction (``camera=``), so that
+#: no guess is made and logged for a camera that is then replaced.
+_CAMERA_AT_OPEN = ("folder", "video", "camera")
 
 _ALIASES = {
     "tum": "tum", "tum-rgbd": "tum", "tum_rgbd": "tum",
     "7scenes": "7scenes", "7-scenes": "7scenes", "7_scenes": "7scenes", "sevenscenes": "7scenes",
     "icl": "icl", "icl-nuim": "icl", "icl_nuim": "icl", "iclnuim": "icl",
     "folder": "folder", "images": "folder",
+    "kitti": "kitti", "kitti-odometry": "kitti", "kitti_odometry": "kitti",
+    "euroc": "euroc", "euroc-mav": "euroc", "euroc_mav": "euroc",
+    "video": "video", "camera": "camera", "webcam": "camera",
 }
 
 
-def open_dataset(kind: str, path: Union[str, Path], **kwargs) -> FrameSequence:
-    """Open a data set of ``kind`` in ``{"tum", "7scenes", "icl", "folder"}`` at ``path``.
+def open_dataset(kind: str, path: Union[str, Path], given_camera: Optional[CameraSpec] = None,
+                 **kwargs) -> Union[FrameSequence, CameraStream]:
+    """Open a data set of ``kind`` (a key of :data:`DATASET_KINDS`) at ``path``.
 
-    Keyword arguments are the fields of the reader's config (e.g.
-    ``frames="0:100:2"``, ``load_depth=False``, ``undistort=False``) or
-    ``config=`` a config object.  Raises ``ValueError`` for an unknown kind and
-    ``TypeError`` for an option the reader does not have.
+    ``path`` is the sequence folder, the video file (``"video"``) or the device
+    index (``"camera"``, e.g. ``"0"``; a :class:`CameraStream`, iterable
+    without length).  Keyword arguments are the fields of the reader's config
+    (e.g. ``frames="0:100:2"``, ``load_depth=False``, ``undistort=False``) or
+    ``config=`` a config object.  ``given_camera`` (``--intrinsics`` /
+    ``--fov``) replaces the reader's camera, built at the stored image size
+    without distortion; the reader's ``intrinsics["source"]`` is then
+    ``"given"``.  Raises ``ValueError`` for an unknown kind and ``TypeError``
+    for an option the reader does not have.
     """
     key = _ALIASES.get(str(kind).strip().lower())
     if key is None:
         raise ValueError(f"unknown data-set kind {kind!r}; expected one of {sorted(DATASET_KINDS)}")
-    return DATASET_KINDS[key](path, **kwargs)
+    if given_camera is not None and key in _CAMERA_AT_OPEN:
+        return DATASET_KINDS[key](path, camera=given_camera, **kwargs)
+    seq = DATASET_KINDS[key](path, **kwargs)
+    if given_camera is not None:
+        seq.set_camera(given_camera)
+    return seq
 
 
 def bundled_tum_path() -> Path:

@@ -26,10 +26,11 @@ from ..frame import Frame
 from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json,
                     read_depth_png, read_rgb)
 from ..validation import FrameFileMissing, FrameReadError, InputError
+from .calibration import CameraSpec, guess_camera, intrinsics_report
 from .warp import photometric_error, warp_image
 
 __all__ = [
-    "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "FileRecord",
+    "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "CameraSource", "FileRecord",
     "numbered_frames", "check_camera", "config_from_kwargs", "PathLike", "read_rgb",
     "read_depth_png", "read_camera_json", "nearest_rigid", "warp_image", "photometric_error",
 ]
@@ -155,29 +156,24 @@ class FileRecord:
     depth_path: Optional[Path]
 
 
-# ------------------------------------------------------------------ sequence
-class FrameSequence(_SequenceABC):
-    """Lazy random-access sequence of :class:`~spgeo.frame.Frame`.
+# ------------------------------------------------------------------ cameras
+class CameraSource:
+    """The camera side of a reader (:class:`FrameSequence`, the live
+    :class:`~spgeo.datasets.video.CameraStream`): ``name``, ``camera``,
+    ``raw_camera`` and where the intrinsics come from (:attr:`intrinsics`).
 
-    ``seq[i]`` loads frame ``i`` of the *selection* (0-based position; negative
-    indices count from the end), ``seq[a:b]`` returns a list of frames.  Nothing
-    is cached except the undistortion maps.  ``frame_numbers`` gives the data
-    set's frame number of each position, ``timestamps`` their times.
-
-    Subclasses set ``self._raw_camera`` (the camera of the files, possibly with
-    distortion), ``self._undistort``, ``self._name`` and the per-frame records
-    (``self._records``), and implement :meth:`_load`.
+    Subclasses set ``self._raw_camera``, ``self._undistort``, ``self._name`` and,
+    when the camera is not the data set's own calibration (source ``"file"``),
+    call :meth:`set_camera` or :meth:`_given_or_guessed`.
     """
 
     _raw_camera: PinholeCamera
     _undistort: bool
     _name: str
-    _records: List[Any]
+    _maps: Optional[Tuple[np.ndarray, np.ndarray]] = None
+    _intrinsics_source: str = "file"
+    _intrinsics_detail: str = ""
 
-    def __init__(self) -> None:
-        self._maps: Optional[Tuple[np.ndarray, np.ndarray]] = None
-
-    # -- public API
     @property
     def name(self) -> str:
         """Sequence name (the folder name)."""
@@ -195,6 +191,86 @@ class FrameSequence(_SequenceABC):
         """Camera of the image files as stored (with distortion, if any)."""
         return self._raw_camera
 
+    @property
+    def intrinsics(self) -> Dict[str, Any]:
+        """Where the camera comes from and its values
+        (:func:`~spgeo.datasets.calibration.intrinsics_report`: ``source``
+        ``"file"`` | ``"given"`` | ``"guessed"``, ``fx fy cx cy width height
+        distortion`` of :attr:`raw_camera`, ``detail``); ``report.json``'s ``intrinsics``."""
+        return intrinsics_report(self._raw_camera, self._intrinsics_source,
+                                 self._intrinsics_detail)
+
+    def set_camera(self, camera: Union[PinholeCamera, CameraSpec], detail: str = "") -> None:
+        """Replace the reader's camera by one the user gives (source ``"given"``):
+        a :class:`PinholeCamera` of the stored image size or a
+        :class:`~spgeo.datasets.calibration.CameraSpec` (built at that size; no
+        distortion).  Raises :class:`~spgeo.validation.InputError` for another size."""
+        width, height = self._raw_camera.size
+        if isinstance(camera, CameraSpec):
+            detail = detail or camera.describe()
+            camera = camera.camera(width, height)
+        check_camera(camera, "camera")
+        if camera.size != (width, height):
+            raise InputError(f"{self._name}: the given camera is {camera.width}x{camera.height}, "
+                             f"the images {width}x{height}")
+        self._raw_camera, self._maps = camera, None
+        self._intrinsics_source, self._intrinsics_detail = "given", detail or "camera given"
+
+    def _given_or_guessed(self, camera: Union[None, PinholeCamera, CameraSpec], width: int,
+                          height: int, image_path: Optional[Path] = None) -> PinholeCamera:
+        """The camera of a reader that may have no calibration: ``camera`` when given
+        (a :class:`PinholeCamera`, or a :class:`~spgeo.datasets.calibration.CameraSpec`
+        built at ``width`` x ``height``; source ``"given"``), else
+        :func:`~spgeo.datasets.calibration.guess_camera` (EXIF of ``image_path``,
+        else the default field of view; source ``"guessed"``, a logged warning)."""
+        if isinstance(camera, CameraSpec):
+            self._intrinsics_source, self._intrinsics_detail = "given", camera.describe()
+            return camera.camera(width, height)
+        if camera is not None:
+            self._intrinsics_source, self._intrinsics_detail = "given", "camera given"
+            return check_camera(camera, f"{type(self).__name__} camera")
+        guessed, method = guess_camera(width, height, image_path,
+                                       str(getattr(self, "root", self._name)))
+        self._intrinsics_source, self._intrinsics_detail = "guessed", method
+        return guessed
+
+
+    def _undistortion_maps(self) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        if not self._undistort or self._raw_camera.distortion is None:
+            return None
+        if self._maps is None:
+            self._maps = self._raw_camera.undistortion_maps()
+        return self._maps
+
+    def _finish_image(self, image: np.ndarray) -> np.ndarray:
+        maps = self._undistortion_maps()
+        if maps is None:
+            return image
+        return np.clip(self._raw_camera.undistort_image(image, maps=maps), 0.0, 1.0)
+
+
+# ------------------------------------------------------------------ sequence
+class FrameSequence(CameraSource, _SequenceABC):
+    """Lazy random-access sequence of :class:`~spgeo.frame.Frame`.
+
+    ``seq[i]`` loads frame ``i`` of the *selection* (0-based position; negative
+    indices count from the end), ``seq[a:b]`` returns a list of frames.  Nothing
+    is cached except the undistortion maps.  ``frame_numbers`` gives the data
+    set's frame number of each position, ``timestamps`` their times.
+
+    Subclasses set ``self._raw_camera`` (the camera of the files, possibly with
+    distortion), ``self._undistort``, ``self._name`` and the per-frame records
+    (``self._records``), and implement :meth:`_load`.  Where the camera comes
+    from is :attr:`intrinsics` (``"file"``: the data set's calibration file or
+    published intrinsics, ``"given"``, ``"guessed"``).
+    """
+
+    _records: List[Any]
+
+    def __init__(self) -> None:
+        self._maps: Optional[Tuple[np.ndarray, np.ndarray]] = None
+
+    # -- public API
     @property
     def frame_numbers(self) -> List[int]:
         """Data-set frame number of every position of the selection."""
@@ -283,19 +359,6 @@ class FrameSequence(_SequenceABC):
     @abstractmethod
     def _load(self, index: int, record: Any) -> Frame:
         """Load the frame at position ``index`` described by ``record``."""
-
-    def _undistortion_maps(self) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-        if not self._undistort or self._raw_camera.distortion is None:
-            return None
-        if self._maps is None:
-            self._maps = self._raw_camera.undistortion_maps()
-        return self._maps
-
-    def _finish_image(self, image: np.ndarray) -> np.ndarray:
-        maps = self._undistortion_maps()
-        if maps is None:
-            return image
-        return np.clip(self._raw_camera.undistort_image(image, maps=maps), 0.0, 1.0)
 
     def _finish_depth(self, depth: np.ndarray) -> np.ndarray:
         """Undistort a float depth map (NaN invalid) with nearest-neighbour sampling."""

@@ -14,7 +14,9 @@ Layout::
 * Frame number = 0-based position in the sorted image list; timestamp = frame
   number unless ``times.txt`` exists.
 * ``camera`` passed in the config overrides the files; ``camera.json`` wins
-  over ``intrinsics.txt``.
+  over ``intrinsics.txt``; with neither, the intrinsics are guessed
+  (:func:`spgeo.datasets.calibration.guess_camera`, a warning) and
+  ``intrinsics["source"]`` is ``"guessed"``.
 * Frames without a depth file have ``depth=None``; no ground-truth poses.
 """
 from __future__ import annotations
@@ -23,7 +25,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional, Tuple
+from typing import List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -31,7 +33,8 @@ from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
 from ..validation import InputError
-from .common import FrameSelection, FrameSequence, check_camera, select_frames
+from .calibration import CameraSpec
+from .common import FrameSelection, FrameSequence, select_frames
 from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
 
 __all__ = ["FolderConfig", "FolderSequence", "read_intrinsics_txt"]
@@ -69,8 +72,12 @@ class FolderConfig:
     """Options of :class:`FolderSequence`.
 
     Attributes:
-        camera: intrinsics of the stored images; default None reads
-            ``camera.json`` or ``intrinsics.txt`` from the folder.
+        camera: intrinsics of the stored images: a :class:`PinholeCamera` or a
+            :class:`~spgeo.datasets.calibration.CameraSpec` (``--intrinsics`` /
+            ``--fov``, built at the images' size); default None reads
+            ``camera.json`` or ``intrinsics.txt`` from the folder, else guesses
+            (:func:`~spgeo.datasets.calibration.guess_camera`: EXIF, else a
+            default field of view; a warning, ``intrinsics["source"] == "guessed"``).
         undistort: undistort when the camera has distortion (default True).
         load_depth: read ``depth/<stem>.png|.npy`` when present (default True).
         frames: selection by frame number (position in the sorted list;
@@ -80,7 +87,7 @@ class FolderConfig:
         extensions: image file extensions, case-insensitive (default png, jpg, jpeg).
     """
 
-    camera: Optional[PinholeCamera] = None
+    camera: Union[None, PinholeCamera, CameraSpec] = None
     undistort: bool = True
     load_depth: bool = True
     frames: FrameSelection = None
@@ -123,15 +130,18 @@ class FolderSequence(FrameSequence):
         self._records: List[_Record] = [_Record(k, float(times[k]), images[k]) for k in keep]
 
     def _resolve_camera(self, camera, first_image: Path) -> PinholeCamera:
-        if camera is not None:
-            return check_camera(camera, "FolderConfig.camera")
-        if (self.root / "camera.json").is_file():
+        """Given camera, else ``camera.json``, else ``intrinsics.txt`` (source
+        ``"file"``), else a guess (:meth:`FrameSequence._given_or_guessed`)."""
+        if camera is None and (self.root / "camera.json").is_file():
+            self._intrinsics_detail = str(self.root / "camera.json")
             return read_camera_json(self.root / "camera.json")
-        if (self.root / "intrinsics.txt").is_file():
-            h, w = read_rgb(first_image).shape[:2]
+        if isinstance(camera, PinholeCamera):
+            return self._given_or_guessed(camera, camera.width, camera.height)
+        h, w = read_rgb(first_image).shape[:2]
+        if camera is None and (self.root / "intrinsics.txt").is_file():
+            self._intrinsics_detail = str(self.root / "intrinsics.txt")
             return read_intrinsics_txt(self.root / "intrinsics.txt", w, h)
-        raise FileNotFoundError(f"{self.root}: no intrinsics: add camera.json or intrinsics.txt "
-                                "or pass camera=PinholeCamera(...)")
+        return self._given_or_guessed(camera, w, h, first_image)
 
     @staticmethod
     def _read_times(path: Path, n: int) -> np.ndarray:

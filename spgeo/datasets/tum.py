@@ -272,6 +272,7 @@ class TUMSequence(FrameSequence):
         cfg = self._open(path, TUMConfig, config, kwargs, "TUM sequence folder")
         root = self.root
         self._raw_camera, self.calibration_source = self._resolve_camera(cfg.calibration)
+        self._intrinsics_detail = self.calibration_source
 
         stamps, names = read_tum_list(root / "rgb.txt")
         if len(stamps) == 0:

@@ -1,0 +1,369 @@
+"""Inputs of issue 25: video files (``cv2.VideoWriter`` MJPG/.avi written from
+synthetic frames), KITTI odometry and EuRoC MAV folders written in their layouts,
+the shared KITTI clip laid out as a KITTI sequence, and calibration when there is
+none (``--intrinsics`` / ``--fov`` / a guess, flagged in ``report.json``)."""
+import json
+import logging
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from spgeo import synthetic
+from spgeo.cli import main
+from spgeo.datasets import (DEFAULT_HFOV_DEG, CameraSpec, EuRoCSequence, FolderSequence,
+                            KITTISequence, VideoSequence, camera_from_fov, guess_camera,
+                            open_dataset)
+from spgeo.geometry import invert_pose, rot_to_quat, so3_exp
+from spgeo.validation import InputError
+
+W, H = 160, 120
+CAM = synthetic.default_camera(W, H)
+FPS = 10.0
+
+
+@pytest.fixture(scope="module")
+def frames():
+    scene = synthetic.SyntheticScene.generate(0)
+    return synthetic.render_frames(scene, CAM, synthetic.make_trajectory(20, 0), supersample=1)
+
+
+def _bgr8(frame):
+    rgb = np.clip(np.round(frame.image * 255), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+
+
+def write_video(path, frames, fps=FPS):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (W, H))
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(_bgr8(f))
+    writer.release()
+    return path
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory, frames):
+    return write_video(tmp_path_factory.mktemp("video") / "clip.avi", frames)
+
+
+# ------------------------------------------------------------------ calibration
+def test_camera_from_fov_and_spec():
+    cam = camera_from_fov(W, H, 90.0)
+    assert cam.fx == pytest.approx(W / 2) and cam.fy == cam.fx
+    assert (cam.cx, cam.cy) == ((W - 1) / 2, (H - 1) / 2)
+    fov = math.degrees(2 * math.atan(W / 2 / CAM.fx))
+    assert camera_from_fov(W, H, fov).fx == pytest.approx(CAM.fx)
+    assert CameraSpec(intrinsics=(100, 101, 79.5, 59.5)).camera(W, H).fy == 101
+    for bad in (5, 175, 10, 170, float("nan")):
+        with pytest.raises(InputError, match="--fov"):
+            CameraSpec(fov_deg=bad)
+    with pytest.raises(InputError, match="not both"):
+        CameraSpec((1, 2, 3, 4), 60)
+    assert CameraSpec.from_options(None, None) is None
+    with pytest.raises(InputError, match="--fov 150 degrees does not fit a 1080x1920"):
+        camera_from_fov(1080, 1920, 150)        # portrait: the vertical view is too wide
+
+
+def test_guess_camera_default_and_exif(tmp_path, caplog):
+    with caplog.at_level(logging.WARNING):
+        cam, method = guess_camera(W, H)
+    assert cam == camera_from_fov(W, H, DEFAULT_HFOV_DEG) and "default" in method
+    assert "intrinsics guessed" in caplog.text
+    PIL = pytest.importorskip("PIL.Image")
+    img = PIL.new("RGB", (W, H))
+    exif = img.getexif()
+    exif.get_ifd(0x8769)[0xA405] = 26                  # FocalLengthIn35mmFilm
+    img.save(tmp_path / "p.jpg", exif=exif)
+    cam, method = guess_camera(W, H, tmp_path / "p.jpg")
+    assert "EXIF" in method
+    assert cam.fx == pytest.approx(26 * math.hypot(W, H) / math.hypot(36, 24))
+
+
+def test_folder_without_intrinsics_guesses(tmp_path, frames):
+    for i, f in enumerate(frames[:3]):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), _bgr8(f))
+    seq = FolderSequence(tmp_path)
+    assert seq.intrinsics["source"] == "guessed"
+    seq = open_dataset("folder", tmp_path, given_camera=CameraSpec(fov_deg=70))
+    assert seq.intrinsics["source"] == "given" and seq.intrinsics["detail"] == "--fov 70"
+    (tmp_path / "intrinsics.txt").write_text(f"{CAM.fx} {CAM.fy} {CAM.cx} {CAM.cy}\n")
+    seq = FolderSequence(tmp_path)
+    assert seq.intrinsics["source"] == "file" and seq.camera == CAM
+
+
+# ------------------------------------------------------------------ video
+def test_video_reads_back(video, frames):
+    seq = VideoSequence(video)
+    assert len(seq) == len(frames) and seq.camera.size == (W, H)
+    assert seq.intrinsics["source"] == "guessed"
+    t = seq.timestamps
+    assert np.all(np.diff(t) > 0)
+    assert t[1] - t[0] == pytest.approx(1 / FPS, abs=1e-3)
+    f = seq[3]
+    assert f.image.dtype == np.float32 and f.image.shape == (H, W, 3)
+    assert np.abs(f.image - frames[3].image).mean() < 0.05       # MJPG is lossy
+    assert np.abs(seq[1].image - frames[3].image).mean() > np.abs(f.image - frames[3].image).mean()
+    sel = open_dataset("video", video, frames="2:11:3")
+    assert sel.frame_numbers == [2, 5, 8]
+    assert np.allclose(sel.timestamps, t[[2, 5, 8]])
+    imgs = [g.image for g in sel]                                 # in order, then backwards
+    assert np.allclose(sel[0].image, imgs[0])
+    given = open_dataset("video", video, given_camera=CameraSpec(intrinsics=(
+        CAM.fx, CAM.fy, CAM.cx, CAM.cy)))
+    assert given.camera == CAM and given.intrinsics["source"] == "given"
+
+
+def test_video_frame_that_fails_to_decode_is_a_frame_read_error(video):
+    from spgeo.validation import FrameReadError
+
+    seq = VideoSequence(video)
+    seq[0]
+
+    class Broken:           # a capture whose next frame does not decode
+        def __init__(self, cap):
+            self.cap = cap
+
+        def grab(self):
+            return self.cap.grab()
+
+        def retrieve(self):
+            return False, None
+
+        def release(self):
+            self.cap.release()
+
+    seq._cap = Broken(seq._cap)
+    with pytest.raises(FrameReadError, match="clip.avi"):
+        seq[1]
+
+
+# ------------------------------------------------------------------ KITTI
+def _kitti_calib(baseline=0.54):
+    P = np.zeros((4, 3, 4))
+    for k in range(4):
+        P[k, :, :3] = CAM.K
+        P[k, :, 3] = CAM.K @ np.array([-baseline * (k % 2) + 0.06 * (k >= 2), 0.0, 0.0])
+    return P
+
+
+def write_kitti(root, frames, folder="image_0", with_poses=True):
+    seq = root / "sequences" / "03"
+    (seq / folder).mkdir(parents=True)
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(seq / folder / f"{i:06d}.png"), _bgr8(f))
+    P = _kitti_calib()
+    (seq / "calib.txt").write_text("".join(
+        f"P{k}: " + " ".join(f"{v:.12e}" for v in P[k].ravel()) + "\n" for k in range(4))
+        + "Tr: " + " ".join(["1", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0"]) + "\n")
+    (seq / "times.txt").write_text("".join(f"{0.1037 * i:.6e}\n" for i in range(len(frames))))
+    if with_poses:
+        (root / "poses").mkdir()
+        (root / "poses" / "03.txt").write_text("".join(
+            " ".join(f"{v:.12e}" for v in f.T_world_cam[:3].ravel()) + "\n" for f in frames))
+    return seq
+
+
+def test_kitti_reads_back(tmp_path, frames):
+    seq_dir = write_kitti(tmp_path, frames[:6])
+    seq = open_dataset("kitti", seq_dir, frames="1:6:2")
+    assert isinstance(seq, KITTISequence) and seq.name == "03"
+    assert seq.camera == CAM and seq.intrinsics["source"] == "file"
+    assert "P0" in seq.intrinsics["detail"]
+    assert seq.frame_numbers == [1, 3, 5]
+    assert np.allclose(seq.timestamps, [0.1037, 0.3111, 0.5185])
+    f = seq[1]
+    assert np.allclose(f.T_world_cam, frames[3].T_world_cam, atol=1e-9)
+    assert np.abs(f.image - frames[3].image).max() < 1 / 255 + 1e-6
+
+
+def test_kitti_colour_camera_pose_and_no_poses(tmp_path, frames):
+    seq_dir = write_kitti(tmp_path, frames[:3], folder="image_2")
+    seq = KITTISequence(seq_dir)
+    assert "P2" in seq.intrinsics["detail"]
+    T_cam0_cam2 = np.eye(4)
+    T_cam0_cam2[0, 3] = -0.06           # P2 = K [I | t], t = (0.06, 0, 0): camera 2 at x = -0.06
+    assert np.allclose(seq[2].T_world_cam, frames[2].T_world_cam @ T_cam0_cam2, atol=1e-9)
+    (tmp_path / "poses" / "03.txt").unlink()
+    assert KITTISequence(seq_dir).ground_truth() == [None] * 3
+
+
+def test_kitti_without_calib_names_the_file(tmp_path, frames):
+    seq_dir = write_kitti(tmp_path, frames[:2])
+    (seq_dir / "calib.txt").unlink()
+    with pytest.raises(FileNotFoundError, match="calib.txt"):
+        KITTISequence(seq_dir)
+
+
+def test_shared_kitti_clip_as_a_sequence(shared_data, tmp_path):
+    clip = shared_data / "kitti_odometry_clip_51"
+    seq_dir = tmp_path / "sequences" / "00"
+    seq_dir.mkdir(parents=True)
+    (tmp_path / "poses").mkdir()
+    (seq_dir / "image_0").symlink_to(clip / "image_l", target_is_directory=True)
+    (seq_dir / "calib.txt").symlink_to(clip / "calib.txt")
+    (tmp_path / "poses" / "00.txt").symlink_to(clip / "poses.txt")
+    seq = open_dataset("kitti", seq_dir)
+    assert len(seq) == 51
+    cam = seq.camera
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == pytest.approx((718.856, 718.856, 607.1928,
+                                                               185.2157))
+    assert cam.size == (1241, 376)
+    gt = seq.ground_truth()
+    assert all(T is not None for T in gt) and np.allclose(gt[0], np.eye(4), atol=1e-6)
+    row = np.array(next(line for line in (clip / "poses.txt").read_text().splitlines()[50:]
+                        ).split(), float).reshape(3, 4)
+    assert np.allclose(gt[50][:3], row, atol=1e-4)
+    assert seq.timestamps[1] == pytest.approx(0.1)
+    f = seq[10]
+    assert f.image.shape == (376, 1241, 3) and np.allclose(f.T_world_cam, gt[10])
+
+
+# ------------------------------------------------------------------ EuRoC
+T_BS = np.eye(4)
+T_BS[:3, :3] = so3_exp(np.array([0.02, -0.03, 1.55]))
+T_BS[:3, 3] = [-0.0216, -0.0647, 0.0098]
+DIST = (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05)
+T0_NS = 1403636579763555584
+STEP_NS = 50_000_000
+
+
+def write_euroc(root, frames):
+    cam0 = root / "mav0" / "cam0"
+    (cam0 / "data").mkdir(parents=True)
+    lines = ["#timestamp [ns],filename"]
+    for i, f in enumerate(frames):
+        ns = T0_NS + i * STEP_NS
+        cv2.imwrite(str(cam0 / "data" / f"{ns}.png"), cv2.cvtColor(_bgr8(f), cv2.COLOR_BGR2GRAY))
+        lines.append(f"{ns},{ns}.png")
+    (cam0 / "data.csv").write_text("\n".join(lines) + "\n")
+    tbs = ",\n         ".join(", ".join(f"{v:.15g}" for v in row) for row in T_BS)
+    (cam0 / "sensor.yaml").write_text(f"""# General sensor definitions.
+sensor_type: camera
+comment: VI-Sensor cam0 (MT9M034)
+
+# Sensor extrinsics wrt. the body-frame.
+T_BS:
+  cols: 4
+  rows: 4
+  data: [{tbs}]
+
+# Camera specific definitions.
+rate_hz: 20
+resolution: [{W}, {H}]
+camera_model: pinhole
+intrinsics: [{CAM.fx}, {CAM.fy}, {CAM.cx}, {CAM.cy}] #fu, fv, cu, cv
+distortion_model: radial-tangential
+distortion_coefficients: [{', '.join(map(str, DIST))}]
+""")
+    gt = root / "mav0" / "state_groundtruth_estimate0"
+    gt.mkdir()
+    rows = ["#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], "
+            "q_RS_y [], q_RS_z [], v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], "
+            "b_w_RS_S_x [rad s^-1], b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], "
+            "b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]"]
+    for i, f in enumerate(frames):
+        T_world_body = f.T_world_cam @ invert_pose(T_BS)
+        qx, qy, qz, qw = rot_to_quat(T_world_body[:3, :3])
+        for off in (-2_000_000, 1_000_000):       # 200 Hz-like rows beside each frame
+            T = T_world_body.copy()
+            T[:3, 3] += off * 1e-9      # a small offset the nearest row must not take
+            ns = T0_NS + i * STEP_NS + off
+            vals = [*T[:3, 3], qw, qx, qy, qz] + [0.0] * 9
+            rows.append(f"{ns}," + ",".join(f"{v:.15g}" for v in vals))
+    (gt / "data.csv").write_text("\n".join(rows) + "\n")
+    return root
+
+
+def test_euroc_reads_back(tmp_path, frames):
+    root = write_euroc(tmp_path / "MH_01_easy", frames[:4])
+    seq = open_dataset("euroc", root)
+    assert isinstance(seq, EuRoCSequence) and seq.name == "MH_01_easy" and len(seq) == 4
+    raw = seq.raw_camera
+    assert (raw.fx, raw.fy, raw.cx, raw.cy) == pytest.approx((CAM.fx, CAM.fy, CAM.cx, CAM.cy))
+    assert raw.distortion == pytest.approx(DIST) and seq.camera.distortion is None
+    assert seq.intrinsics["source"] == "file" and seq.intrinsics["distortion"] is not None
+    assert np.allclose(seq.timestamps, (T0_NS + np.arange(4) * STEP_NS) * 1e-9)
+    shift = np.eye(4)       # the nearest row (+1 ms) has its body moved by 1 mm along each axis
+    shift[:3, 3] = 1e-3
+    for i, T in enumerate(seq.ground_truth()):
+        assert np.allclose(T, shift @ frames[i].T_world_cam, atol=1e-9)
+    f = open_dataset("euroc", root / "mav0", undistort=False, frames="2")[0]
+    assert f.image.shape == (H, W, 3) and f.camera.distortion == pytest.approx(DIST)
+    assert f.name == str(T0_NS + 2 * STEP_NS)
+
+
+def test_euroc_ground_truth_too_far_is_none(tmp_path, frames):
+    root = write_euroc(tmp_path / "seq", frames[:2])
+    seq = EuRoCSequence(root, max_pose_difference=1e-4)
+    assert seq.ground_truth() == [None, None]
+
+
+# ------------------------------------------------------------------ the command
+@pytest.mark.slow
+def test_vo_on_a_video_with_fov(video, tmp_path, capsys):
+    fov = math.degrees(2 * math.atan(W / 2 / CAM.fx))
+    out = tmp_path / "o"
+    rc = main(["vo", "--dataset", "video", str(video), "--fov", f"{fov:.4f}",
+               "--resolution", f"{W}x{H}", "--no-progress", "--out", str(out)])
+    assert rc in (0, 3)
+    report = json.loads((out / "report.json").read_text())
+    intr = report["intrinsics"]
+    assert intr["source"] == "given" and intr["fx"] == pytest.approx(CAM.fx, rel=1e-3)
+    assert report["run"]["n_frames"] == 20
+    assert len((out / "trajectory.txt").read_text().split("\n")) >= 20
+
+
+# ------------------------------------------------------------------ live camera
+class FakeDevice:
+    """A "camera" playing the video; ``read`` raises KeyboardInterrupt (Ctrl-C) at
+    read number ``interrupt_at`` when set."""
+
+    def __init__(self, video, interrupt_at=None):
+        self.cap = cv2.VideoCapture(str(video))
+        self.reads, self.interrupt_at, self.released = 0, interrupt_at, False
+
+    def read(self):
+        self.reads += 1
+        if self.interrupt_at is not None and self.reads >= self.interrupt_at:
+            raise KeyboardInterrupt
+        return self.cap.read()
+
+    def release(self):
+        self.released = True
+        self.cap.release()
+
+
+def test_camera_stream_selection(video, monkeypatch):
+    import spgeo.datasets.video as video_mod
+
+    devices = []
+    monkeypatch.setattr(video_mod, "open_capture",
+                        lambda index: devices.append(FakeDevice(video)) or devices[-1])
+    stream = open_dataset("camera", "0", frames="2:8:2")
+    assert not hasattr(stream, "__len__") and stream.intrinsics["source"] == "guessed"
+    got = list(stream)
+    assert [f.name for f in got] == ["000002", "000004", "000006"]
+    assert all(b.timestamp > a.timestamp for a, b in zip(got, got[1:]))
+    assert got[0].image.shape == (H, W, 3) and devices[0].released
+    with pytest.raises(InputError, match="A:B"):
+        open_dataset("camera", "0", frames=[1, 2])
+
+
+@pytest.mark.slow
+def test_vo_on_a_camera_stops_on_ctrl_c_with_everything_written(video, tmp_path, monkeypatch,
+                                                                 capsys):
+    import spgeo.datasets.video as video_mod
+
+    monkeypatch.setattr(video_mod, "open_capture", lambda index: FakeDevice(video, 12))
+    out = tmp_path / "o"
+    rc = main(["vo", "--dataset", "camera", "0", "--intrinsics",
+               f"{CAM.fx},{CAM.fy},{CAM.cx},{CAM.cy}", "--resolution", f"{W}x{H}",
+               "--no-progress", "--out", str(out)])
+    assert rc == 130
+    assert "interrupted" in capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert report["run"]["status"] == "interrupted" and report["run"]["n_frames"] == 11
+    assert report["intrinsics"]["source"] == "given"
+    assert len((out / "trajectory.txt").read_text().strip().splitlines()) >= 11
