@@ -118,7 +118,7 @@ def test_track_rejects_wrong_image_shape(frames):
     vo = Odometry(CAM, OdometryConfig(), frontend())
     small = synthetic.default_camera(40, 30)
     with pytest.raises(InputError, match=r"image of shape \(30, 40, 3\) does not match the "
-                                         r"camera's \(H, W\) \(60, 80\)"):
+                                         r"input camera's \(H, W\) \(60, 80\)"):
         vo.track(Frame(np.zeros((30, 40, 3), np.float32), small, 0.0))
 
 
