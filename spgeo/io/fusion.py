@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, Iterable, Iterator, Optional, Tuple, Union
@@ -159,14 +160,16 @@ class FusionResult:
         for key, fname, write in (("mesh", MESH_FILE, o3d.io.write_triangle_mesh),
                                   ("cloud", CLOUD_FILE, o3d.io.write_point_cloud)):
             path = folder / fname
-            tmp = folder / f".{fname}.tmp.ply"
+            fd, tmp = tempfile.mkstemp(prefix=f".{fname}.", suffix=".tmp.ply", dir=folder)
+            os.close(fd)
             try:
-                if not write(str(tmp), getattr(self, key), write_ascii=False):
+                if not write(tmp, getattr(self, key), write_ascii=False):
                     raise OSError(f"open3d could not write {path}")
+                os.chmod(tmp, 0o644)   # mkstemp creates 0600
                 os.replace(tmp, path)
             finally:
-                if tmp.exists():
-                    tmp.unlink()
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
             out[key] = path
         return out
 
