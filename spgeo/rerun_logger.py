@@ -24,6 +24,8 @@ SfM / completion reference camera:
   ``depth`` (``DepthImage``, VO units) and ``normals`` (camera-frame normals
   as colours, when the primitives carry normals).  A keyframe is logged again
   whenever the VO replaces it (mapping refines its pose and scales).
+* ``world/mesh``: the fused mesh (``Mesh3D``, :meth:`RerunLogger.log_mesh`;
+  ``spgeo vo --mesh``), logged once at the last frame.
 * ``status``: ``TextLog`` per frame; ``timings/<stage>``: seconds per stage
   (``Scalars``); ``tracking/valid_fraction``, ``tracking/relative_cost``.
 
@@ -251,6 +253,22 @@ class RerunLogger:
             cols = np.asarray(colors)[keep]
             cols = cols if cols.dtype == np.uint8 else (np.clip(cols, 0, 1) * 255).astype(np.uint8)
         self.recording.log(path, self._rr.Points3D(pts[keep], colors=cols))
+
+    def log_mesh(self, path: str, vertices: np.ndarray, triangles: np.ndarray,
+                 colors: Optional[np.ndarray] = None,
+                 normals: Optional[np.ndarray] = None) -> None:
+        """A triangle mesh (world frame) as ``Mesh3D`` at ``path``: (V, 3)
+        ``vertices``, (T, 3) ``triangles`` (vertex indices), optional (V, 3)
+        vertex ``colors`` (float [0, 1] or uint8) and ``normals``."""
+        cols = None
+        if colors is not None:
+            cols = np.asarray(colors)
+            cols = cols if cols.dtype == np.uint8 else (np.clip(cols, 0, 1) * 255).astype(np.uint8)
+        self.recording.log(path, self._rr.Mesh3D(
+            vertex_positions=np.asarray(vertices, dtype=np.float32).reshape(-1, 3),
+            triangle_indices=np.asarray(triangles, dtype=np.uint32).reshape(-1, 3),
+            vertex_colors=cols,
+            vertex_normals=None if normals is None else np.asarray(normals, np.float32)))
 
     def log_primitives(self, path: str, primitives, image: Optional[np.ndarray] = None,
                        plane_distance: Optional[float] = None) -> None:

@@ -1,6 +1,7 @@
 """The outcome of a batch VO run (:class:`VORun`, made by
 :func:`spgeo.apps.vo_run.run_odometry`): trajectory, Sim(3) ATE against the ground
-truth (:mod:`spgeo.evaluation.trajectory`), summary lines, files and COLMAP export.
+truth (:mod:`spgeo.evaluation.trajectory`), summary lines, files, COLMAP and
+nerfstudio exports and the fused mesh (:meth:`VORun.fuse`).
 
 Frames: ``T_world_cam`` is the 4x4 camera-to-world pose; the VO's world is
 keyframe 0's camera (arbitrary scale for a monocular front-end), the ground
@@ -312,6 +313,29 @@ class VORun:
         images = None if frames is None else ((str(f.name), f.image) for f in frames)
         return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
                                images, stride, max_points)
+
+
+    def export_nerfstudio(self, directory: Union[str, Path],
+                          frames: Optional[Iterable[Frame]] = None) -> Path:
+        """:func:`spgeo.io.nerfstudio_export.export_odometry_nerfstudio` of the
+        run: the keyframes, or with ``frames`` (the run's input frames again)
+        every frame not lost, as for :meth:`export_colmap`.  Returns the path of
+        ``transforms.json``."""
+        from ..io.nerfstudio_export import export_odometry_nerfstudio
+
+        images = None if frames is None else ((str(f.name), f.image) for f in frames)
+        return export_odometry_nerfstudio(directory, self.odometry, self.names,
+                                          self.keyframe_images, images)
+
+    def fuse(self, config=None):
+        """TSDF fusion of the keyframes' depth maps at their final poses
+        (:func:`spgeo.io.fusion.fuse_odometry`; ``config`` a
+        :class:`~spgeo.io.fusion.FusionConfig`, default its defaults): a
+        :class:`~spgeo.io.fusion.FusionResult` in the VO's world and unit.
+        Raises ``ValueError`` when no keyframe carries depth."""
+        from ..io.fusion import FusionConfig, fuse_odometry
+
+        return fuse_odometry(self.odometry, FusionConfig() if config is None else config)
 
 
 class _KeyframeImages(Mapping):

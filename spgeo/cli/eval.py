@@ -30,6 +30,7 @@ PROTOCOLS: Dict[str, str] = {
     "vo_scale_drift": "vo.scale_drift",
     "vo_memory": "vo.memory",
     "vo_long_run": "vo.long_run",
+    "vo_mesh": "vo.mesh",
     "tum_fr1": "vo.tum_fr1",
     # sfm/: few-view structure from motion
     "sfm_real": "sfm.real",

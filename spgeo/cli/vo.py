@@ -5,7 +5,8 @@
              [--resolution WxH] [--strict] [--frontend classical|depth|onnx]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
-             [--export-colmap DIR [--all-frames]] [--refine]
+             [--mesh] [--export-colmap DIR] [--export-nerfstudio DIR] [--all-frames]
+             [--refine]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -18,11 +19,17 @@ which stops with exit code 2 naming the file.  ``--intrinsics`` / ``--fov``
 replace the input's camera (:class:`spgeo.datasets.CameraSpec`); without them an
 input with no calibration (a video, a camera, a folder without intrinsics) gets
 guessed intrinsics, with a warning; ``report.json``'s ``intrinsics`` says which.
+``--mesh`` fuses the keyframes'
+depth maps (:func:`spgeo.io.fusion.fuse_odometry`) into OUT/mesh.ply and
+OUT/cloud.ply (and the rerun recording's ``world/mesh``); ``--export-colmap`` /
+``--export-nerfstudio`` write the keyframes (or, with ``--all-frames``, every
+frame not lost) as a COLMAP model / a nerfstudio ``transforms.json`` data set.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from ..frontend import FRONTENDS
 from ..validation import InputError
@@ -45,7 +52,8 @@ when the data set has ground truth, the OdometryConfig under "config" and the
 rest of the run config under "run_config", the input camera under
 "intrinsics" with "source": "file", "given" (--intrinsics / --fov) or
 "guessed" (no calibration: EXIF focal length, else a default field of view;
-also a warning on stderr)) and keyframe point clouds in OUT/clouds/.  The
+also a warning on stderr)) and keyframe point clouds in OUT/clouds/; with --mesh,
+the fused OUT/mesh.ply and OUT/cloud.ply (TSDF of the keyframes' depth maps).  The
 classical and onnx front-ends never read depth; 'depth' uses the sensor depth
 (RGB-D / oracle).  A frame whose image (or depth) file cannot
 be read is skipped with a warning: status 'skipped' in
@@ -100,12 +108,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = _run_config(args)
     given = _given_camera(args)
     staged = StagedFolder(args.out, "--out", "spgeo vo")   # checked before the run
-    if args.export_colmap:
-        from ..io.colmap_export import check_export_directory
-
-        check_export_directory(args.export_colmap, args.out)
-    elif args.all_frames:
-        raise InputError("--all-frames needs --export-colmap DIR")
+    _check_exports(args)
     if args.all_frames and kind.lower() == "camera":
         raise InputError("--all-frames cannot re-read a live camera")
     with open_rerun(args) as viewer:
@@ -113,15 +116,19 @@ def _run(args: argparse.Namespace) -> int:
                           given_camera=given)
         if viewer is not None:
             viewer.finish(run.odometry)
+        fused = _fuse(run, viewer) if args.mesh else None
     ate = run.ate()
     with staged:
         paths = run.save(staged.path, ate=ate, title=staged.target.name)
+        if fused is not None:
+            fused.write(staged.path)
         staged.commit(run.status, frames=run.n_frames)
     for line in run.summary_lines(ate):
         print(line)
     n_clouds = len(paths.get("clouds") or [])
     print(f"wrote trajectory.txt, keyframes.txt, report.json"
-          f"{f', {n_clouds} keyframe clouds' if n_clouds else ''} in {args.out}")
+          f"{f', {n_clouds} keyframe clouds' if n_clouds else ''}"
+          f"{', mesh.ply, cloud.ply' if fused is not None else ''} in {args.out}")
     if run.interrupted:
         print(f"interrupted after {run.n_frames} frames: {args.out} holds them, marked "
               "interrupted in report.json", file=sys.stderr)
@@ -130,17 +137,66 @@ def _run(args: argparse.Namespace) -> int:
         print(f"no map was initialised: {run.odometry.init_failure or 'no keyframe pair'}; "
               "the poses are provisional", file=sys.stderr)
         return EXIT_FLAGGED
-    if args.export_colmap:
-        frames = None
-        if args.all_frames:     # re-read the frames: the run keeps only the keyframes' images
-            from ..datasets import open_dataset
-
-            frames = open_dataset(kind.lower(), path, frames=args.frames, load_depth=False,
-                                  given_camera=given)
-        model = run.export_colmap(args.export_colmap, frames)
-        what = "all frames not lost" if args.all_frames else "keyframes"
-        print(f"wrote the COLMAP model {model} ({what}, images in {args.export_colmap}/images)")
+    _export(args, run, given)
     return 0
+
+
+def _check_exports(args: argparse.Namespace) -> None:
+    """Check the export folders before the run (:class:`InputError`, exit code 2)."""
+    if args.export_colmap:
+        from ..io.colmap_export import check_export_directory
+
+        check_export_directory(args.export_colmap, args.out)
+    if args.export_nerfstudio:
+        from ..io.nerfstudio_export import check_nerfstudio_directory
+
+        check_nerfstudio_directory(args.export_nerfstudio, args.out)
+        if args.export_colmap and (Path(args.export_colmap).resolve()
+                                   == Path(args.export_nerfstudio).resolve()):
+            raise InputError("--export-colmap and --export-nerfstudio need different folders")
+    if args.all_frames and not (args.export_colmap or args.export_nerfstudio):
+        raise InputError("--all-frames needs --export-colmap DIR or --export-nerfstudio DIR")
+
+
+def _fuse(run, viewer):
+    """The TSDF fusion of the run's keyframes (logged to ``viewer`` when given),
+    or None with a warning on stderr when no keyframe carries depth."""
+    try:
+        fused = run.fuse()
+    except ValueError as exc:
+        print(f"no mesh: {exc}", file=sys.stderr)
+        return None
+    if viewer is not None:
+        import numpy as np
+
+        mesh = fused.mesh
+        viewer.log_mesh("world/mesh", fused.vertices, fused.triangles,
+                        np.asarray(mesh.vertex_colors), np.asarray(mesh.vertex_normals))
+    return fused
+
+
+def _export(args: argparse.Namespace, run, given) -> None:
+    """The COLMAP and nerfstudio exports asked for (keyframes, or every frame not
+    lost with ``--all-frames``: the frames are read again, the run keeps only
+    the keyframes' images, with the camera ``given`` by --intrinsics / --fov)."""
+    kind, path = args.dataset
+
+    def frames():
+        if not args.all_frames:
+            return None
+        from ..datasets import open_dataset
+
+        return open_dataset(kind.lower(), path, frames=args.frames, load_depth=False,
+                            given_camera=given)
+
+    what = "all frames not lost" if args.all_frames else "keyframes"
+    if args.export_colmap:
+        model = run.export_colmap(args.export_colmap, frames())
+        print(f"wrote the COLMAP model {model} ({what}, images in {args.export_colmap}/images)")
+    if args.export_nerfstudio:
+        tf = run.export_nerfstudio(args.export_nerfstudio, frames())
+        print(f"wrote the nerfstudio data set {tf} ({what}, images in "
+              f"{args.export_nerfstudio}/images)")
 
 
 def add_vo_cli(subparsers) -> argparse.ArgumentParser:
@@ -185,8 +241,16 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--export-colmap", default=None, metavar="DIR",
                    help="also write a COLMAP model of the keyframes: DIR/images/*.png (processing "
                         "resolution), DIR/sparse/0/{cameras,images,points3D}.bin")
+    p.add_argument("--export-nerfstudio", default=None, metavar="DIR",
+                   help="also write a nerfstudio data set of the keyframes: DIR/transforms.json "
+                        "(PINHOLE intrinsics, camera-to-world transform_matrix in nerfstudio's "
+                        "OpenGL camera axes) and DIR/images/*.png (processing resolution)")
     p.add_argument("--all-frames", action="store_true",
-                   help="--export-colmap: every frame not lost, not only the keyframes")
+                   help="--export-colmap / --export-nerfstudio: every frame not lost, not only "
+                        "the keyframes")
+    p.add_argument("--mesh", action="store_true",
+                   help="fuse the keyframes' depth maps at their final poses (TSDF) into "
+                        "OUT/mesh.ply and OUT/cloud.ply (VO world and units)")
     add_config_arguments(p, "VORunConfig / OdometryConfig")
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")

@@ -28,11 +28,9 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import AbstractSet, Dict, Iterable, List, Optional, Sequence, Set, Tuple, Union
 
 import numpy as np
 
@@ -40,11 +38,11 @@ from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
 from ..validation import InputError
-from .outputs import replace_dir
+from .outputs import check_writable_parent, staged_directory
 
 __all__ = ["ColmapPoints", "primitive_points", "keyframe_points", "export_colmap",
            "export_sfm_result", "export_odometry", "check_export_directory", "image_file_name",
-           "MODEL_SUBDIR", "IMAGES_SUBDIR"]
+           "write_image", "odometry_images", "MODEL_SUBDIR", "IMAGES_SUBDIR"]
 
 log = logging.getLogger(__name__)
 
@@ -183,23 +181,46 @@ def image_file_name(name: str) -> str:
 
 
 def check_export_directory(directory: Union[str, os.PathLike],
-                           output: Union[None, str, os.PathLike] = None) -> Path:
+                           output: Union[None, str, os.PathLike] = None,
+                           entries: AbstractSet[str] = frozenset(_EXPORT_ENTRIES),
+                           what: str = "COLMAP export directory") -> Path:
     """``directory`` as a Path, after checking that an export may replace it:
-    absent, empty, or a previous export (only ``images/`` and ``sparse/``),
-    and not the run's ``output`` folder.  Raises :class:`~spgeo.validation.InputError` otherwise."""
+    absent, empty, or a previous export (holding only ``entries``: by default
+    ``images/`` and ``sparse/``), not the run's ``output`` folder, and its parent
+    writable (:func:`spgeo.io.outputs.check_writable_parent`; created if needed).
+    Raises :class:`~spgeo.validation.InputError` naming it (as ``what``) otherwise."""
     d = Path(directory)
     if output is not None and d.resolve() == Path(output).resolve():
-        raise InputError(f"the COLMAP export directory {d} is the output folder: give its own "
+        raise InputError(f"the {what} {d} is the output folder: give its own "
                          "folder (e.g. a sub-folder)")
     if d.exists():
         if not d.is_dir():
-            raise InputError(f"COLMAP export directory {d} exists and is not a folder")
-        other = sorted(set(os.listdir(d)) - _EXPORT_ENTRIES)
+            raise InputError(f"{what} {d} exists and is not a folder")
+        other = sorted(set(os.listdir(d)) - set(entries))
         if other:
-            raise InputError(f"COLMAP export directory {d} holds other files "
+            raise InputError(f"{what} {d} holds other files "
                              f"({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}): "
                              "give an empty or new folder")
+    check_writable_parent(d, what)
     return d
+
+
+def write_image(image_dir: Path, camera: PinholeCamera, name: str, image: np.ndarray,
+                written: Set[str], what: str = "export") -> str:
+    """Write ``image`` (H, W[, 3], uint8 or float [0, 1], at ``camera``'s size)
+    as ``image_dir/<image_file_name(name)>`` (8-bit RGB PNG) and return that
+    file name, added to ``written``.  Raises ``ValueError`` when the name is
+    repeated (in ``written``) or not a plain file name, or the image is not at
+    the camera's size."""
+    fname = image_file_name(name)
+    if fname in written or os.path.basename(fname) != fname or fname.startswith("."):
+        raise ValueError(f"{what}: image name {name!r} is repeated or not a plain file name")
+    from ..viz import save_png
+
+    rgb = _rgb8(camera.check_image(image, f"{what} image {name!r}"))
+    save_png(Path(image_dir) / fname, rgb)
+    written.add(fname)
+    return fname
 
 
 def _pycolmap():
@@ -223,7 +244,6 @@ def _write_model(model_dir: Path, camera: PinholeCamera,
     """Write the images and the binary model; returns (images, points) written."""
     pycolmap = _pycolmap()
     from ..twoview.backends import colmap_camera
-    from ..viz import save_png
 
     n = len(T_world_cam)
     order = np.argsort(points.image_index, kind="stable")
@@ -235,19 +255,12 @@ def _write_model(model_dir: Path, camera: PinholeCamera,
     cam = colmap_camera(camera)
     cam.camera_id = 1
     rec.add_camera_with_trivial_rig(cam)
-    names = set()
+    names: Set[str] = set()
     count = 0
-    for i, item in enumerate(images):
+    for i, (name, image) in enumerate(images):
         if i >= n:
             raise ValueError(f"export_colmap: more images than poses ({n})")
-        name, image = item
-        fname = image_file_name(name)
-        if fname in names or os.path.basename(fname) != fname or fname.startswith("."):
-            raise ValueError(f"export_colmap: image name {name!r} is repeated or not a plain "
-                             "file name")
-        names.add(fname)
-        rgb = _rgb8(camera.check_image(image, f"export_colmap image {name!r}"))
-        save_png(image_dir / fname, rgb)
+        fname = write_image(image_dir, camera, name, image, names, "export_colmap")
         kp = points.uv[order[starts[i]:starts[i + 1]]] + 0.5      # COLMAP pixel centres
         img = pycolmap.Image(name=fname, keypoints=kp, camera_id=1, image_id=i + 1)
         rec.add_image_with_trivial_frame(img, _rigid(pycolmap, invert_pose(T_world_cam[i])))
@@ -305,17 +318,10 @@ def export_colmap(directory: Union[str, os.PathLike], camera: PinholeCamera,
     if not np.all(inside):
         raise ValueError("ColmapPoints.uv: observations outside the image")
     pts = pts.subsample(max_points)
-    target = d.absolute()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
-    try:
+    with staged_directory(d) as tmp:
         (tmp / IMAGES_SUBDIR).mkdir()
         n_img, n_pts = _write_model(tmp / MODEL_SUBDIR, camera, images, T, pts,
                                     tmp / IMAGES_SUBDIR)
-        replace_dir(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log.info("COLMAP export: %d images, %d points in %s", n_img, n_pts, d)
     return d / MODEL_SUBDIR
 
@@ -381,26 +387,57 @@ def export_odometry(directory: Union[str, os.PathLike], odometry, names: Sequenc
     the keyframes' primitives are not at the VO camera's size.
     """
     res, cam = odometry.result(), odometry.camera
-    if len(names) != len(res.poses):
-        raise ValueError(f"export_odometry: {len(names)} names for {len(res.poses)} frames")
-    kf_frame = {f.keyframe_index: f.index for f in odometry.frames
-                if f.keyframe_index is not None}
+    kf_frame = _keyframe_frames(odometry)
     kfs = odometry.keyframes
     for kf in kfs:
         if kf.primitives.camera.shape != cam.shape:
             raise ValueError(f"keyframe primitives are {kf.primitives.camera.size}, the VO "
                              f"camera {cam.size}: the front-end's working size must be the "
                              "VO resolution for a COLMAP export")
-    if frames is None:
-        sel = [kf_frame[k] for k in range(len(kfs))]
-        images: Iterable = ((names[i], keyframe_images[k]) for k, i in enumerate(sel))
-    else:
-        sel = [i for i, s in enumerate(res.statuses) if s != "lost"]
-        images = _processed(frames, names, set(sel), cam)
+    sel, images = odometry_images(odometry, names, keyframe_images, frames)
     pos = {i: p for p, i in enumerate(sel)}
     points = keyframe_points([(pos[kf_frame[k]], keyframe_images.get(k), kf)
                               for k, kf in enumerate(kfs)], stride)
     return export_colmap(directory, cam, images, res.poses[sel], points, max_points)
+
+
+def _keyframe_frames(odometry) -> Dict[int, int]:
+    """Keyframe index -> index of the frame it was made from."""
+    return {f.keyframe_index: f.index for f in odometry.frames if f.keyframe_index is not None}
+
+
+def odometry_images(odometry, names: Sequence[str], keyframe_images: Dict[int, np.ndarray],
+                    frames: Optional[Iterable[Tuple[str, np.ndarray]]] = None
+                    ) -> Tuple[List[int], Iterable[Tuple[str, np.ndarray]]]:
+    """The frames of a VO run that an export writes, and their images.
+
+    Args:
+        odometry: the :class:`spgeo.vo.Odometry` after its last frame.
+        names: (n,) name of every frame it tracked.
+        keyframe_images: keyframe index -> its image at the VO camera's size.
+        frames: None for the keyframes only; else ``(name, image)`` of every
+            tracked frame again, in order (any size: resized with
+            ``INTER_AREA`` to the VO camera, one at a time); then every frame
+            not flagged ``"lost"`` is selected.
+
+    Returns:
+        ``(frame indices, (name, image) per selected frame)``: indices into
+        ``odometry.result()`` in increasing order; the images are produced
+        lazily, in the same order (a generator: read it once).
+    Raises ``ValueError`` when ``names`` is not one name per tracked frame (or
+    later, while reading, when ``frames`` are not the run's).
+    """
+    res, cam = odometry.result(), odometry.camera
+    if len(names) != len(res.poses):
+        raise ValueError(f"export: {len(names)} names for {len(res.poses)} frames")
+    if frames is None:
+        kf_frame = _keyframe_frames(odometry)
+        sel = [kf_frame[k] for k in range(odometry.n_keyframes)]
+        images: Iterable = ((names[i], keyframe_images[k]) for k, i in enumerate(sel))
+    else:
+        sel = [i for i, s in enumerate(res.statuses) if s != "lost"]
+        images = _processed(frames, names, set(sel), cam)
+    return sel, images
 
 
 def _processed(frames: Iterable[Tuple[str, np.ndarray]], names: Sequence[str], keep: set,

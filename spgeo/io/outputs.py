@@ -10,26 +10,31 @@
   replacing a previous spgeo output as a whole (two runs are never mixed in one
   folder).  Leaving the ``with`` block without a commit (an exception, Ctrl-C)
   removes the temporary folder and leaves the target as it was.
-* :func:`replace_dir`: the rename-into-place step, shared with
-  :mod:`spgeo.io.colmap_export`.
+* :func:`replace_dir`: the rename-into-place step, and :func:`staged_directory`,
+  a folder written under a temporary sibling name and renamed into place
+  (the exports of :mod:`spgeo.io.colmap_export` and :mod:`spgeo.io.nerfstudio_export`).
+* :func:`check_writable_parent`: the parent of an output folder exists (or is
+  created) and a folder can really be made in it.
 
 A folder is recognised as a previous spgeo output by its manifest; a non-empty
 folder without one is never replaced or written into.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Optional, Union
+from typing import Iterator, Optional, Union
 
 from ..validation import InputError
 
 __all__ = ["MANIFEST", "prepare_output_file", "write_bytes_atomic", "replace_dir",
-           "check_output_folder", "read_manifest", "StagedFolder"]
+           "staged_directory", "check_writable_parent", "check_output_folder", "read_manifest",
+           "StagedFolder"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -135,6 +140,16 @@ def check_output_folder(path: PathLike, what: str = "--out") -> Path:
             raise InputError(f"{what} {path} is a folder holding files that spgeo did not "
                              f"write (no {MANIFEST}); give an empty or new folder, or the "
                              "folder of a previous spgeo run to replace it")
+    check_writable_parent(p, what)
+    return p
+
+
+def check_writable_parent(path: PathLike, what: str = "output") -> Path:
+    """The parent folder of ``path`` (a folder to be written by renaming a
+    temporary sibling into place), after creating it if needed and making and
+    removing a probe folder in it.  Raises :class:`InputError` naming ``path``
+    when it cannot be created (a file in the way) or written."""
+    p = Path(os.path.abspath(os.fspath(path)))
     parent = p.parent
     _make_folder(str(parent), f"the parent folder of {what} {path}")
     if not os.access(parent, os.W_OK | os.X_OK):
@@ -143,7 +158,25 @@ def check_output_folder(path: PathLike, what: str = "--out") -> Path:
         os.rmdir(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".probe", dir=parent))
     except OSError as exc:
         raise _cannot_write(what, path, parent, exc) from None
-    return p
+    return parent
+
+
+@contextlib.contextmanager
+def staged_directory(target: PathLike) -> Iterator[Path]:
+    """``with staged_directory(target) as tmp:`` write the folder's content under
+    ``tmp`` (a new temporary sibling of ``target``); on a normal exit ``tmp``
+    replaces ``target`` (:func:`replace_dir`), on an exception it is removed and
+    ``target`` is left as it was.  The parent of ``target`` is created."""
+    target = Path(os.path.abspath(os.fspath(target)))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o755)   # mkdtemp creates 0700
+        replace_dir(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 class StagedFolder:

@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple, Union
+from typing import Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -251,6 +251,16 @@ class Odometry:
         """The input image keyframe ``k`` was made from (as given to :meth:`track`)."""
         return self._kfs[k].restore(self._store, self.config.keyframe_levels)[0]
 
+    def iter_keyframes(self, indices: Optional[Iterable[int]] = None
+                       ) -> Iterator[Tuple[int, np.ndarray, Keyframe]]:
+        """``(k, input image, Keyframe)`` of keyframes ``indices`` (default: all),
+        in the order given, at their current state: keyframes that left the
+        window are read back from the store one at a time (a consumer that
+        keeps none holds one in memory)."""
+        levels = self.config.keyframe_levels
+        for k in (self._kf_order if indices is None else indices):
+            yield (k, *self._kfs[k].restore(self._store, levels))
+
     def window_keyframes(self) -> Dict[int, Keyframe]:
         """Keyframe index -> :class:`Keyframe` of the keyframes not retired (the
         window's: the only ones that can still change), in creation order."""
@@ -328,8 +338,7 @@ class Odometry:
         ``extra_report`` and, with ``clouds``, the keyframes that carry depth
         (:meth:`keyframes_with_depth`; keyframes that left the window are read
         back from the keyframe store one at a time)."""
-        levels = self.config.keyframe_levels
-        kfs = ((k, *self._kfs[k].restore(self._store, levels)) for k in self.keyframes_with_depth())
+        kfs = self.iter_keyframes(self.keyframes_with_depth())
         traj = self.result() if trajectory is None else trajectory
         return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
