@@ -95,8 +95,7 @@ def vo_run(scene_frames):
     scene, _ = scene_frames
     frames = synthetic.render_frames(scene, CAM, synthetic.make_trajectory(80, 0)[::2],
                                      supersample=2)
-    cfg = VORunConfig(resolution=(160, 120), progress=False,
-                      odometry=OdometryConfig(window=3))
+    cfg = VORunConfig(progress=False, odometry=OdometryConfig(resolution=(160, 120), window=3))
     return run_odometry(frames, cfg)
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from spgeo import synthetic
+from spgeo.vo import OdometryConfig
 from spgeo.apps.vo_run import VORunConfig, run_odometry
 from spgeo.geometry import invert_pose, transform_points
 from spgeo.io.nerfstudio_export import (TRANSFORMS_FILE, export_nerfstudio,
@@ -25,8 +26,8 @@ def vo_run():
     scene = synthetic.SyntheticScene.generate(0)
     frames = synthetic.render_frames(scene, CAM, synthetic.make_trajectory(40, 0)[::2],
                                      supersample=2)
-    run = run_odometry(frames, VORunConfig(resolution=(160, 120), frontend="depth",
-                                           progress=False))
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)),
+                                           frontend="depth", progress=False))
     return run, frames
 
 

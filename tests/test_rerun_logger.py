@@ -145,6 +145,7 @@ def test_rerun_is_not_imported_without_the_option():
         from spgeo.cli import build_parser
         from spgeo import synthetic
         from spgeo.apps.vo_run import VORunConfig, run_odometry
+        from spgeo.vo import OdometryConfig
         cam = synthetic.default_camera(64, 48)
         scene = synthetic.SyntheticScene.generate(0)
         frames = synthetic.render_frames(scene, cam, synthetic.make_trajectory(3, 0))
