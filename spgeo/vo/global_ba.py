@@ -14,8 +14,8 @@ last ``window`` keyframes; a keyframe that leaves the window is final.
   functions, :func:`spgeo.vo.mapping.link_keyframe_pair`) between each keyframe
   and its ``GlobalBAConfig.neighbours`` previous keyframes of the segment, in
   both directions; the brightness priors; the shape priors at the current
-  values (default weight: the weak ``OdometryConfig.scale_prior_weight``;
-  ``GlobalBAConfig.shape_prior_weight``);
+  values (default weight: ``OdometryConfig.render_prior_weight``, the weight
+  the window gives scales rendered from the map; ``GlobalBAConfig.shape_prior_weight``);
 * gauge: the segment's first keyframe pose has a tight prior
   (``mapping.GAUGE_SIGMA``) and the *scale gauge* fixes the length of the
   baseline between the segment's first two keyframes (its component along
@@ -85,11 +85,11 @@ class GlobalBAConfig:
         map_level: pyramid level of the factors (default None: the odometry's
             ``OdometryConfig.map_level``, as the window mapper).
         shape_prior_weight: weight of every shape variable's prior to its value
-            before the adjustment (default None: the odometry's weak
-            ``OdometryConfig.scale_prior_weight``; a larger one, e.g. its
-            ``render_prior_weight``, holds the shapes near the window's estimate,
-            whose supporting-frame factors are not in this graph, and lets the
-            adjustment correct less of a scale error).
+            before the adjustment (default None: the odometry's
+            ``OdometryConfig.render_prior_weight``, which holds the shapes near
+            the window's estimate, whose supporting-frame factors are not in
+            this graph; a smaller one, e.g. ``scale_prior_weight``, lets the
+            adjustment move them further; docs/results.md compares the two).
     """
 
     neighbours: int = 2
@@ -191,7 +191,7 @@ def _build(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
     gauge = _DistanceGauge(kf_pose_key(first.index), kf_pose_key(kfs[1].index), baseline,
                            SCALE_GAUGE_SIGMA)
     batch = FactorBatch()
-    w = config.scale_prior_weight if ba.shape_prior_weight is None else ba.shape_prior_weight
+    w = config.render_prior_weight if ba.shape_prior_weight is None else ba.shape_prior_weight
     for kf in kfs:
         add_keyframe_variables(batch, kf, config, np.full(len(kf.keyframe.primitives), float(w)))
     batch.graph.add(pose_gauge_prior(kf_pose_key(first.index), first.keyframe.T_world_kf,
