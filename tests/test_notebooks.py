@@ -3,13 +3,15 @@ outputs must be current (every code cell ran, in order, from the source it shows
 their figures small, and they must still run (nbclient, offline)."""
 import base64
 import hashlib
+import struct
 from pathlib import Path
 
 import pytest
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
-#: largest embedded figure (bytes of PNG)
-MAX_FIGURE_BYTES = 150_000
+#: largest embedded figure: bytes of PNG, pixels wide
+MAX_FIGURE_BYTES = 300_000
+MAX_FIGURE_WIDTH = 1000
 
 
 def _code_cells(nb):
@@ -38,8 +40,10 @@ def test_notebook_outputs_are_current(path):
         for out in cell.get("outputs", []):
             png = out.get("data", {}).get("image/png")
             if png:
-                assert len(base64.b64decode(png)) <= MAX_FIGURE_BYTES, \
-                    f"{path.name} code cell {i}: figure above {MAX_FIGURE_BYTES} bytes"
+                data = base64.b64decode(png)
+                width = struct.unpack(">I", data[16:20])[0]      # PNG IHDR
+                assert len(data) <= MAX_FIGURE_BYTES and width <= MAX_FIGURE_WIDTH, \
+                    f"{path.name} code cell {i}: figure of {len(data)} bytes, {width} px wide"
     assert any(_output_kinds(c) for c in cells), f"{path.name}: committed without outputs"
 
 
