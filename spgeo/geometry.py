@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 
 __all__ = [
-    "check_pose", "invert_pose", "relative_pose", "transform_points", "quat_to_rot",
+    "check_pose", "check_poses", "invert_pose", "relative_pose", "transform_points", "quat_to_rot",
     "rot_to_quat", "pose_from_tum", "pose_to_tum", "rotation_angle_deg", "to_pose3",
     "from_pose3", "so3_exp",
 ]
@@ -30,6 +30,17 @@ def check_pose(T: np.ndarray, name: str = "pose", atol: float = 1e-5) -> np.ndar
             or not np.allclose(T[3], [0, 0, 0, 1], atol=atol)):
         raise ValueError(f"{name} is not a rigid transform (rotation not orthonormal or "
                          "last row not [0 0 0 1])")
+    return T
+
+
+def check_poses(T: np.ndarray, name: str = "T_world_cam") -> np.ndarray:
+    """Return ``T`` as a float64 (n, 4, 4) stack of rigid transforms, n >= 1, or
+    raise ``ValueError`` naming ``name`` (and the index of a bad one)."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0:
+        raise ValueError(f"{name} must be (n, 4, 4) with n >= 1, got {T.shape}")
+    for i, Ti in enumerate(T):
+        check_pose(Ti, f"{name}[{i}]")
     return T
 
 

@@ -10,7 +10,8 @@ import pytest
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from spgeo.vo import OdometryConfig
+from layouts import write_7scenes  # noqa: E402
+from spgeo.vo import OdometryConfig  # noqa: E402
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.frontend import FrontEndConfig, make_frontend  # noqa: E402
@@ -212,18 +213,7 @@ def test_cli_vo_export_colmap_all_frames(vo_run, tmp_path):
     from spgeo.io.tum import read_status, read_tum
 
     _, frames = vo_run
-    seq = tmp_path / "seq-01"
-    seq.mkdir()
-    np.savetxt(seq / "camera-intrinsics.txt", CAM.resized(640, 480).K)
-    for i, f in enumerate(frames[:8]):
-        stem = seq / f"frame-{i:06d}"
-        big = cv2.resize(np.round(f.image * 255).astype(np.uint8), (640, 480),
-                         interpolation=cv2.INTER_NEAREST)
-        assert cv2.imwrite(f"{stem}.color.png", big[..., ::-1])
-        mm = np.round(np.nan_to_num(f.depth, nan=0.0) * 1000).astype(np.uint16)
-        assert cv2.imwrite(f"{stem}.depth.png", cv2.resize(mm, (640, 480),
-                                                           interpolation=cv2.INTER_NEAREST))
-        np.savetxt(f"{stem}.pose.txt", f.T_world_cam)
+    seq = write_7scenes(tmp_path / "seq-01", frames[:8], CAM.resized(640, 480).K)
     out, exp = tmp_path / "out", tmp_path / "colmap"
     assert main(["vo", "--dataset", "7scenes", str(seq), "--resolution", "160x120",
                  "--frontend", "depth", "--no-progress", "--out", str(out),

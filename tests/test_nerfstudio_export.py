@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from layouts import write_7scenes
 from spgeo import synthetic
 from spgeo.vo import OdometryConfig
 from spgeo.apps.vo_run import VORunConfig, run_odometry
@@ -123,22 +124,6 @@ def test_bad_input(tmp_path):
         export_nerfstudio(tmp_path / "file" / "ns", CAM, [("x", img)], np.eye(4)[None])
 
 
-def _seven_scenes(folder, frames):
-    """7-Scenes layout of ``frames`` at 640x480 (nearest neighbour)."""
-    folder.mkdir()
-    np.savetxt(folder / "camera-intrinsics.txt", CAM.resized(640, 480).K)
-    for i, f in enumerate(frames):
-        stem = folder / f"frame-{i:06d}"
-        big = cv2.resize(np.round(f.image * 255).astype(np.uint8), (640, 480),
-                         interpolation=cv2.INTER_NEAREST)
-        assert cv2.imwrite(f"{stem}.color.png", big[..., ::-1])
-        mm = np.round(np.nan_to_num(f.depth, nan=0.0) * 1000).astype(np.uint16)
-        assert cv2.imwrite(f"{stem}.depth.png", cv2.resize(mm, (640, 480),
-                                                           interpolation=cv2.INTER_NEAREST))
-        np.savetxt(f"{stem}.pose.txt", f.T_world_cam)
-    return folder
-
-
 def test_cli_mesh_nerfstudio_rerun(vo_run, tmp_path, capsys):
     """``spgeo vo --mesh --export-nerfstudio DIR --all-frames [--rerun save F]``:
     OUT/mesh.ply and OUT/cloud.ply, the data set with trajectory.txt's poses,
@@ -147,7 +132,7 @@ def test_cli_mesh_nerfstudio_rerun(vo_run, tmp_path, capsys):
     from spgeo.io.tum import read_status, read_tum
 
     _, frames = vo_run
-    seq = _seven_scenes(tmp_path / "seq-01", frames[:8])
+    seq = write_7scenes(tmp_path / "seq-01", frames[:8], CAM.resized(640, 480).K)
     out, ns = tmp_path / "out", tmp_path / "ns"
     args = ["vo", "--dataset", "7scenes", str(seq), "--resolution", "160x120", "--frontend",
             "depth", "--no-progress", "--out", str(out), "--mesh", "--export-nerfstudio",
@@ -189,7 +174,7 @@ def test_cli_unwritable_export_exit_2(vo_run, tmp_path, capsys, where):
     from spgeo.cli import main
 
     _, frames = vo_run
-    seq = _seven_scenes(tmp_path / "seq-01", frames[:2])
+    seq = write_7scenes(tmp_path / "seq-01", frames[:2], CAM.resized(640, 480).K)
     (tmp_path / "file").write_text("x")
     bad = tmp_path / "file" / "ns" if where == "file" else "/proc/spgeo-ns/ns"
     rc = main(["vo", "--dataset", "7scenes", str(seq), "--no-progress",

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from layouts import write_7scenes
 from spgeo import synthetic
 from spgeo.cli import main
 from spgeo.evaluation.trajectory import read_status, read_tum
@@ -30,34 +31,15 @@ def frames():
                                    supersample=2)
 
 
-def _write_7scenes(folder, frames, garbage_depth=False):
-    """7-Scenes layout: frame-NNNNNN.color.png (640x480), .depth.png (uint16 mm),
-    .pose.txt (4x4 camera-to-world), camera-intrinsics.txt (3x3 K)."""
-    folder.mkdir(parents=True)
-    np.savetxt(folder / "camera-intrinsics.txt", CAM_BIG.K)
-    for i, f in enumerate(frames):
-        stem = folder / f"frame-{i:06d}"
-        rgb8 = np.clip(np.round(f.image * 255), 0, 255).astype(np.uint8)
-        big = cv2.resize(rgb8, (640, 480), interpolation=cv2.INTER_NEAREST)
-        assert cv2.imwrite(f"{stem}.color.png", cv2.cvtColor(big, cv2.COLOR_RGB2BGR))
-        if garbage_depth:       # a monocular run must never open these
-            (folder / f"frame-{i:06d}.depth.png").write_bytes(b"not a png")
-        else:
-            mm = np.clip(np.round(np.nan_to_num(f.depth, nan=0.0) * 1000), 0, 65534)
-            big_d = cv2.resize(mm.astype(np.uint16), (640, 480), interpolation=cv2.INTER_NEAREST)
-            assert cv2.imwrite(f"{stem}.depth.png", big_d)
-        np.savetxt(f"{stem}.pose.txt", f.T_world_cam)
-    return folder
-
-
 @pytest.fixture(scope="module")
 def seven_scenes(tmp_path_factory, frames):
-    return _write_7scenes(tmp_path_factory.mktemp("vo") / "seq-01", frames)
+    return write_7scenes(tmp_path_factory.mktemp("vo") / "seq-01", frames, CAM_BIG.K)
 
 
 @pytest.fixture(scope="module")
 def seven_scenes_bad_depth(tmp_path_factory, frames):
-    return _write_7scenes(tmp_path_factory.mktemp("vo") / "seq-02", frames, garbage_depth=True)
+    return write_7scenes(tmp_path_factory.mktemp("vo") / "seq-02", frames, CAM_BIG.K,
+                         garbage_depth=True)
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from layouts import write_7scenes
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_dataset, run_odometry
 from spgeo.vo import OdometryConfig
@@ -39,21 +40,6 @@ def _rgb8(f):
                         cv2.COLOR_RGB2BGR)
 
 
-def _write_7scenes(folder, frames):
-    """frame-NNNNNN.color.png (640x480), .depth.png (uint16 mm), .pose.txt, K."""
-    folder.mkdir(parents=True)
-    np.savetxt(folder / "camera-intrinsics.txt", CAM_BIG.K)
-    for i, f in enumerate(frames):
-        stem = folder / f"frame-{i:06d}"
-        big = cv2.resize(_rgb8(f), (640, 480), interpolation=cv2.INTER_NEAREST)
-        assert cv2.imwrite(f"{stem}.color.png", big)
-        mm = np.clip(np.round(np.nan_to_num(f.depth, nan=0.0) * 1000), 0, 65534)
-        assert cv2.imwrite(f"{stem}.depth.png", cv2.resize(
-            mm.astype(np.uint16), (640, 480), interpolation=cv2.INTER_NEAREST))
-        np.savetxt(f"{stem}.pose.txt", f.T_world_cam)
-    return folder
-
-
 def _truncate(path):
     data = path.read_bytes()
     path.write_bytes(data[:len(data) // 2])
@@ -62,7 +48,8 @@ def _truncate(path):
 @pytest.fixture(scope="module")
 def broken_seq(tmp_path_factory):
     """A 7-Scenes-style sequence whose frame BAD has a truncated colour PNG."""
-    folder = _write_7scenes(tmp_path_factory.mktemp("robust") / "seq-01", _frames(CAM, N))
+    folder = write_7scenes(tmp_path_factory.mktemp("robust") / "seq-01", _frames(CAM, N),
+                           CAM_BIG.K)
     _truncate(folder / f"frame-{BAD:06d}.color.png")
     return folder
 

@@ -302,14 +302,10 @@ def export_colmap(directory: Union[str, os.PathLike], camera: PinholeCamera,
         ValueError: bad poses, images or points, an image count that differs
             from the poses', or a ``directory`` that holds other files.
     """
-    from ..geometry import check_pose
+    from ..geometry import check_poses
 
     d = check_export_directory(directory)
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0:
-        raise ValueError(f"T_world_cam must be (n, 4, 4) with n >= 1, got {T.shape}")
-    for i, Ti in enumerate(T):
-        check_pose(Ti, f"T_world_cam[{i}]")
+    T = check_poses(T_world_cam)
     pts = ColmapPoints.concatenate([]) if points is None else points
     if len(pts) and pts.image_index.max() >= len(T):
         raise ValueError(f"ColmapPoints.image_index reaches {pts.image_index.max()}, "

@@ -113,14 +113,10 @@ def export_nerfstudio(directory: Union[str, os.PathLike], camera: PinholeCamera,
             poses', or a ``directory`` that holds other files
             (:class:`~spgeo.validation.InputError`).
     """
-    from ..geometry import check_pose
+    from ..geometry import check_poses
 
     d = check_nerfstudio_directory(directory)
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) == 0:
-        raise ValueError(f"T_world_cam must be (n, 4, 4) with n >= 1, got {T.shape}")
-    for i, Ti in enumerate(T):
-        check_pose(Ti, f"T_world_cam[{i}]")
+    T = check_poses(T_world_cam)
     with staged_directory(d) as tmp:
         (tmp / IMAGES_SUBDIR).mkdir()
         frames = _write_frames(tmp / IMAGES_SUBDIR, camera, images, T)
