@@ -23,3 +23,23 @@ def test_jobs_skip_missing_cases(tmp_path):
     assert [j.meta["case"] for j in jobs] == ["tum 0-4-8", "tum 0-4-8"]
     assert {j.meta["frontend"] for j in jobs} == {"classical", "depth"}
     assert len(CASES) == 5 and make_jobs(tmp_path / "none", ["classical"], ["scaled"]) == []
+
+
+def test_onnx_depth_rows_need_a_depth_model(tmp_path):
+    """The onnx-depth rows get --depth-model (theirs only) and are left out without it."""
+    (tmp_path / "tum_fr1_desk_9").mkdir()
+    fes = ["classical", "onnx-depth"]
+    assert {j.meta["frontend"] for j in make_jobs(tmp_path, fes, ["scaled"])} == {"classical"}
+    jobs = make_jobs(tmp_path, fes, ["scaled"], depth_model="fastdepth-nyu")
+    assert {j.meta["frontend"]: dict(j.kwargs) for j in jobs} == {
+        "classical": {}, "onnx-depth": {"depth_model": "fastdepth-nyu"}}
+
+
+def test_missing_depth_model_is_one_error(tmp_path, capsys):
+    from spgeo.evaluation.sfm.ablation import main
+
+    (tmp_path / "tum_fr1_desk_9").mkdir()
+    with pytest.raises(SystemExit) as exc:
+        main(["--root", str(tmp_path), "--frontends", "onnx-depth", "--depth-model",
+              str(tmp_path / "nope.onnx")])
+    assert exc.value.code == 2 and "nope.onnx" in capsys.readouterr().err

@@ -50,8 +50,8 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
-from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, FrontEndConfig, PrimitiveFrontEnd,
-                        make_frontend)
+from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, PrimitiveFrontEnd, build_frontend,
+                        check_model_options)
 from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
 from ..vo.global_ba import GlobalBAConfig
@@ -94,8 +94,12 @@ class VORunConfig:
             None: the registry default, ``efficientsam-vitt``; ``onnx-depth``
             then uses classical segments).
         normal_model: ``onnx``: normal-network registry name or ``.onnx`` path
-            (default None: ``metric3d-vit-small-fp16``); ``onnx-depth``: the
-            depth network's (default None: ``depth-anything-v2-small``).
+            (default None: ``metric3d-vit-small-fp16``).  Refused with
+            ``onnx-depth`` (``ValueError`` pointing to ``depth_model``).
+        depth_model: ``onnx-depth``: depth-network registry name (built-in or
+            registered with ``spgeo models register``) or ``.onnx`` path
+            (default None: ``depth-anything-v2-small``); other front-ends
+            ignore it.
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
@@ -116,6 +120,7 @@ class VORunConfig:
     progress: bool = True
     sam_family: Optional[str] = None
     normal_model: Optional[str] = None
+    depth_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
     refine: bool = False
@@ -125,6 +130,7 @@ class VORunConfig:
         if self.frontend not in FRONTENDS:
             raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
                              f"got {self.frontend!r}")
+        check_model_options(self.frontend, self.normal_model)
         if not isinstance(self.odometry, OdometryConfig):
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
         if not self.ate_max_time_diff > 0:
@@ -135,19 +141,15 @@ def make_vo_frontend(config: VORunConfig = VORunConfig(),
                      size: Optional[Tuple[int, int]] = None) -> PrimitiveFrontEnd:
     """The front-end named by ``config.frontend`` with working size ``size``
     (default ``config.odometry.resolution``; None when both are None: the
-    frames' size).
+    frames' size), built by :func:`spgeo.frontend.build_frontend` from
+    ``sam_family``, ``normal_model`` and ``depth_model``.
 
     ``onnx`` and ``onnx-depth`` raise ``FileNotFoundError`` when their models are
-    not in the cache (``sam_family`` / ``normal_model`` name them; for
-    ``onnx-depth`` ``normal_model`` is the depth network).
+    not in the cache, ``ValueError`` when a model breaks its preset's contract.
     """
-    sam = normals = None
-    if config.frontend in ("onnx", "onnx-depth"):
-        sam = {"family": config.sam_family} if config.sam_family else None
-        normals = {"name_or_path": config.normal_model} if config.normal_model else None
     size = config.odometry.resolution if size is None else tuple(size)
-    return make_frontend(config.frontend, FrontEndConfig(working_size=size),
-                         sam=sam, normals=normals)
+    return build_frontend(config.frontend, size, sam_family=config.sam_family,
+                          normal_model=config.normal_model, depth_model=config.depth_model)
 
 
 def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),

@@ -1,7 +1,8 @@
 """``spgeo sfm``: argument wiring for :func:`spgeo.sfm.few_view_sfm`.
 
     spgeo sfm --ref IMG --views IMG [IMG ...] --intrinsics fx,fy,cx,cy --out DIR
-              [--frontend classical|manhattan|onnx|onnx-depth] [--shape-model scaled|planar]
+              [--frontend classical|manhattan|onnx|onnx-depth] [--sam-family NAME]
+              [--normal-model NAME|PATH] [--depth-model NAME|PATH] [--shape-model scaled|planar]
               [--init twoview|identity] [--export-colmap DIR]
               [--config FILE] [--set FIELD=VALUE ...]
               [--rerun spawn | save FILE.rrd | connect [ADDR]]
@@ -15,7 +16,11 @@ COLMAP model (:func:`spgeo.io.colmap_export.export_sfm_result`).  The folder is
 staged (:class:`spgeo.io.outputs.StagedFolder`): checked before the run, replaced
 as a whole.  A flagged run (status not ok) writes NaN depth for unsupported
 primitives and no ``cloud.ply`` when no point is supported.  Exit code 0 when
-the SfM status is ok, 3 otherwise (:mod:`spgeo.cli.exit_codes`).
+the SfM status is ok, 3 otherwise (:mod:`spgeo.cli.exit_codes`).  The front-end
+(primitives at :data:`spgeo.sfm.SFM_WORKING_SIZE`) is built by
+:func:`spgeo.frontend.build_frontend` before any image is read: a missing model or
+one that breaks its preset's contract is exit code 2, nothing written
+(:mod:`spgeo.cli.model_args` for the model options).
 """
 from __future__ import annotations
 
@@ -33,6 +38,7 @@ from ..apps.args import parse_intrinsics
 from .exit_codes import EXIT_FLAGGED, EXIT_OK
 from ..configs import apply_overrides, config_to_dict, resolve_config
 from .config_args import add_config_arguments
+from .model_args import add_model_arguments, check_depth_model_flag
 from .rerun_args import add_rerun_argument, open_rerun
 
 __all__ = ["add_sfm_cli"]
@@ -85,14 +91,18 @@ def _run(args: argparse.Namespace) -> int:
     from ..camera import PinholeCamera
     from ..images import load_image
     from ..io.outputs import StagedFolder
-    from ..sfm import few_view_sfm
+    from ..frontend import build_frontend
+    from ..sfm import SFM_WORKING_SIZE, few_view_sfm
 
     cfg = _sfm_config(args)
+    check_depth_model_flag(args.depth_model, args.frontend)
     staged = StagedFolder(args.out, "--out", "spgeo sfm")   # checked before the run
     if args.export_colmap:
         from ..io.colmap_export import check_export_directory
 
         check_export_directory(args.export_colmap, args.out)
+    frontend = build_frontend(args.frontend, SFM_WORKING_SIZE, sam_family=args.sam_family,
+                              normal_model=args.normal_model, depth_model=args.depth_model)
     ref = load_image(args.ref)
     views = [load_image(p) for p in args.views]
     fx, fy, cx, cy = parse_intrinsics(args.intrinsics)
@@ -101,7 +111,7 @@ def _run(args: argparse.Namespace) -> int:
         if v.shape[:2] != ref.shape[:2]:
             raise InputError(f"{p} is {v.shape[1]}x{v.shape[0]}, the reference is "
                              f"{ref.shape[1]}x{ref.shape[0]}: all images must share one camera")
-    res = few_view_sfm(ref, views, cam, args.frontend, cfg)
+    res = few_view_sfm(ref, views, cam, frontend, cfg)
     with open_rerun(args) as viewer:
         if viewer is not None:
             viewer.log_sfm(res, ref, views)
@@ -133,6 +143,7 @@ def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frontend", default="classical", choices=MONOCULAR_FRONTENDS,
                    help="front-end (default classical; onnx and onnx-depth need "
                         "`spgeo models fetch`)")
+    add_model_arguments(p)
     p.add_argument("--shape-model", default=None, choices=["scaled", "planar"],
                    help="SfMConfig.shape_model (default scaled)")
     p.add_argument("--init", default=None, choices=["twoview", "identity"],

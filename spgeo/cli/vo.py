@@ -2,7 +2,9 @@
 
     spgeo vo --dataset {tum,7scenes,icl,folder,kitti,euroc,video,camera} PATH
              [--frames A:B[:STEP]] [--intrinsics fx,fy,cx,cy | --fov DEGREES]
-             [--resolution WxH] [--strict] [--frontend classical|depth|onnx]
+             [--resolution WxH] [--strict]
+             [--frontend classical|manhattan|depth|onnx|onnx-depth]
+             [--sam-family NAME] [--normal-model NAME|PATH] [--depth-model NAME|PATH]
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
              [--mesh] [--export-colmap DIR] [--export-nerfstudio DIR] [--all-frames]
@@ -36,6 +38,7 @@ from ..validation import InputError
 from ..apps.args import DATASET_KINDS, parse_intrinsics, parse_resolution
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
+from .model_args import add_model_arguments, check_depth_model_flag
 from .rerun_args import add_rerun_argument, open_rerun
 from .exit_codes import EXIT_FLAGGED, EXIT_INTERRUPTED
 
@@ -81,9 +84,13 @@ def _run_config(args: argparse.Namespace):
         explicit["sam_family"] = args.sam_family
     if args.normal_model is not None:
         explicit["normal_model"] = args.normal_model
+    if args.depth_model is not None:
+        explicit["depth_model"] = args.depth_model
     if explicit:
         cfg = apply_overrides(cfg, explicit)
-    return resolve_config(cfg, sets=args.set, route="odometry")
+    cfg = resolve_config(cfg, sets=args.set, route="odometry")
+    check_depth_model_flag(args.depth_model, cfg.frontend)
+    return cfg
 
 
 def _given_camera(args: argparse.Namespace):
@@ -227,11 +234,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="classical (default, monocular), manhattan (monocular), onnx and "
                         "onnx-depth (need `spgeo models fetch`) or depth (reads the sensor "
                         "depth: RGB-D / oracle)")
-    p.add_argument("--sam-family", default=None,
-                   help="onnx: SAM model family in the cache (default efficientsam-vitt)")
-    p.add_argument("--normal-model", default=None,
-                   help="onnx: normal model name or .onnx path (default metric3d-vit-small-fp16); "
-                        "onnx-depth: depth model (default depth-anything-v2-small)")
+    add_model_arguments(p)
     p.add_argument("--refine", action="store_true",
                    help="after the last frame, a global photometric bundle adjustment of all "
                         "keyframes (seconds and costs under \"refine\" in report.json)")

@@ -20,7 +20,7 @@ metric-depth ONNX network, e.g. FastDepth with the ``"fastdepth"`` preset).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Optional, Tuple
 
 from .base import (MetricDepthEstimator, NormalEstimator, Segmentation, Segmenter,
                    masks_to_segmentation)
@@ -29,7 +29,7 @@ from .pipeline import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, split_r
 __all__ = [
     "FRONTENDS", "MONOCULAR_FRONTENDS", "FrontEndConfig", "LabelSegmenter", "NormalEstimator", "PrimitiveFrontEnd",
     "Segmentation", "Segmenter", "make_frontend", "masks_to_segmentation", "split_regions",
-    "MetricDepthEstimator", "metric_depth_from_cache",
+    "MetricDepthEstimator", "metric_depth_from_cache", "build_frontend", "check_model_options",
 ]
 
 FRONTENDS = ("classical", "manhattan", "depth", "onnx", "onnx-depth")
@@ -81,6 +81,56 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
         return PrimitiveFrontEnd(seg, depth_normals_from_cache(**(normals or {})), config,
                                  name="onnx-depth")
     raise ValueError(f"unknown front-end {name!r}; choose one of {FRONTENDS}")
+
+
+def check_model_options(name: str, normal_model: Optional[str] = None) -> None:
+    """Refuse a normal model for the ``onnx-depth`` front-end.
+
+    ``normal_model`` names the ``onnx`` front-end's normal network only; the
+    ``onnx-depth`` front-end's depth network is ``depth_model``
+    (``--depth-model NAME|PATH``).  Raises ``ValueError`` saying so when
+    ``name`` is ``"onnx-depth"`` and ``normal_model`` is given.
+    """
+    if name == "onnx-depth" and normal_model:
+        raise ValueError(f"the normal model {normal_model!r} names the onnx front-end's normal "
+                         "network; onnx-depth takes its depth network as the depth model "
+                         f"(--depth-model {normal_model})")
+
+
+def build_frontend(name: str, working_size: Optional[Tuple[int, int]] = None, *,
+                   sam_family: Optional[str] = None, normal_model: Optional[str] = None,
+                   depth_model: Optional[str] = None) -> PrimitiveFrontEnd:
+    """A named front-end from the options users hold (the ``spgeo vo`` / ``sfm`` flags).
+
+    Args:
+        name: one of :data:`FRONTENDS`.
+        working_size: ``(width, height)`` of the primitives (None: each image's size).
+        sam_family: ``onnx`` / ``onnx-depth``: SAM registry family (``onnx``
+            default ``efficientsam-vitt``; ``onnx-depth`` uses classical segments
+            unless it is given).
+        normal_model: ``onnx``: normal network, registry name (built-in or
+            :func:`spgeo.models.register_model`) or ``.onnx`` path (default
+            ``metric3d-vit-small-fp16``).  Refused for ``onnx-depth``
+            (:func:`check_model_options`).
+        depth_model: ``onnx-depth``: depth network, registry name or path
+            (default ``depth-anything-v2-small``; a path without a registry entry
+            gets the ``generic-depth-518`` preset).  Other front-ends ignore it.
+
+    Raises ``ValueError`` for an unknown name, a normal model with ``onnx-depth``
+    or a model that breaks its preset's contract (the message names the file,
+    the sizes and the fix); ``FileNotFoundError`` for a model neither in the
+    cache nor on disk.  Nothing is downloaded.
+    """
+    check_model_options(name, normal_model)
+    sam = normals = None
+    if name == "onnx":
+        sam = {"family": sam_family} if sam_family else None
+        normals = {"name_or_path": normal_model} if normal_model else None
+    elif name == "onnx-depth":
+        sam = {"family": sam_family} if sam_family else None
+        normals = {"name_or_path": depth_model} if depth_model else None
+    size = None if working_size is None else tuple(int(v) for v in working_size)
+    return make_frontend(name, FrontEndConfig(working_size=size), sam=sam, normals=normals)
 
 
 def __getattr__(name: str):

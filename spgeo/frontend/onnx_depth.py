@@ -55,7 +55,7 @@ from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_
                            open_session, resize_map, to_hwc, uncrop)
 
 __all__ = ["DepthOnnxConfig", "DEPTH_PRESETS", "DEPTH_OUTPUT_KINDS", "OnnxDepthNormals",
-           "network_input_size"]
+           "static_size_mismatch", "network_input_size"]
 
 logger = logging.getLogger(__name__)
 
@@ -195,6 +195,28 @@ def _one_channel_output(session, name: Optional[str], layout: str, what: str) ->
     return name
 
 
+def static_size_mismatch(model_path, input_name: str, static: Tuple[int, int],
+                         input_size: Tuple[int, int], preset: Optional[str] = None) -> str:
+    """The one-line message for a depth model whose declared static input size
+    ``static`` ``(h, w)`` is not the config's ``input_size``: it names the file,
+    both sizes, the preset (when known) and the fix (register the file with a
+    :data:`DEPTH_PRESETS` preset of that input size, or another preset / input
+    size).  Presets are never guessed: mean / std cannot be read from a model."""
+    fits = sorted(n for n, p in DEPTH_PRESETS.items()
+                  if p.input_size is not None and tuple(p.input_size) == tuple(static))
+    used = f"preset {preset!r} feeds" if preset else "DepthOnnxConfig.input_size is"
+    if fits:
+        fix = (f"register the file with the preset its network was trained with, e.g. "
+               f"`spgeo models register NAME {model_path} --preset {fits[0]}`, and give NAME"
+               + (f" (presets of that size: {', '.join(fits)})" if len(fits) > 1 else ""))
+    else:
+        fix = (f"no preset takes {static[0]}x{static[1]}: register the file with a preset of "
+               f"that size or set DepthOnnxConfig.input_size={tuple(static)}")
+    return (f"depth model {model_path}: input {input_name!r} is a static {static[0]}x{static[1]} "
+            f"image but {used} {input_size[0]}x{input_size[1]} (input_size is "
+            f"{tuple(input_size)}); {fix}")
+
+
 class OnnxDepthNormals:
     """:class:`~spgeo.frontend.base.NormalEstimator`: depth network -> normals.
 
@@ -210,20 +232,23 @@ class OnnxDepthNormals:
 
     uses_depth = False
 
-    def __init__(self, config: DepthOnnxConfig) -> None:
+    def __init__(self, config: DepthOnnxConfig, preset: Optional[str] = None) -> None:
         self.config = config
         self.what = f"depth model {config.model_path}"
         self.session = open_session(config.model_path, "depth", config.providers,
                                     config.intra_op_num_threads)
         self.input_name, self.input_dtype = image_input(
-            self.session, config.input_name, config.layout, config.input_size, self.what,
-            "DepthOnnxConfig")
-        self.output_name = _one_channel_output(self.session, config.output_name,
-                                               config.output_layout, self.what)
+            self.session, config.input_name, config.layout, None, self.what, "DepthOnnxConfig")
         in_shape = list(io_nodes(self.session)[self.input_name].shape)
         hw = in_shape[2:4] if config.layout == "NCHW" else in_shape[1:3]
         self.static_size = (tuple(hw) if all(isinstance(d, int) and d > 0 for d in hw)
                             else None)
+        if (self.static_size is not None and config.input_size is not None
+                and self.static_size != tuple(config.input_size)):
+            raise ValueError(static_size_mismatch(config.model_path, self.input_name,
+                                                  self.static_size, config.input_size, preset))
+        self.output_name = _one_channel_output(self.session, config.output_name,
+                                               config.output_layout, self.what)
 
     @classmethod
     def from_path(cls, model_path, preset: str = "generic-depth-518",
@@ -232,7 +257,7 @@ class OnnxDepthNormals:
         if preset not in DEPTH_PRESETS:
             raise ValueError(f"unknown depth preset {preset!r}; known: {sorted(DEPTH_PRESETS)}")
         return cls(dataclasses.replace(DEPTH_PRESETS[preset], model_path=os.fspath(model_path),
-                                       **overrides))
+                                       **overrides), preset=preset)
 
     def input_size_for(self, height: int, width: int) -> Tuple[int, int]:
         """The network input ``(h, w)`` used for a ``height`` x ``width`` image."""

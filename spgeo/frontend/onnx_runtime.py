@@ -39,7 +39,9 @@ def open_session(path, what: str, providers: Optional[Sequence[str]] = None,
     """An ``onnxruntime.InferenceSession`` for ``path``.
 
     ``providers`` ``None``: CUDA when onnxruntime has it, else CPU;
-    ``intra_op_num_threads`` 0: the runtime default.  Raises ``ValueError``
+    ``intra_op_num_threads`` 0: the runtime default.  onnxruntime's own log
+    keeps errors only (its warnings about a model's graph are not the user's to
+    act on and would break the CLI's one-line error).  Raises ``ValueError``
     for ``path`` None or a file onnxruntime cannot load, ``FileNotFoundError``
     for a missing file.
     """
@@ -50,7 +52,9 @@ def open_session(path, what: str, providers: Optional[Sequence[str]] = None,
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{what} model file not found: {path}")
+    ort.set_default_logger_severity(3)
     opts = ort.SessionOptions()
+    opts.log_severity_level = 3
     if intra_op_num_threads:
         opts.intra_op_num_threads = int(intra_op_num_threads)
     try:

@@ -16,6 +16,6 @@ The method is described in :mod:`spgeo.sfm.solve`.  Modules, one job each:
 from .config import SfMConfig
 from .graph import brightness_key, pose_key, scale_key
 from .result import SfMResult
-from .solve import few_view_sfm
+from .solve import SFM_WORKING_SIZE, few_view_sfm
 
-__all__ = ["SfMConfig", "SfMResult", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
+__all__ = ["SfMConfig", "SfMResult", "SFM_WORKING_SIZE", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]

@@ -40,7 +40,10 @@ from .init import twoview_initialisation
 from .orientation import choose_planar_orientations
 from .result import SfMResult, assess_result
 
-__all__ = ["few_view_sfm"]
+__all__ = ["few_view_sfm", "SFM_WORKING_SIZE"]
+
+#: ``(width, height)`` of the primitives of a front-end given by name
+SFM_WORKING_SIZE = (320, 240)
 
 
 log = logging.getLogger(__name__)
@@ -117,13 +120,13 @@ class _Problem:
 
 def _reference_primitives(ref_image, camera, frontend, config, ref_depth) -> PrimitiveSet:
     """The reference's primitives: ``frontend`` itself when it is a set, else
-    the front-end's (``"classical"`` at 320x240 by default).  ``ValueError``
+    the front-end's (``"classical"`` at :data:`SFM_WORKING_SIZE` by default).  ``ValueError``
     when there is none."""
     if isinstance(frontend, PrimitiveSet):
         prims = frontend
     else:
         fe = frontend if isinstance(frontend, PrimitiveFrontEnd) else make_frontend(
-            frontend or "classical", FrontEndConfig(working_size=(320, 240)))
+            frontend or "classical", FrontEndConfig(working_size=SFM_WORKING_SIZE))
         prims = fe.primify(ref_image, camera, ref_depth if fe.uses_depth else None)
     if len(prims) == 0:
         raise ValueError("the front-end produced no primitive")
