@@ -229,3 +229,31 @@ def test_never_worse_than_interpolation_on_tum(network):
 @pytest.mark.parametrize("network", [False, True], ids=["no-network", "fastdepth"])
 def test_never_worse_than_interpolation_on_icl(network):
     _never_worse("icl", None, str(FASTDEPTH) if network else None)
+
+
+# ============================================================ spgeo complete --depth-model
+@pytest.mark.slow
+def test_cli_complete_with_a_depth_model(tmp_path, capsys):
+    import cv2
+
+    from spgeo.cli import main
+
+    cam = synthetic.default_camera(160, 120)
+    view = synthetic.SyntheticScene.generate(seed=5).render(
+        cam, synthetic.make_trajectory(1, seed=5)[0])
+    rgb = tmp_path / "rgb.png"
+    cv2.imwrite(str(rgb), cv2.cvtColor(np.rint(255 * view.rgb).astype(np.uint8),
+                                       cv2.COLOR_RGB2BGR))
+    sp = tmp_path / "sparse.npy"
+    np.save(sp, keypoint_sparse_depth(view.rgb, view.depth, 100, rel_noise=0.0, seed=0))
+    args = ["complete", "--rgb", str(rgb), "--sparse", str(sp), "--intrinsics",
+            f"{cam.fx},{cam.fy},{cam.cx},{cam.cy}", "--out", str(tmp_path / "d.png")]
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a model")
+    assert main(args + ["--depth-model", str(junk)]) != 0
+    assert "junk.onnx" in capsys.readouterr().err
+    if not FASTDEPTH.is_file():
+        pytest.skip(f"FastDepth not found at {FASTDEPTH}")
+    assert main(args + ["--depth-model", str(FASTDEPTH)]) == 0
+    assert "chosen" in capsys.readouterr().out
+    assert cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED).shape == (120, 160)
