@@ -179,17 +179,18 @@ def test_right_shapes_are_chosen_and_win_wrong_ones_are_rejected(rooms):
 def test_right_network_is_chosen_and_wins_wrong_one_is_rejected(rooms):
     from spgeo.frontend import make_frontend
 
-    cfg = CompletionConfig(candidates=("primitives", "linear", "ip_basic", "network:primitive"))
     for cam, view, other, sp, gt, lin in rooms:
         prims = make_frontend("classical").primify(view.rgb, cam)
         right = _FixedDepth(1.3 * np.nan_to_num(view.depth, nan=1.0))
         wrong = _FixedDepth(np.nan_to_num(other.depth, nan=1.0))
-        res = complete_depth(view.rgb, sp, cam, prims, cfg, depth_model=right)
-        assert res.choice.pixel_counts()["network:primitive"] > 0.9 * gt.size
-        assert _mae(res, gt) < 0.3 * lin
-        res = complete_depth(view.rgb, sp, cam, prims, cfg, depth_model=wrong)
-        assert res.choice.pixel_counts()["network:primitive"] < 0.2 * gt.size
-        assert _mae(res, gt) <= 1.02 * lin
+        for cand in ("network:global", "network:primitive"):      # the default, another
+            cfg = CompletionConfig(candidates=("primitives", "linear", "ip_basic", cand))
+            res = complete_depth(view.rgb, sp, cam, prims, cfg, depth_model=right)
+            assert res.choice.pixel_counts()[cand] > 0.9 * gt.size
+            assert _mae(res, gt) < 0.3 * lin
+            res = complete_depth(view.rgb, sp, cam, prims, cfg, depth_model=wrong)
+            assert res.choice.pixel_counts()[cand] < 0.2 * gt.size
+            assert _mae(res, gt) <= 1.02 * lin
 
 
 # ============================================================ never worse on real frames
