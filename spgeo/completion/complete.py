@@ -108,8 +108,10 @@ class CompletionResult:
     Attributes:
         depth: (H, W) float64 dense depth (metres) at the input resolution,
             finite and > 0 everywhere.
-        confidence: (H, W) uint8 coverage code: 2 = a primitive with sparse
-            support, 1 = linear interpolation, 0 = nearest value.
+        confidence: (H, W) uint8 coverage code of the primitive completion
+            (steps 1-6): 2 = a primitive with sparse support, 1 = linear
+            interpolation, 0 = nearest value; where the held-out choice took
+            another candidate, ``choice.winner`` says which.
         primitives: the kept primitives with their fitted ``log_scales`` (at
             the front-end's working resolution).
         log_scales: (N_kept,) fitted log-scales (log metres at each anchor).
