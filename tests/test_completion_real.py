@@ -26,7 +26,11 @@ def test_run_dataset_rows_metrics_and_gains(root):
     mean = res.mean()
     assert set(mean) == {"spgeo classical graph/scale", "spgeo classical graph/plane",
                          "spgeo ORACLE depth-normals graph/scale",
-                         "spgeo ORACLE depth-normals graph/plane", "linear", "ip_basic"}
+                         "spgeo ORACLE depth-normals graph/plane", "linear", "ip_basic",
+                         "spgeo classical choose=heldout"}
+    won = res.winners["spgeo classical choose=heldout"]
+    assert set(won) == {"primitives", "linear", "ip_basic"} and sum(won.values()) > 0
+    assert "regions won" in res.table()
     for v in mean.values():
         assert 0 < v["mae_mm"] < 1000 and 0 < v["imae_per_km"] < 1000 and v["seconds"] > 0
     g = res.gains()

@@ -18,7 +18,16 @@ Rows:
   monocular, an upper bound), with the scale ``method`` ``median`` (the paper)
   or ``graph`` (coupled, robust) and ``shape_model`` ``scale`` or ``plane``;
   the front-end runs once per frame and its time is included in every row
-  that uses it;
+  that uses it; these rows run the primitive completion alone
+  (``choose="none"``);
+* ``spgeo classical choose=heldout``: the held-out choice of
+  :mod:`spgeo.completion.choose` over ``config.candidates`` without a network
+  (classical front-end), and with ``depth_model`` (``--depth-model``) also
+  ``spgeo classical choose=heldout + network`` (the ``network:*`` candidates
+  included) and ``network alone (<alignment>)``: the network's metric depth
+  aligned to all points by each alignment of
+  :data:`spgeo.completion.network.ALIGNMENTS`; the regions each candidate won
+  are summed over the frames (:meth:`RealCompletionResult.winner_table`);
 * ``linear``, ``ip_basic``, ``colorization``: the baselines of
   :mod:`spgeo.evaluation.references.depth_completion`.
 
@@ -28,6 +37,7 @@ best of the three baselines on that data set (positive: better).
 Run::
 
     spgeo eval completion_real [--root DIR] [--datasets 7scenes,tum,icl] [--out DIR]
+        [--depth-model NAME|PATH] [--no-choose]
         [--workers N | --address ADDR]      (one job per data set, on Ray)
 """
 from __future__ import annotations
@@ -91,6 +101,7 @@ class RealCompletionResult:
     per_frame: Dict[str, Dict[str, List[float]]]
     n_points: int = 150
     not_run: Dict[str, str] = field(default_factory=dict)
+    winners: Dict[str, Dict[str, int]] = field(default_factory=dict)
 
     def mean(self) -> Dict[str, Dict[str, float]]:
         return {m: {k: float(np.nanmean(v[k])) for k in (*METRIC_KEYS, "seconds")}
@@ -122,12 +133,24 @@ class RealCompletionResult:
                         f"| {100 * g['mae_mm']:+.0f} % | {100 * g['imae_per_km']:+.0f} % |")
         for m, why in self.not_run.items():
             rows.append(f"| {m} | not run: {why} | | | | | | |")
+        return "\n".join(rows) + self.winner_table()
+
+    def winner_table(self) -> str:
+        """Markdown: regions (primitives / cells) each candidate won, summed over
+        the frames, per held-out-choice row; empty when there is none."""
+        if not self.winners:
+            return ""
+        names = sorted({c for w in self.winners.values() for c in w})
+        rows = ["", "", "regions won (summed over frames):", "",
+                "| row | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+        for m, w in self.winners.items():
+            rows.append(f"| {m} | " + " | ".join(str(w.get(c, 0)) for c in names) + " |")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "frames": self.frames, "n_points": self.n_points,
                 "mean": self.mean(), "gain_vs_best_baseline": self.gains(),
-                "per_frame": self.per_frame, "not_run": self.not_run}
+                "per_frame": self.per_frame, "not_run": self.not_run, "winners": self.winners}
 
 
 def sparse_frames(ds, n_points: int = 150, seed: int = 0, desc: str = "completion",
@@ -177,22 +200,28 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
                 shape_models: Sequence[str] = SHAPE_MODELS,
                 methods: Sequence[str] = SCALE_METHODS,
                 baselines: Optional[Sequence[str]] = None,
-                progress: bool = True) -> RealCompletionResult:
+                progress: bool = True, choose: bool = True,
+                depth_model: Optional[str] = None) -> RealCompletionResult:
     """Evaluate all methods on one data set of :data:`DATASETS`.
 
-    ``frames`` overrides the data set's selection.  Raises ``FileNotFoundError``
-    when its folder is missing and ``ValueError`` for an unknown name.
+    ``frames`` overrides the data set's selection; ``choose`` adds the
+    held-out-choice rows, ``depth_model`` (a name or path for
+    :func:`spgeo.frontend.metric_depth_from_cache`) the network rows (module
+    docstring).  Raises ``FileNotFoundError`` when its folder (or the model) is
+    missing and ``ValueError`` for an unknown name or a model that does not fit.
     """
-    import dataclasses
-
-    from spgeo.frontend import FrontEndConfig, make_frontend
+    from spgeo.frontend import FrontEndConfig, make_frontend, metric_depth_from_cache
 
     ds = open_sample(name, root, frames)
     fes = list(frontends) if frontends is not None else _frontend_names()
     fe_cfg = FrontEndConfig(working_size=working_size_for(ds.camera, config.working_width))
     built = {fe: make_frontend(fe, fe_cfg) for fe in fes}
+    if choose and "classical" not in built:
+        built["classical"] = make_frontend("classical", fe_cfg)
+    model = metric_depth_from_cache(depth_model) if depth_model else None
     base = {b: BASELINES[b] for b in (baselines if baselines is not None else BASELINES)}
     per: Dict[str, Dict[str, List[float]]] = {}
+    winners: Dict[str, Dict[str, int]] = {}
 
     def add(method: str, pred: np.ndarray, gt: np.ndarray, secs: float) -> None:
         met = void_metrics(pred, gt)
@@ -208,20 +237,68 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
             t0 = time.perf_counter()
             prims = front.primify(f.image, f.camera, f.depth if front.uses_depth else None)
             t_fe = time.perf_counter() - t0
-            for meth in methods:
-                for sm in shape_models:
-                    cfg = dataclasses.replace(config, method=meth, shape_model=sm)
-                    t1 = time.perf_counter()
-                    res = complete_depth(f.image, sparse, f.camera, prims, cfg)
-                    add(f"spgeo {_label(fe)} {meth}/{sm}", res.depth, gt,
-                        t_fe + time.perf_counter() - t1)
+            if fe in fes:
+                _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_models,
+                                add)
+            if fe == "classical" and choose:
+                _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, winners)
         for b, fn in base.items():
             t0 = time.perf_counter()
             pred = fn(f.image, sparse)
             add(b, pred, gt, time.perf_counter() - t0)
     not_run = {} if "manhattan" in fes or frontends is not None else {
         "spgeo manhattan": "front-end 'manhattan' not in spgeo.frontend.FRONTENDS"}
-    return RealCompletionResult(name, names, per, n_points, not_run)
+    return RealCompletionResult(name, names, per, n_points, not_run, winners)
+
+
+def _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_models, add):
+    """The ``spgeo <front-end> <method>/<shape model>`` rows of one frame
+    (``choose="none"``)."""
+    import dataclasses
+
+    for meth in methods:
+        for sm in shape_models:
+            cfg = dataclasses.replace(config, method=meth, shape_model=sm, choose="none",
+                                      depth_model=None)
+            t1 = time.perf_counter()
+            res = complete_depth(f.image, sparse, f.camera, prims, cfg)
+            add(f"spgeo {_label(fe)} {meth}/{sm}", res.depth, gt,
+                t_fe + time.perf_counter() - t1)
+
+
+def _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, winners):
+    """The held-out-choice rows and, with ``model``, the network rows of one
+    frame; region wins summed into ``winners``."""
+    import dataclasses
+
+    import cv2
+
+    from spgeo.completion.network import ALIGNMENTS, align_network_depth, network_depth
+
+    cfg = dataclasses.replace(config, choose="heldout", depth_model=None)
+    runs = [("spgeo classical choose=heldout", None)]
+    if model is not None:
+        runs.append(("spgeo classical choose=heldout + network", model))
+    for row, dm in runs:
+        t1 = time.perf_counter()
+        res = complete_depth(f.image, sparse, f.camera, prims, cfg, depth_model=dm)
+        add(row, res.depth, gt, t_fe + time.perf_counter() - t1)
+        if res.choice is not None:
+            won = winners.setdefault(row, {})
+            for c, k in res.choice.region_counts().items():
+                won[c] = won.get(c, 0) + k
+    if model is None:
+        return
+    t1 = time.perf_counter()
+    net = network_depth(model, f.image)
+    labels = cv2.resize(prims.label_image(), f.camera.size, interpolation=cv2.INTER_NEAREST)
+    v, u = np.nonzero(sparse > 0)
+    t_net = time.perf_counter() - t1
+    for a in ALIGNMENTS:
+        t2 = time.perf_counter()
+        pred = align_network_depth(net, np.stack([u, v], 1), sparse[v, u], a, labels,
+                                   config.network_min_points)
+        add(f"network alone ({a})", pred, gt, t_net + time.perf_counter() - t2)
 
 
 def _dataset_job(name: str, root: Optional[Path], kwargs: dict) -> dict:
@@ -270,6 +347,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="CompletionConfig overrides (Python literals), e.g. plane_coupling=0.01; "
                          "the method / shape_model of each row still vary")
     ap.add_argument("--out", default=None, help="folder for completion_real.md / .json")
+    ap.add_argument("--depth-model", default=None, metavar="NAME|PATH",
+                    help="metric-depth network (registry name or .onnx path, preset "
+                         "'fastdepth' for a path): adds the network rows")
+    ap.add_argument("--no-choose", action="store_true",
+                    help="leave out the held-out-choice rows")
     add_runner_arguments(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
@@ -279,6 +361,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               file=sys.stderr)
         return 2
     names = [d for d in args.datasets.split(",") if d]
+    if args.depth_model:
+        from spgeo.frontend import metric_depth_from_cache
+
+        try:
+            metric_depth_from_cache(args.depth_model)
+        except (ValueError, FileNotFoundError) as exc:
+            print(f"completion_real: error: --depth-model: {exc}", file=sys.stderr)
+            return 2
     fes = [f for f in args.frontends.split(",") if f] if args.frontends else None
     bls = [b for b in args.baselines.split(",") if b]
     try:
@@ -296,6 +386,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     res = run_completion_real(root, names, runner, frames=args.frames, n_points=args.points,
                               seed=args.seed, frontends=fes, baselines=bls, config=config,
+                              choose=not args.no_choose, depth_model=args.depth_model,
                               progress=runner.backend == "local")
     text = "\n\n".join(r.table() for r in res.values())
     print(text)

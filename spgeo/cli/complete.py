@@ -3,13 +3,17 @@
 
     spgeo complete --rgb IMG --sparse SPARSE --intrinsics fx,fy,cx,cy --out DEPTH.png
                    [--frontend classical|manhattan|onnx|onnx-depth] [--method median|joint]
+                   [--depth-model NAME|PATH]
                    [--config FILE] [--set FIELD=VALUE ...]
                    [--rerun spawn | save FILE.rrd | connect [ADDR]]
 
 ``SPARSE`` is a 16-bit PNG in millimetres (0 = missing) or a ``.npy`` array in
 metres (0 / NaN = missing); the output is a 16-bit PNG in millimetres.
 ``--config`` / ``--set`` set ``CompletionConfig`` fields (``--method``
-overrides ``--config``; ``--set`` overrides both).
+overrides ``--config``; ``--set`` overrides both).  ``--depth-model`` names a
+metric-depth network (registry name, or an ``.onnx`` path read with the
+``fastdepth`` preset) whose depth, aligned to the sparse points, is a
+candidate of the held-out choice (``CompletionConfig.choose``).
 """
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     fx, fy, cx, cy = parse_intrinsics(args.intrinsics)
     cam = PinholeCamera(fx, fy, cx, cy, image.shape[1], image.shape[0])
     sparse = read_sparse_depth(args.sparse)
-    res = complete_depth(image, sparse, cam, args.frontend, cfg)
+    res = complete_depth(image, sparse, cam, args.frontend, cfg, depth_model=args.depth_model)
     with open_rerun(args) as viewer:
         if viewer is not None:
             viewer.log_completion(image, cam, res, sparse)
@@ -80,6 +84,10 @@ def add_complete_cli(subparsers) -> argparse.ArgumentParser:
                    help="per-primitive scale: 'median' (robust median) or 'joint' (joint "
                         "GTSAM solve); without it CompletionConfig.method decides (default "
                         f"{CompletionConfig.method!r}; --config / --set may change it)")
+    p.add_argument("--depth-model", default=None, metavar="NAME|PATH",
+                   help="metric-depth network for the held-out choice: a name from "
+                        "'spgeo models list' / 'spgeo models register', or an .onnx path "
+                        "(preset fastdepth)")
     add_rerun_argument(p, "the image, sparse and completed depth, primitives and cloud")
     add_config_arguments(p, "CompletionConfig")
     p.set_defaults(func=_cmd_complete)

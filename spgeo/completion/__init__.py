@@ -14,11 +14,22 @@ Modules, one job each:
   robust plane fits and depth lent across weak edges.
 * :mod:`~spgeo.completion.fill`: hole filling, resampling and the residual
   correction.
+* :mod:`~spgeo.completion.choose`: the default ``choose="heldout"``: per
+  region, the depth source with the lowest error on held-out sparse points.
+* :mod:`~spgeo.completion.network`: a metric-depth network's depth aligned to
+  the sparse points (a candidate of the choice).
+* :mod:`~spgeo.completion.baselines`: linear interpolation, IP-Basic and the
+  colorization fill (candidates of the choice, and the baselines of the
+  evaluation).
 """
+from .baselines import (ColorizationConfig, IPBasicConfig, colorization_completion,
+                        ip_basic_completion, linear_interpolation_completion)
+from .choose import ChooseConfig, HeldoutChoice, choose_by_heldout, fold_ids
 from .complete import CompletionResult, complete_depth, working_size_for
 from .config import CompletionConfig
 from .fill import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE, linear_fill,
                    nearest_fill)
+from .network import align_network_depth, network_depth
 from .scales import grouped_median, solve_log_scales_joint, sparse_point_assignments
 from ..validation import check_sparse_depth
 
@@ -26,5 +37,7 @@ __all__ = [
     "CompletionConfig", "CompletionResult", "complete_depth", "check_sparse_depth",
     "nearest_fill", "linear_fill", "sparse_point_assignments", "grouped_median",
     "solve_log_scales_joint", "working_size_for", "CONFIDENCE_PRIMITIVE", "CONFIDENCE_LINEAR",
-    "CONFIDENCE_NEAREST",
+    "CONFIDENCE_NEAREST", "ChooseConfig", "HeldoutChoice", "choose_by_heldout", "fold_ids",
+    "align_network_depth", "network_depth", "linear_interpolation_completion",
+    "ip_basic_completion", "colorization_completion", "IPBasicConfig", "ColorizationConfig",
 ]

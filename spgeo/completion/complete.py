@@ -52,6 +52,14 @@ sparse depth fixes one log-scale per primitive:
    the clip, smoothly.  Primitives shaped by normals are left as fitted (there
    the residuals are mostly rejected border points and noise).  Not applied to
    the fallback (it already passes through the points).
+7. **held-out choice** (``choose="heldout"``) — the map of steps 1-6 is one
+   candidate among ``config.candidates`` (linear interpolation, IP-Basic, the
+   colorization fill of :mod:`spgeo.completion.baselines`, and, with a depth
+   model, its metric depth aligned to the points,
+   :mod:`spgeo.completion.network`); per primitive the candidate with the
+   lowest error on held-out sparse points is taken, refitted on all points
+   (:mod:`spgeo.completion.choose`; ``CompletionResult.choice`` records
+   which won where).
 
 **Monocular + sparse only.**  The sparse depth is never given to the
 front-end.  Front-ends whose normal estimator reads dense depth (``"depth"``,
@@ -76,6 +84,7 @@ from ..camera import PinholeCamera
 from ..images import to_float_image
 from ..primitives import PrimitiveSet
 from ..validation import check_camera, check_sparse_depth
+from .choose import HeldoutChoice, choose_by_heldout
 from .config import CompletionConfig
 from .fill import fill_holes, resample_sparse, residual_correction, upsample
 from .graph import solve_log_scales_graph, solve_planes_graph
@@ -99,8 +108,10 @@ class CompletionResult:
     Attributes:
         depth: (H, W) float64 dense depth (metres) at the input resolution,
             finite and > 0 everywhere.
-        confidence: (H, W) uint8 coverage code: 2 = a primitive with sparse
-            support, 1 = linear interpolation, 0 = nearest value.
+        confidence: (H, W) uint8 coverage code of the primitive completion
+            (steps 1-6): 2 = a primitive with sparse support, 1 = linear
+            interpolation, 0 = nearest value; where the held-out choice took
+            another candidate, ``choice.winner`` says which.
         primitives: the kept primitives with their fitted ``log_scales`` (at
             the front-end's working resolution).
         log_scales: (N_kept,) fitted log-scales (log metres at each anchor).
@@ -122,6 +133,9 @@ class CompletionResult:
         modes: (N_kept,) how each kept primitive got its depth
             (:data:`spgeo.completion.planes.MODE_SCALE` / ``MODE_PLANE`` /
             ``MODE_LENT``); all ``MODE_SCALE`` for ``shape_model="scale"``.
+        choice: ``choose="heldout"``: the held-out choice (which candidate
+            won each region and pixel, their held-out errors); None otherwise
+            (or when there were too few points to hold any out).
     """
 
     depth: np.ndarray
@@ -140,11 +154,15 @@ class CompletionResult:
     timings: Dict[str, float] = field(default_factory=dict)
     solver: Dict[str, float] = field(default_factory=dict)
     modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    choice: Optional[HeldoutChoice] = None
 
     def summary(self) -> str:
         """One line for logs."""
         tag = " [uses depth: oracle/RGB-D]" if self.uses_depth else ""
         fb = " FALLBACK(linear)" if self.fallback else ""
+        if self.choice is not None:
+            fb += " chosen " + ",".join(f"{k}:{v}" for k, v in
+                                        self.choice.region_counts().items())
         return (f"completion[{self.method}, {self.frontend}{tag}]{fb}: {len(self.kept)}/"
                 f"{self.n_primitives} primitives with support from {self.n_sparse} points, "
                 f"coverage {self.coverage:.2f}, {1e3 * self.timings.get('total', 0):.0f} ms")
@@ -263,7 +281,8 @@ def _shapeless_weight(prims: PrimitiveSet, camera: PinholeCamera) -> np.ndarray:
 def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeCamera,
                    frontend: Union[None, str, "PrimitiveFrontEnd", PrimitiveSet] = None,
                    config: CompletionConfig = CompletionConfig(),
-                   frontend_depth: Optional[np.ndarray] = None) -> CompletionResult:
+                   frontend_depth: Optional[np.ndarray] = None,
+                   depth_model=None) -> CompletionResult:
     """Dense metric depth from one image and sparse metric depth (module docstring).
 
     Args:
@@ -279,6 +298,11 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         frontend_depth: dense depth for front-ends that read depth (oracle /
             RGB-D ablations only; flagged ``uses_depth`` in the result).  Never
             the sparse input.
+        depth_model: metric-depth network for the ``"network:*"`` candidates of
+            ``choose="heldout"``: a registry name or path
+            (:func:`spgeo.frontend.metric_depth_from_cache`) or an object with
+            ``predict_metric(image) -> (H, W)`` metres; None:
+            ``config.depth_model``.  Ignored (with a warning) for ``choose="none"``.
     Returns:
         :class:`CompletionResult`.
     Raises:
@@ -289,42 +313,132 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
             (shape other than the image's, integer / bool dtype, millimetres,
             inf, negative, no point).
         ValueError: a depth-reading front-end without ``frontend_depth``,
-            primitives of another camera.
+            primitives of another camera, a depth model that does not fit its
+            preset (the message names the file).
+        FileNotFoundError: a depth model that is not there.
     """
     t0 = time.perf_counter()
     image, sparse, uv, sd = _checked_inputs(image, sparse_depth, camera, config)
+    model = _depth_model(depth_model if depth_model is not None else config.depth_model, config)
     prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
     t_fe = time.perf_counter()
-
-    n = len(prims)
-    fit = _fit_scales(image, prims, uv, sd, camera, config)
-    kept, sub = fit.kept, fit.sub
-    t_sc = time.perf_counter()
-
-    dmap = sub.depth_map() if kept.size else np.full(prims.camera.shape, np.nan)
-    covered = np.isfinite(dmap)
-    coverage = float(covered.mean())
-    fallback = coverage < config.min_coverage or kept.size == 0
-    t_re = time.perf_counter()
-    if fallback:
-        log.warning("completion: supported primitives cover %.3f of the image (< %.3f); falling "
-                    "back to linear interpolation of the %d sparse points", coverage,
-                    config.min_coverage, sd.size)
-        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
-                                 sparse)
-    else:
-        depth, conf = _filled_map(dmap, covered, prims, uv, sd, camera, config)
+    done = _primitive_completion(image, prims, uv, sd, camera, config)
     t_fi = time.perf_counter()
+    choice = None
+    if config.choose == "heldout":
+        choice = _heldout_choice(image, prims, uv, sd, camera, config, model, done.depth)
+    fit = done.fit
     res = CompletionResult(
-        depth=depth, confidence=conf, primitives=sub, log_scales=sub.log_scales.copy(),
-        n_points=fit.counts[kept].copy(), kept=kept, n_primitives=n, n_sparse=int(sd.size),
-        coverage=coverage, method=config.method, frontend=fe_name,
-        uses_depth=uses_depth, fallback=fallback,
-        timings={"frontend": t_fe - t0, "scales": t_sc - t_fe, "render": t_re - t_sc,
-                 "fill": t_fi - t_re, "total": time.perf_counter() - t0},
-        solver=fit.solver, modes=fit.modes)
+        depth=choice.depth if choice is not None else done.depth, confidence=done.confidence,
+        primitives=fit.sub, log_scales=fit.sub.log_scales.copy(),
+        n_points=fit.counts[fit.kept].copy(), kept=fit.kept, n_primitives=len(prims),
+        n_sparse=int(sd.size), coverage=done.coverage, method=config.method, frontend=fe_name,
+        uses_depth=uses_depth, fallback=done.fallback,
+        timings={"frontend": t_fe - t0, **done.timings, "choose": time.perf_counter() - t_fi,
+                 "total": time.perf_counter() - t0},
+        solver=fit.solver, modes=fit.modes, choice=choice)
     log.info("%s", res.summary())
     return res
+
+
+@dataclass
+class _Completed:
+    """Output of :func:`_primitive_completion` (steps 1-6)."""
+
+    depth: np.ndarray
+    confidence: np.ndarray
+    fit: "_ScaleFit"
+    coverage: float
+    fallback: bool
+    timings: Dict[str, float]
+
+
+def _primitive_completion(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
+                          camera: PinholeCamera, config: CompletionConfig,
+                          quiet: bool = False) -> _Completed:
+    """Steps 1-6 of the module docstring from the points ``uv`` (P, 2) / ``sd`` (P,)
+    metres; ``quiet`` logs the fallback at debug level (held-out folds)."""
+    t0 = time.perf_counter()
+    fit = _fit_scales(image, prims, uv, sd, camera, config)
+    t_sc = time.perf_counter()
+    dmap = fit.sub.depth_map() if fit.kept.size else np.full(prims.camera.shape, np.nan)
+    covered = np.isfinite(dmap)
+    coverage = float(covered.mean())
+    fallback = coverage < config.min_coverage or fit.kept.size == 0
+    t_re = time.perf_counter()
+    if fallback:
+        (log.debug if quiet else log.warning)(
+            "completion: supported primitives cover %.3f of the image (< %.3f); falling back "
+            "to linear interpolation of the %d sparse points", coverage, config.min_coverage,
+            sd.size)
+        depth, conf = fill_holes(np.full(camera.shape, np.nan), np.zeros(camera.shape, bool),
+                                 _sparse_map(uv, sd, camera))
+    else:
+        depth, conf = _filled_map(dmap, covered, prims, uv, sd, camera, config)
+    timings = {"scales": t_sc - t0, "render": t_re - t_sc, "fill": time.perf_counter() - t_re}
+    return _Completed(depth, conf, fit, coverage, fallback, timings)
+
+
+def _sparse_map(uv: np.ndarray, sd: np.ndarray, camera: PinholeCamera) -> np.ndarray:
+    """(H, W) of ``camera``: ``sd`` at the pixels ``uv``, 0 elsewhere."""
+    out = np.zeros(camera.shape)
+    out[uv[:, 1].astype(np.int64), uv[:, 0].astype(np.int64)] = sd
+    return out
+
+
+def _depth_model(spec, config: CompletionConfig):
+    """The metric-depth model of ``spec`` (None, name / path, or an object with
+    ``predict_metric``); None when unused (``choose="none"``, or no
+    ``"network:*"`` candidate)."""
+    if spec is None:
+        return None
+    if config.choose != "heldout" or not any(c.startswith("network:")
+                                             for c in config.candidates):
+        log.warning("completion: depth model %s given but unused (choose=%r, candidates %s)",
+                    spec, config.choose, config.candidates)
+        return None
+    if hasattr(spec, "predict_metric"):
+        return spec
+    from ..frontend import metric_depth_from_cache
+
+    return metric_depth_from_cache(spec)
+
+
+def _heldout_choice(image, prims, uv, sd, camera, config, model, primitive_depth):
+    """Step 7: :func:`spgeo.completion.choose.choose_by_heldout` over
+    ``config.candidates``; None when there are fewer than two points per fold."""
+    import cv2
+
+    from .baselines import colorization_completion, ip_basic_completion, \
+        linear_interpolation_completion
+    from .network import align_network_depth, network_depth
+
+    if sd.size < 2 * config.heldout.folds:
+        log.info("completion: %d points are too few for %d held-out folds; no choice",
+                 sd.size, config.heldout.folds)
+        return None
+    labels = prims.label_image()
+    if labels.shape != camera.shape:
+        labels = cv2.resize(labels, camera.size, interpolation=cv2.INTER_NEAREST)
+    net = network_depth(model, image) if model is not None else None
+    fns = {
+        "primitives": lambda p, d: _primitive_completion(image, prims, p, d, camera, config,
+                                                         quiet=True).depth,
+        "linear": lambda p, d: linear_interpolation_completion(_sparse_map(p, d, camera)),
+        "ip_basic": lambda p, d: ip_basic_completion(_sparse_map(p, d, camera)),
+        "colorization": lambda p, d: colorization_completion(image, _sparse_map(p, d, camera)),
+    }
+    cands = {}
+    for name in config.candidates:
+        if name.startswith("network:"):
+            if net is not None:
+                mode = name.split(":", 1)[1]
+                cands[name] = (lambda p, d, m=mode: align_network_depth(
+                    net, p, d, m, labels, config.network_min_points))
+        else:
+            cands[name] = fns[name]
+    return choose_by_heldout(cands, uv, sd, labels, config.heldout,
+                             fitted={"primitives": primitive_depth})
 
 
 def _checked_inputs(image, sparse_depth, camera, config):

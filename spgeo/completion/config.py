@@ -2,17 +2,24 @@
 :class:`CompletionConfig` and the names its ``method`` / ``shape_model`` accept."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Optional
+from dataclasses import dataclass, field
+from typing import Optional, Tuple
 
 import numpy as np
 
 from ..configs import config_repr
+from .choose import ChooseConfig
+from .network import ALIGNMENTS
 
-__all__ = ["CompletionConfig", "METHODS", "SHAPE_MODELS"]
+__all__ = ["CompletionConfig", "METHODS", "SHAPE_MODELS", "CHOOSE", "CANDIDATES"]
 
 METHODS = ("median", "joint", "graph")
 SHAPE_MODELS = ("scale", "plane")
+CHOOSE = ("none", "heldout")
+#: Candidate names of ``CompletionConfig.candidates``; ``"network:<alignment>"``
+#: for each alignment of :data:`spgeo.completion.network.ALIGNMENTS`.
+CANDIDATES = ("primitives", "linear", "ip_basic", "colorization") + tuple(
+    f"network:{a}" for a in ALIGNMENTS)
 
 
 @config_repr
@@ -69,6 +76,19 @@ class CompletionConfig:
             per pass).
         residual_clip: step 6's largest correction in log units (>= 0; 0 or
             None: off).  Default 0.05 (docs/results.md says why).
+        choose: ``"none"`` (the primitive completion alone) or ``"heldout"``
+            (step 7: per region, the candidate of ``candidates`` with the
+            lowest error on held-out sparse points, :mod:`spgeo.completion.choose`).
+        candidates: names of :data:`CANDIDATES` for ``"heldout"``; the first
+            wins ties; ``"network:*"`` ones are skipped when no depth model is given.
+        heldout: :class:`~spgeo.completion.choose.ChooseConfig` (folds, seed,
+            shrinkage, cells) of ``"heldout"``.
+        depth_model: registry name or path of a metric-depth network
+            (:func:`spgeo.frontend.metric_depth_from_cache`) for the
+            ``"network:*"`` candidates; None: none (``complete_depth``'s
+            ``depth_model`` argument overrides it).
+        network_min_points: ``"network:primitive"``: points a primitive needs
+            for its own scale (>= 1).
     """
 
     method: str = "graph"
@@ -88,8 +108,14 @@ class CompletionConfig:
     plane_coupling: float = 0.03
     plane_prior_flat: float = 1e-4
     residual_clip: Optional[float] = 0.05
+    choose: str = "heldout"
+    candidates: Tuple[str, ...] = ("primitives", "linear", "ip_basic", "network:global")
+    heldout: ChooseConfig = field(default_factory=ChooseConfig)
+    depth_model: Optional[str] = None
+    network_min_points: int = 3
 
     def __post_init__(self) -> None:
+        self._check_choice()
         if self.residual_clip is not None and not (
                 np.isfinite(self.residual_clip) and self.residual_clip >= 0):
             raise ValueError(f"CompletionConfig: residual_clip must be >= 0 or None, "
@@ -136,3 +162,20 @@ class CompletionConfig:
         if not 0.0 <= self.min_coverage <= 1.0:
             raise ValueError(f"CompletionConfig: min_coverage must be in [0, 1], "
                              f"got {self.min_coverage}")
+
+    def _check_choice(self) -> None:
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        if self.choose not in CHOOSE:
+            raise ValueError(f"CompletionConfig: choose must be one of {CHOOSE}, "
+                             f"got {self.choose!r}")
+        bad = [c for c in self.candidates if c not in CANDIDATES]
+        if bad or not self.candidates or len(set(self.candidates)) != len(self.candidates):
+            raise ValueError(f"CompletionConfig: candidates must be distinct names of "
+                             f"{CANDIDATES}, got {tuple(self.candidates)!r}")
+        if not isinstance(self.heldout, ChooseConfig):
+            raise ValueError(f"CompletionConfig: heldout must be a ChooseConfig, "
+                             f"got {type(self.heldout).__name__}")
+        if int(self.network_min_points) != self.network_min_points or \
+                self.network_min_points < 1:
+            raise ValueError(f"CompletionConfig: network_min_points must be an integer >= 1, "
+                             f"got {self.network_min_points}")

@@ -1,0 +1,279 @@
+"""Choose a depth source per region by its error on held-out sparse points.
+
+Several candidate depth sources can complete the same sparse points (the
+primitive completion, linear interpolation, IP-Basic, a network's depth
+aligned to the points, ...).  None wins everywhere, so the points decide:
+
+1. **folds** — the P sparse points are split into ``folds`` folds of (almost)
+   equal size by a seeded permutation (:func:`fold_ids`; deterministic).
+2. **held-out errors** — every candidate is fitted ``folds`` times, each time
+   on all points but one fold, and read at the held-out fold's pixels; each
+   point thus gets one held-out prediction per candidate, and an error
+   ``|log prediction - log depth|`` (:func:`heldout_log_errors`).
+3. **regions** — the image is cut into regions (the primitives; pixels of no
+   primitive form one region per image cell).  A region's score of a
+   candidate is the mean held-out error of the points inside it, shrunk
+   towards the score of its image cell with the weight of ``prior_points``
+   points, and the cell's score towards the global mean in the same way
+   (:func:`region_scores`): a region with many points decides by itself, one
+   with few or none follows its cell, a cell with few follows the image.
+4. **winner** — per region the candidate of the lowest score; the candidates
+   are refitted on all points and each pixel takes its region's winner
+   (:func:`choose_by_heldout`).
+
+Candidates are callables ``fit(uv, depth) -> (H, W)`` metres (finite and > 0
+everywhere) with ``uv`` (K, 2) pixel coordinates (u = column, v = row, of the
+map's pixels) and ``depth`` (K,) metres.  Nothing here knows what a candidate
+is: the same choice can pick between hypotheses elsewhere.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Callable, Dict, Mapping, Optional, Tuple
+
+import numpy as np
+
+from ..configs import config_repr
+
+__all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_errors",
+           "region_labels", "region_scores", "choose_by_heldout"]
+
+log = logging.getLogger(__name__)
+
+#: ``fit(uv (K, 2), depth (K,) metres) -> (H, W) metres``, finite and > 0.
+Candidate = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@config_repr
+@dataclass(frozen=True)
+class ChooseConfig:
+    """Options of :func:`choose_by_heldout`.
+
+    Attributes:
+        folds: number of folds K (>= 2); every point is held out once.
+        seed: seed of the fold permutation.
+        prior_points: weight, in points, of the cell's score in a region's
+            score and of the global score in a cell's (>= 0; 0: a region with
+            a held-out point decides by its points alone).
+        grid: (columns, rows) of the image cells (each >= 1).
+    """
+
+    folds: int = 5
+    seed: int = 0
+    prior_points: float = 10.0
+    grid: Tuple[int, int] = (4, 3)
+
+    def __post_init__(self) -> None:
+        if int(self.folds) != self.folds or self.folds < 2:
+            raise ValueError(f"ChooseConfig: folds must be an integer >= 2, got {self.folds}")
+        if not (np.isfinite(self.prior_points) and self.prior_points >= 0):
+            raise ValueError(f"ChooseConfig: prior_points must be >= 0, got {self.prior_points}")
+        if len(self.grid) != 2 or min(int(g) for g in self.grid) < 1:
+            raise ValueError(f"ChooseConfig: grid must be two integers >= 1, got {self.grid}")
+
+
+@dataclass
+class HeldoutChoice:
+    """Result of :func:`choose_by_heldout`.
+
+    Attributes:
+        depth: (H, W) metres, each pixel from its region's winner fitted on all points.
+        names: the C candidate names, in the order of the indices below.
+        winner: (H, W) int16 index into ``names`` of the candidate each pixel took.
+        region_winner: (R,) index into ``names`` per region of ``regions``.
+        heldout_error: (C,) mean held-out ``|log error|`` of each candidate over
+            all points (the global score).
+        point_errors: (C, P) held-out ``|log error|`` per candidate and point.
+        folds: (P,) fold of each point.
+    """
+
+    depth: np.ndarray
+    names: Tuple[str, ...]
+    winner: np.ndarray
+    region_winner: np.ndarray
+    heldout_error: np.ndarray
+    point_errors: np.ndarray
+    folds: np.ndarray
+
+    def pixel_counts(self) -> Dict[str, int]:
+        """Pixels taken from each candidate (name -> count)."""
+        c = np.bincount(self.winner.ravel(), minlength=len(self.names))
+        return {n: int(c[i]) for i, n in enumerate(self.names)}
+
+    def region_counts(self) -> Dict[str, int]:
+        """Regions won by each candidate (name -> count)."""
+        c = np.bincount(self.region_winner, minlength=len(self.names))
+        return {n: int(c[i]) for i, n in enumerate(self.names)}
+
+
+def fold_ids(n_points: int, folds: int, seed: int = 0) -> np.ndarray:
+    """(n_points,) fold index in ``[0, folds)`` per point: a permutation drawn
+    with ``numpy.random.default_rng(seed)`` dealt round-robin, so the folds'
+    sizes differ by at most one.  Deterministic for a given (n, folds, seed).
+    Raises ``ValueError`` for ``folds < 2`` or ``n_points < 0``."""
+    if int(folds) < 2 or n_points < 0:
+        raise ValueError(f"fold_ids: need folds >= 2 and n_points >= 0, got {folds}, {n_points}")
+    perm = np.random.default_rng(seed).permutation(int(n_points))
+    out = np.empty(int(n_points), np.int64)
+    out[perm] = np.arange(int(n_points)) % int(folds)
+    return out
+
+
+def heldout_log_errors(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
+                       folds: np.ndarray) -> np.ndarray:
+    """(C, P) ``|log(prediction) - log(depth)|`` of each candidate at each point,
+    the prediction fitted on the points of the other folds.
+
+    Args:
+        candidates: name -> :data:`Candidate` (C of them, dict order kept).
+        uv: (P, 2) integer-valued pixel coordinates (u, v) inside the maps.
+        depth: (P,) metres > 0.
+        folds: (P,) fold per point (:func:`fold_ids`).
+    Returns:
+        (C, P) float64; ``inf`` where a prediction is not finite and > 0.
+    """
+    uv = np.asarray(uv).reshape(-1, 2)
+    u, v = uv[:, 0].astype(np.int64), uv[:, 1].astype(np.int64)
+    logd = np.log(np.asarray(depth, dtype=np.float64))
+    err = np.full((len(candidates), uv.shape[0]), np.inf)
+    for f in np.unique(folds):
+        test = folds == f
+        train = ~test
+        for c, fit in enumerate(candidates.values()):
+            pred = np.asarray(fit(uv[train], depth[train]), dtype=np.float64)[v[test], u[test]]
+            ok = np.isfinite(pred) & (pred > 0)
+            e = np.full(pred.shape, np.inf)
+            e[ok] = np.abs(np.log(pred[ok]) - logd[test][ok])
+            err[c, test] = e
+    return err
+
+
+def region_labels(labels: np.ndarray, grid: Tuple[int, int]) -> Tuple[np.ndarray, np.ndarray]:
+    """Regions and their image cells from a label image.
+
+    Args:
+        labels: (H, W) int, region id >= 0 (e.g. a primitive) or -1 (none).
+        grid: (columns, rows) of the image cells.
+    Returns:
+        ``(regions, cell)``: (H, W) int64 region per pixel, the labels
+        renumbered densely and every unlabelled pixel in one region per
+        cell; (R,) the cell of each region (the cell of its pixel centroid).
+    """
+    labels = np.asarray(labels)
+    h, w = labels.shape
+    gx, gy = int(grid[0]), int(grid[1])
+    rows, cols = np.mgrid[0:h, 0:w]
+    pix_cell = (rows * gy // h) * gx + cols * gx // w
+    key = np.where(labels >= 0, labels.astype(np.int64), -1 - pix_cell)
+    _, regions = np.unique(key.ravel(), return_inverse=True)
+    regions = regions.reshape(h, w)
+    n = int(regions.max()) + 1
+    cnt = np.bincount(regions.ravel(), minlength=n)
+    cy = np.bincount(regions.ravel(), rows.ravel(), n) / cnt
+    cx = np.bincount(regions.ravel(), cols.ravel(), n) / cnt
+    cell = (np.minimum(cy, h - 1).astype(np.int64) * gy // h) * gx + \
+        np.minimum(cx, w - 1).astype(np.int64) * gx // w
+    return regions, cell
+
+
+def _shrunk(err: np.ndarray, group: np.ndarray, n_groups: int, prior: np.ndarray,
+            weight: float) -> np.ndarray:
+    """(C, G) ``(sum of err in group + weight * prior) / (count + weight)``;
+    ``prior`` (C, G); groups without points and ``weight`` 0 take the prior."""
+    c = err.shape[0]
+    tot = np.stack([np.bincount(group, err[i], n_groups) for i in range(c)]) if c else \
+        np.zeros((0, n_groups))
+    cnt = np.bincount(group, minlength=n_groups)[None, :].astype(np.float64)
+    den = cnt + weight
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (tot + weight * prior) / den
+    return np.where(den > 0, out, prior)
+
+
+def region_scores(err: np.ndarray, point_region: np.ndarray, cell: np.ndarray,
+                  prior_points: float) -> np.ndarray:
+    """(C, R) score of each candidate per region (module docstring, step 3).
+
+    Args:
+        err: (C, P) held-out errors (:func:`heldout_log_errors`); non-finite
+            entries count as the largest finite error of that point (a
+            candidate that cannot predict a point is the worst there).
+        point_region: (P,) region of each point in ``[0, R)``.
+        cell: (R,) cell of each region (from :func:`region_labels`).
+        prior_points: shrinkage weight in points (>= 0).
+    Returns:
+        (C, R) float64.
+    """
+    err = np.asarray(err, dtype=np.float64)
+    fin = np.isfinite(err)
+    worst = np.where(fin, err, -np.inf).max(0, initial=0.0)
+    err = np.where(fin, err, worst[None, :])
+    n_regions = cell.size
+    n_cells = int(cell.max()) + 1 if cell.size else 0
+    glob = err.mean(1, keepdims=True) if err.shape[1] else np.zeros((err.shape[0], 1))
+    point_cell = cell[point_region]
+    by_cell = _shrunk(err, point_cell, n_cells, np.repeat(glob, n_cells, 1), prior_points)
+    return _shrunk(err, point_region, n_regions, by_cell[:, cell], prior_points)
+
+
+def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
+                      labels: np.ndarray, config: ChooseConfig = ChooseConfig(),
+                      fitted: Optional[Mapping[str, np.ndarray]] = None) -> HeldoutChoice:
+    """Per region, the candidate of the lowest held-out error (module docstring).
+
+    Args:
+        candidates: name -> :data:`Candidate` (at least one); the first wins ties.
+        uv: (P, 2) integer-valued pixel coordinates (u, v) inside the (H, W) maps.
+        depth: (P,) metres > 0.
+        labels: (H, W) int region label (>= 0) or -1 (no region).
+        config: :class:`ChooseConfig`.
+        fitted: optional name -> (H, W) map already fitted on all points (not
+            refitted).
+    Returns:
+        :class:`HeldoutChoice`.
+    Raises:
+        ValueError: no candidate, fewer points than ``config.folds``, points
+            outside the label image, a depth that is not finite and > 0.
+    """
+    uv = np.asarray(uv).reshape(-1, 2).astype(np.int64)
+    depth = np.asarray(depth, dtype=np.float64).reshape(-1)
+    labels = np.asarray(labels)
+    _check_choice_inputs(candidates, uv, depth, labels, config)
+    names = tuple(candidates)
+    folds = fold_ids(depth.size, config.folds, config.seed)
+    err = heldout_log_errors(candidates, uv, depth, folds)
+    regions, cell = region_labels(labels, config.grid)
+    scores = region_scores(err, regions[uv[:, 1], uv[:, 0]], cell, config.prior_points)
+    region_winner = np.argmin(scores, 0).astype(np.int16)
+    winner = region_winner[regions]
+    fitted = dict(fitted or {})
+    out = np.full(labels.shape, np.nan)
+    for c in np.unique(region_winner):
+        m = fitted.get(names[c])
+        if m is None:
+            m = candidates[names[c]](uv, depth)
+        sel = winner == c
+        out[sel] = np.asarray(m, dtype=np.float64)[sel]
+    glob = np.where(np.isfinite(err), err, np.nan)
+    with np.errstate(invalid="ignore"):
+        heldout = np.nanmean(glob, 1) if glob.size else np.zeros(len(names))
+    log.debug("held-out choice: errors %s", dict(zip(names, np.round(heldout, 4))))
+    return HeldoutChoice(out, names, winner, region_winner, heldout, err, folds)
+
+
+def _check_choice_inputs(candidates, uv, depth, labels, config) -> None:
+    """:func:`choose_by_heldout`'s *Raises*."""
+    if not candidates:
+        raise ValueError("choose_by_heldout: no candidate")
+    if not isinstance(config, ChooseConfig):
+        raise TypeError(f"config must be a ChooseConfig, got {type(config).__name__}")
+    if depth.size != uv.shape[0] or depth.size < config.folds:
+        raise ValueError(f"choose_by_heldout: need as many depths as pixels and at least "
+                         f"{config.folds} points, got {depth.size} depths for {uv.shape[0]} "
+                         "pixels")
+    if not np.all(np.isfinite(depth) & (depth > 0)):
+        raise ValueError("choose_by_heldout: depths must be finite and > 0")
+    h, w = labels.shape
+    if uv.size and (uv.min() < 0 or uv[:, 0].max() >= w or uv[:, 1].max() >= h):
+        raise ValueError(f"choose_by_heldout: a point lies outside the {w}x{h} label image")
