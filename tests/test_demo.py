@@ -23,6 +23,10 @@ def test_demo_rows_pictures_and_completion(tmp_path):
     table = next(t for k, t in res.extra_tables.items() if k.startswith("Depth completion"))
     mae = {m.group(1).strip(): float(m.group(2)) for m in
            re.finditer(r"^tum_fr1_desk (.+?)\s+([\d.]+)\s+[\d.]+\s+[\d.]+\s+[\d.]+$", table, re.M)}
-    # the offline front-ends beat linear interpolation on this frame by >= 20 % MAE
-    for method in ("spgeo classical", "spgeo manhattan (VP normals)"):
+    # the offline front-ends' shapes beat linear interpolation on this frame by >= 20 % MAE;
+    # the default (held-out choice between them and the baselines) stays near the best
+    # baseline on this one frame (the never-worse rule is over a set: test_completion_choose)
+    for method in ("spgeo classical primitives", "spgeo manhattan primitives"):
         assert mae[method] < 0.8 * mae["linear interpolation"], mae
+    best = min(mae["linear interpolation"], mae["IP-Basic"])
+    assert mae["spgeo (default: held-out)"] < 1.1 * best, mae

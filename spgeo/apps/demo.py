@@ -241,10 +241,9 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
 def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: DemoResult) -> None:
     """Zero-shot depth completion from 150 sparse points at FAST keypoints (1% noise)
     against the two baselines, on the synthetic view and a bundled TUM frame."""
-    from ..completion import complete_depth
-    from ..evaluation.references.depth_completion import (ip_basic_completion,
-                                                          linear_interpolation_completion,
-                                                          oracle_frontend)
+    from ..completion import CompletionConfig, complete_depth
+    from ..completion.baselines import ip_basic_completion, linear_interpolation_completion
+    from ..evaluation.references.depth_completion import oracle_frontend
     from ..evaluation.completion.void import keypoint_sparse_depth, void_metrics
 
     lines = [f"{'scene':12s} {'method':28s} {'MAE mm':>8s} {'RMSE mm':>8s} {'iMAE':>7s} "
@@ -256,9 +255,12 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
               frame.camera, None)]
     for name, image, gt, camera, oracle in cases:
         sparse = keypoint_sparse_depth(image, gt, 150, rel_noise=0.01, seed=0)
-        preds = {"spgeo classical": complete_depth(image, sparse, camera).depth,
-                 "spgeo manhattan (VP normals)": complete_depth(image, sparse, camera,
-                                                                "manhattan").depth}
+        shapes_only = CompletionConfig(choose="none")
+        preds = {"spgeo (default: held-out)": complete_depth(image, sparse, camera).depth,
+                 "spgeo classical primitives": complete_depth(image, sparse, camera,
+                                                              config=shapes_only).depth,
+                 "spgeo manhattan primitives": complete_depth(image, sparse, camera, "manhattan",
+                                                              config=shapes_only).depth}
         if oracle is not None:
             preds["spgeo ORACLE segments+normals"] = complete_depth(
                 image, sparse, camera, oracle, frontend_depth=gt).depth
