@@ -133,15 +133,15 @@ def _kitti(cap: Optional[int], depth: bool, loop: bool = False) -> Reordered:
 
     from spgeo.camera import PinholeCamera
     from spgeo.datasets import open_dataset
+    from spgeo.datasets.kitti import read_kitti_calib, read_kitti_poses
 
     root = shared_data_root() / "kitti_odometry_clip_51"
-    p0 = np.loadtxt(root / "calib.txt", ndmin=2)[0]
+    P0 = read_kitti_calib(root / "calib.txt")["P0"]
     first = sorted((root / "image_l").glob("*.png"))[0]
     h, w = cv2.imread(str(first), cv2.IMREAD_UNCHANGED).shape[:2]
-    cam = PinholeCamera(p0[0], p0[5], p0[2], p0[6], w, h)
+    cam = PinholeCamera.from_K(P0[:, :3], w, h)
     seq = open_dataset("folder", root / "image_l", camera=cam, load_depth=False)
-    poses = np.tile(np.eye(4), (len(seq), 1, 1))
-    poses[:, :3, :] = np.loadtxt(root / "poses.txt", ndmin=2)[:len(seq)].reshape(-1, 3, 4)
+    poses = np.stack(read_kitti_poses(root / "poses.txt")[:len(seq)])
     return Reordered(seq, _order(len(seq), cap, loop), poses, depth=False)
 
 
