@@ -26,3 +26,20 @@ def write_7scenes(folder, frames, K, size=(640, 480), garbage_depth=False):
                 mm.astype(np.uint16), size, interpolation=cv2.INTER_NEAREST))
         np.savetxt(f"{stem}.pose.txt", f.T_world_cam)
     return folder
+
+
+def write_completion_inputs(folder):
+    """The inputs of ``spgeo complete`` from a synthetic 160x120 view (seed 5):
+    ``folder/rgb.png`` and 100 noise-free sparse depths at FAST keypoints.
+    Returns ``(view, camera, rgb path, sparse (H, W) metres, 0 = missing)``."""
+    from spgeo import synthetic
+    from spgeo.evaluation.completion.void import keypoint_sparse_depth
+
+    cam = synthetic.default_camera(160, 120)
+    view = synthetic.SyntheticScene.generate(seed=5).render(
+        cam, synthetic.make_trajectory(1, seed=5)[0])
+    rgb = folder / "rgb.png"
+    assert cv2.imwrite(str(rgb), cv2.cvtColor(np.rint(255 * view.rgb).astype(np.uint8),
+                                              cv2.COLOR_RGB2BGR))
+    sparse = keypoint_sparse_depth(view.rgb, view.depth, 100, rel_noise=0.0, seed=0)
+    return view, cam, rgb, sparse

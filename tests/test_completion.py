@@ -8,6 +8,7 @@ import pytest
 
 import gtsam
 
+from layouts import write_completion_inputs
 from spgeo import synthetic
 from spgeo.camera import PinholeCamera
 from spgeo.completion import (CONFIDENCE_LINEAR, CONFIDENCE_NEAREST, CONFIDENCE_PRIMITIVE,
@@ -448,13 +449,7 @@ def test_run_void_end_to_end(void_root):
 def test_cli_complete_end_to_end(tmp_path, capsys):
     from spgeo.cli import main
 
-    cam = synthetic.default_camera(160, 120)
-    view = synthetic.SyntheticScene.generate(seed=5).render(
-        cam, synthetic.make_trajectory(1, seed=5)[0])
-    rgb = tmp_path / "rgb.png"
-    cv2.imwrite(str(rgb), cv2.cvtColor(np.rint(255 * view.rgb).astype(np.uint8),
-                                       cv2.COLOR_RGB2BGR))
-    sparse = keypoint_sparse_depth(view.rgb, view.depth, 100, rel_noise=0.0, seed=0)
+    view, cam, rgb, sparse = write_completion_inputs(tmp_path)
     sp_png = tmp_path / "sparse.png"
     cv2.imwrite(str(sp_png), np.rint(sparse * 1000).astype(np.uint16))
     sp_npy = tmp_path / "sparse.npy"

@@ -10,6 +10,7 @@ import pytest
 
 import onnx_builders as B
 from conftest import shared_data_dir
+from layouts import write_completion_inputs
 from spgeo import synthetic
 from spgeo.completion import CompletionConfig, complete_depth
 from spgeo.completion.baselines import ip_basic_completion, linear_interpolation_completion
@@ -239,14 +240,9 @@ def test_cli_complete_with_a_depth_model(tmp_path, capsys):
 
     from spgeo.cli import main
 
-    cam = synthetic.default_camera(160, 120)
-    view = synthetic.SyntheticScene.generate(seed=5).render(
-        cam, synthetic.make_trajectory(1, seed=5)[0])
-    rgb = tmp_path / "rgb.png"
-    cv2.imwrite(str(rgb), cv2.cvtColor(np.rint(255 * view.rgb).astype(np.uint8),
-                                       cv2.COLOR_RGB2BGR))
+    _, cam, rgb, sparse = write_completion_inputs(tmp_path)
     sp = tmp_path / "sparse.npy"
-    np.save(sp, keypoint_sparse_depth(view.rgb, view.depth, 100, rel_noise=0.0, seed=0))
+    np.save(sp, sparse)
     args = ["complete", "--rgb", str(rgb), "--sparse", str(sp), "--intrinsics",
             f"{cam.fx},{cam.fy},{cam.cx},{cam.cy}", "--out", str(tmp_path / "d.png")]
     junk = tmp_path / "junk.onnx"

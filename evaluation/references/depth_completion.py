@@ -1,23 +1,9 @@
-"""Depth-completion baselines that use the sparse depth only (no image).
+"""Depth-completion baselines and the oracle front-end of the completion tables.
 
-They run on exactly the inputs :func:`spgeo.completion.complete_depth` gets, so
-every completion table shows how much the SuperPrimitives add:
-
-* :func:`linear_interpolation_completion`: Delaunay triangulation of the sparse
-  points, linear interpolation inside their convex hull, nearest sparse point
-  outside it.
-* :func:`ip_basic_completion`: the morphological completion of Ku, Harakeh and
-  Waslander, *In Defense of Classical Image Processing: Fast Depth Completion on
-  the CPU* (CRV 2018, "IP-Basic"), with its steps and kernels, plus a final
-  fill for inputs far sparser than the LiDAR it was designed for
-  (:class:`IPBasicConfig`).
-* :func:`colorization_completion`: the image-guided fill of Levin, Lischinski
-  and Weiss, *Colorization using Optimization* (SIGGRAPH 2004), as the NYU
-  Depth v2 toolbox's ``fill_depth_colorization.m`` fills raw depth
-  (:class:`ColorizationConfig`).
-
-The three live in :mod:`spgeo.completion.baselines` (the held-out choice of
-:mod:`spgeo.completion.choose` uses them) and are re-exported here.
+The baselines (linear interpolation, IP-Basic, the colorization fill, with their
+configs) live in :mod:`spgeo.completion.baselines`, whose docstring describes them (the
+held-out choice of :mod:`spgeo.completion.choose` uses them as candidates); they are
+re-exported here for the evaluation protocols.
 
 :func:`oracle_frontend` (ground-truth segments and normals) is the *oracle*
 upper bound of the primitive pipeline; label its rows "oracle".
