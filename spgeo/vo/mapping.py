@@ -180,6 +180,11 @@ class MapKeyframe:
         self.image = self.keyframe = None
         self.map_pixels = self.prior_weights = None
 
+    def input_image(self, store) -> np.ndarray:
+        """The input image (for a retired keyframe read from ``store``, without
+        building the :class:`Keyframe` as :meth:`restore` does)."""
+        return self.image if self._final is None else store.get(self.index)[0]
+
     def restore(self, store, levels: int) -> Tuple[np.ndarray, Keyframe]:
         """``(input image, Keyframe)``: the live ones, or for a retired keyframe
         the stored image and primitives at its final pose (the

@@ -249,7 +249,7 @@ class Odometry:
 
     def keyframe_image(self, k: int) -> np.ndarray:
         """The input image keyframe ``k`` was made from (as given to :meth:`track`)."""
-        return self._kfs[k].restore(self._store, self.config.keyframe_levels)[0]
+        return self._kfs[k].input_image(self._store)
 
     def iter_keyframes(self, indices: Optional[Iterable[int]] = None
                        ) -> Iterator[Tuple[int, np.ndarray, Keyframe]]:
