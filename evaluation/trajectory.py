@@ -28,7 +28,7 @@ from spgeo.trajectory import FrameStatus, Trajectory
 
 __all__ = [
     "TumTrajectory", "read_tum", "write_tum", "status_path_for", "write_status", "read_status",
-    "AteResult", "ate_sim3", "ate_per_frame_and_keyframes", "path_length", "umeyama_sim3",
+    "AteResult", "ate_sim3", "ate_per_frame_and_keyframes", "path_length",
     "default_max_time_diff", "TrajectoryResult",
 ]
 
@@ -101,28 +101,6 @@ def path_length(positions: np.ndarray) -> float:
     if len(p) < 2:
         return 0.0
     return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
-
-
-def umeyama_sim3(src: np.ndarray, dst: np.ndarray,
-                 with_scale: bool = True) -> Tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares ``(R, t, s)`` with ``dst ≈ s R src + t`` (Umeyama 1991).
-
-    A plain numpy reference (evo implements the same); ``src``, ``dst`` are (n, 3).
-    """
-    src = np.asarray(src, dtype=np.float64)
-    dst = np.asarray(dst, dtype=np.float64)
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1
-    R = U @ S @ Vt
-    var_s = np.mean(np.sum(xs ** 2, axis=1))
-    s = float(np.trace(np.diag(D) @ S) / var_s) if with_scale else 1.0
-    t = mu_d - s * R @ mu_s
-    return R, t, s
 
 
 @dataclass

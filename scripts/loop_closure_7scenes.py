@@ -15,7 +15,8 @@ import numpy as np
 
 from spgeo.datasets.sevenscenes import SevenScenesConfig, SevenScenesSequence
 from spgeo.geometry import invert_pose
-from spgeo.loop import LoopCloser, LoopClosureConfig, sim3, sim3_difference
+from spgeo.loop import LoopCloser, LoopClosureConfig
+from spgeo.similarity import sim3, sim3_difference
 
 log = logging.getLogger("loop_closure_7scenes")
 

@@ -16,7 +16,7 @@ from spgeo import synthetic
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.vo import Odometry, OdometryConfig
-from spgeo.loop import LoopClosureConfig, umeyama
+from spgeo.loop import LoopClosureConfig
 from spgeo.evaluation.vo.memory import palindrome
 #logging.basicConfig(level=logging.INFO)
 N=int(sys.argv[1]); seed=int(sys.argv[2]); kft=float(sys.argv[3])
@@ -41,7 +41,7 @@ def run(on):
     dt=time.perf_counter()-t
     res = vo.result(); P = res.poses
     gt = poses[idx]
-    from spgeo.loop.sim3 import umeyama as um
+    from spgeo.similarity import umeyama as um
     S = um(P[:,:3,3], gt[:,:3,3])
     A = (S[:3,:3] @ P[:,:3,3].T).T + S[:3,3]
     ate = np.sqrt(np.mean(np.sum((A-gt[:,:3,3])**2,1)))
@@ -50,7 +50,7 @@ def run(on):
     print(on, f"{dt:.1f}s kf={rep['n_keyframes']} seg={rep['n_segments']} ate={ate:.4f} end-start={end:.4f} status={rep['status_counts']} loops={rep['loop_closures']}")
     return P
 if len(sys.argv) <= 5: a=run(False); b=run(True)
-from spgeo.loop.sim3 import sim3_parts
+from spgeo.similarity import sim3_parts
 from spgeo.geometry import rotation_angle_deg, invert_pose
 def check(on):
     cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, verification=VC))

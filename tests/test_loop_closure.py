@@ -8,8 +8,8 @@ import pytest
 
 from spgeo.geometry import invert_pose
 from spgeo.loop import (LoopCloser, LoopClosureConfig, PlaceRecognitionConfig,
-                        VerificationConfig, extract_features, match_features, sim3,
-                        sim3_difference, verify_sim3)
+                        VerificationConfig, extract_features, match_features, verify_sim3)
+from spgeo.similarity import sim3, sim3_difference
 from spgeo.synthetic import SyntheticScene
 from spgeo.synthetic.poses import camera_rotation, default_camera
 

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from spgeo.geometry import so3_exp
-from spgeo.loop import (Sim3Edge, odometry_edges, optimise_sim3_pose_graph, sim3,
-                        sim3_difference, sim3_inverse, sim3_parts, umeyama)
-from spgeo.loop.sim3 import check_sim3, from_gtsam, to_gtsam
+from spgeo.loop import Sim3Edge, odometry_edges, optimise_sim3_pose_graph
+from spgeo.similarity import (check_sim3, from_gtsam, sim3, sim3_difference, sim3_inverse,
+                              sim3_parts, to_gtsam, umeyama)
 
 N = 20
 

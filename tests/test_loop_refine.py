@@ -2,8 +2,9 @@
 import numpy as np
 
 from spgeo.geometry import rotation_angle_deg
-from spgeo.loop import KeyframeFeatures, VerificationConfig, sim3, sim3_parts, verify_sim3
+from spgeo.loop import KeyframeFeatures, VerificationConfig, verify_sim3
 from spgeo.loop.refine import refine_sim3
+from spgeo.similarity import sim3, sim3_parts
 from spgeo.synthetic.poses import default_camera
 
 

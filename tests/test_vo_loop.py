@@ -6,7 +6,8 @@ import pytest
 from spgeo import synthetic
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.loop import LoopClosureConfig, LoopCorrection, sim3, sim3_parts
+from spgeo.loop import LoopClosureConfig, LoopCorrection
+from spgeo.similarity import sim3, sim3_parts
 from spgeo.vo import Odometry, OdometryConfig
 
 CAM = synthetic.default_camera(160, 120)

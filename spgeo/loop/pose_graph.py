@@ -1,6 +1,6 @@
 """Sim(3) pose-graph optimisation of keyframes (GTSAM ``BetweenFactorSimilarity3``).
 
-Each keyframe ``k`` is a variable ``S_world_k`` (convention of :mod:`spgeo.loop.sim3`:
+Each keyframe ``k`` is a variable ``S_world_k`` (convention of :mod:`spgeo.similarity`:
 ``x_world = s R x_k + t``), initialised from its rigid input pose ``T_world_kf``
 (``s = 1``).  An edge ``(i, j, S_i_j)`` measures ``inv(S_world_i) @ S_world_j``:
 odometry edges between consecutive keyframes are the input poses' relative motions
@@ -21,7 +21,7 @@ import numpy as np
 
 from ..geometry import check_pose, invert_pose
 from .config import PoseGraphConfig
-from .sim3 import check_sim3, from_gtsam, sim3_parts, to_gtsam
+from ..similarity import check_sim3, from_gtsam, sim3_parts, to_gtsam
 
 __all__ = ["Sim3Edge", "PoseGraphResult", "odometry_edges", "optimise_sim3_pose_graph"]
 

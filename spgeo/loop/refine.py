@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from .sim3 import sim3, sim3_inverse, sim3_parts
+from ..similarity import sim3, sim3_inverse, sim3_parts
 
 __all__ = ["refine_sim3"]
 

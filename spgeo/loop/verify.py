@@ -3,7 +3,7 @@ RANSAC over 3-point Umeyama similarities between the two keyframes' 3-D points,
 scored by reprojection in both images and depth agreement (docs/design.md §5.2).
 
 Frames: a keyframe's points are in its camera frame, in its depth units; the
-verified ``S_cand_query`` (convention of :mod:`spgeo.loop.sim3`) maps query-camera
+verified ``S_cand_query`` (convention of :mod:`spgeo.similarity`) maps query-camera
 points into the candidate's camera, so its scale is the candidate's depth unit over
 the query's (1 for a map without scale drift).
 """
@@ -20,7 +20,7 @@ from ..twoview import TwoViewConfig, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 from .config import VerificationConfig
 from .refine import refine_sim3
-from .sim3 import sim3_inverse, umeyama
+from ..similarity import sim3_inverse, umeyama
 
 __all__ = ["KeyframeFeatures", "extract_features", "match_features", "Sim3Verification",
            "count_inliers", "verify_sim3"]

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..loop import LoopCloser, LoopClosureConfig, LoopCorrection
-from ..loop.sim3 import sim3_parts
+from ..similarity import sim3_parts
 from .mapping import MapKeyframe
 
 __all__ = ["SegmentLoopClosure"]

@@ -33,7 +33,7 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
-from ..loop.sim3 import moved_frame, sim3
+from ..similarity import moved_frame, sim3
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig

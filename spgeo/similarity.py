@@ -1,6 +1,11 @@
-"""Similarity transforms Sim(3) as 4x4 float64 arrays, and their GTSAM conversion.
+"""Similarity transforms Sim(3) as 4x4 float64 arrays: construction, parts, inverse,
+GTSAM conversion, differences, Umeyama alignment and the move of an anchored frame.
 
-Convention (used throughout :mod:`spgeo.loop`): ``S_a_b`` maps points of frame
+The one similarity toolkit of the project (beside the rigid helpers of
+:mod:`spgeo.geometry`): loop closure (:mod:`spgeo.loop`), the VO's loop and
+refinement corrections (:mod:`spgeo.vo`) and the evaluation use it.
+
+Convention: ``S_a_b`` maps points of frame
 ``b`` into frame ``a`` as ``x_a = s R x_b + t``; its matrix is
 ``[[s R, t], [0, 0, 0, 1]]`` and composition is the matrix product
 (``S_a_c = S_a_b @ S_b_c``).  A rigid ``T_a_b`` is the case ``s = 1``.  A keyframe's
