@@ -12,7 +12,8 @@ from spgeo.evaluation.trajectory import ate_sim3
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose, so3_exp
-from spgeo.vo import GlobalBAConfig, Odometry, OdometryConfig, kf_pose_key
+from spgeo.graph.keys import pose_key
+from spgeo.vo import GlobalBAConfig, Odometry, OdometryConfig
 from spgeo.vo.global_ba import _DistanceGauge
 
 CAM = synthetic.default_camera(160, 120)
@@ -55,7 +56,7 @@ def test_distance_gauge_jacobians_match_numerical_derivatives():
     Ta[:3, :3], Ta[:3, 3] = so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3)
     Tb = np.eye(4)
     Tb[:3, :3], Tb[:3, 3] = so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3)
-    ka, kb = kf_pose_key(0), kf_pose_key(1)
+    ka, kb = pose_key(0), pose_key(1)
     base = Tb[:3, 3] - Ta[:3, 3] + np.array([0.1, -0.05, 0.02])   # not the current one
     g = _DistanceGauge(ka, kb, base, 1e-3)
     vals = gtsam.Values()

@@ -17,6 +17,9 @@
   lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
   (decorated with numba's ``njit`` / ``jit`` / ...) may be longer when its docstring has a
   line starting ``Longer than 60 lines because`` that gives the reason.
+* One key scheme: no module of ``spgeo/`` or ``factors/`` but ``spgeo/graph/keys.py`` makes a
+  gtsam key (``gtsam.symbol`` / ``gtsam.Symbol`` / ``gtsam.symbol_shorthand``, also when
+  imported by name); every graph takes its keys from :mod:`spgeo.graph.keys`.
 """
 from __future__ import annotations
 
@@ -37,6 +40,8 @@ CLI_ENTRY = "spgeo/__main__.py"  # the one module outside spgeo/cli/ that may im
 MAX_FUNCTION_LINES = 60
 LONG_REASON = "Longer than 60 lines because"
 KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc"}
+KEY_MODULE = "spgeo/graph/keys.py"   # the one module that makes gtsam keys
+KEY_MAKERS = {"symbol", "Symbol", "symbol_shorthand"}
 
 
 def _python_files(folder: str) -> list[Path]:
@@ -287,6 +292,25 @@ def long_functions(path: Path) -> List[str]:
     return found
 
 
+# ------------------------------------------------------------------ key scheme
+def key_making_lines(source: str) -> List[int]:
+    """Lines of ``source`` that make a gtsam key: ``gtsam.symbol`` / ``Symbol`` /
+    ``symbol_shorthand`` used, or imported from ``gtsam`` (any sub-module)."""
+    lines = set()
+    for node in ast.walk(ast.parse(source)):
+        if (isinstance(node, ast.Attribute) and node.attr in KEY_MAKERS
+                and isinstance(node.value, ast.Name) and node.value.id == "gtsam"):
+            lines.add(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "gtsam":
+            if "symbol_shorthand" in (node.module or "") or any(
+                    a.name in KEY_MAKERS for a in node.names):
+                lines.add(node.lineno)
+        elif isinstance(node, ast.Import) and any("symbol_shorthand" in a.name
+                                                   for a in node.names):
+            lines.add(node.lineno)
+    return sorted(lines)
+
+
 # ------------------------------------------------------------------ tests
 def test_core_file_list_is_sane():
     files = {p.relative_to(ROOT).as_posix() for p in core_files()}
@@ -374,3 +398,25 @@ def test_functions_at_most_60_lines_of_code():
     assert not too_long, (f"functions over {MAX_FUNCTION_LINES} lines of code (compiled kernels "
                           f"may say why: a '{LONG_REASON} ...' line in their docstring):\n"
                           + "\n".join(too_long))
+
+
+def test_key_scanner():
+    source = ('"""gtsam.symbol("x", 0) in a docstring does not count"""\n'
+              "import gtsam\n"
+              "a = gtsam.symbol('x', 0)\n"                                # line 3
+              "b = gtsam.Symbol(a).index()\n"                             # line 4
+              "from gtsam import symbol\n"                                # line 5
+              "from gtsam.symbol_shorthand import X\n"                    # line 6
+              "import gtsam.symbol_shorthand as S\n"                      # line 7
+              "c = gtsam.Pose3()\nd = keys.symbol_index(a)\n")
+    assert key_making_lines(source) == [3, 4, 5, 6, 7]
+
+
+def test_one_key_scheme():
+    files = [p for folder in ("spgeo", "factors") for p in _python_files(folder)
+             if p != ROOT / KEY_MODULE]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 for line in key_making_lines(path.read_text(encoding="utf-8"))]
+    assert (ROOT / KEY_MODULE).exists()
+    assert not offenders, (f"gtsam keys are made only in {KEY_MODULE} (one key scheme; "
+                           "use its functions):\n" + "\n".join(offenders))

@@ -11,7 +11,8 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_sim3, read_status, read_tum
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.vo import (Odometry, OdometryConfig, kf_pose_key, kf_scale_key)
+from spgeo.graph.keys import pose_key, scale_key
+from spgeo.vo import Odometry, OdometryConfig
 
 log = logging.getLogger(__name__)
 CAM = synthetic.default_camera(160, 120)
@@ -127,10 +128,10 @@ def test_fixed_lag_marginalises_old_keyframes(frames):
     n_kf = len(vo.keyframes)
     assert n_kf > cfg.window
     est = vo.smoother_estimate()
-    in_window = [k for k in range(n_kf) if est.exists(kf_pose_key(k))]
+    in_window = [k for k in range(n_kf) if est.exists(pose_key(k))]
     assert in_window == list(range(n_kf - cfg.window, n_kf))
-    assert not est.exists(kf_scale_key(0, 0))
-    assert est.exists(kf_scale_key(n_kf - 1, 0))
+    assert not est.exists(scale_key(0, keyframe=0))
+    assert est.exists(scale_key(0, keyframe=n_kf - 1))
     res = vo.result()
     assert "lost" not in res.statuses
     gt = np.array([f.T_world_cam for f in frames])
@@ -159,7 +160,7 @@ def test_supporting_frames_are_optimised_in_the_window(run_frequent_kf):
     """Each mapping update links the previous keyframe to up to ``n_support``
     supporting non-keyframes whose poses are smoother variables; result() reports them at
     their smoothed poses."""
-    from spgeo.vo import support_pose_key
+    from spgeo.graph.keys import support_pose_key
 
     vo = run_frequent_kf
     rep = vo.report()
@@ -209,7 +210,7 @@ def test_reinitialisation_after_a_long_loss(frames):
 
 @pytest.mark.parametrize("model", ["constant_depth", "constant_normal"])
 def test_primitive_model_ablations_reshape_primitives(frames, model):
-    from spgeo.vo import apply_primitive_model
+    from spgeo.primitive_models import apply_primitive_model
 
     prims = frontend().primify(frames[0].image, CAM, frames[0].depth)
     out = apply_primitive_model(prims, model)

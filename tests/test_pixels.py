@@ -8,7 +8,9 @@ import pytest
 from spgeo import synthetic
 from spgeo.frontend import make_frontend
 from spgeo.vo import OdometryConfig
-from spgeo.vo.mapping import MapKeyframe, WindowMapper, kf_pose_key, kf_scale_key
+from spgeo.graph.keys import pose_key, scale_key, support_brightness_key, support_pose_key
+from spgeo.vo.mapping import MapKeyframe
+from spgeo.vo.smoother import WindowMapper
 from spgeo.vo.pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
 from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, valid_fraction,
                                track_frame)
@@ -143,16 +145,16 @@ def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level)
     mkf = MapKeyframe(0, 0, image, kf)
     mapper = WindowMapper(cfg)
     pyr = kf.frame_pyramid(frame)
-    tgt = gtsam.symbol("f", 1)
-    bkey = gtsam.symbol("d", 1)
+    tgt = support_pose_key(1)
+    bkey = support_brightness_key(1)
     group = mapper._group(mkf, tgt, pyr.images[level], pyr.cameras[level], bkey)
     values = gtsam.Values()
-    values.insert(kf_pose_key(0), gtsam.Pose3(T_kf))
+    values.insert(pose_key(0), gtsam.Pose3(T_kf))
     values.insert(tgt, gtsam.Pose3(T_f))
     ab = np.array([0.02, -0.01])
     values.insert(bkey, ab)
     for i in range(len(prims)):
-        values.insert(kf_scale_key(0, i), np.array([prims.log_scales[i]]))
+        values.insert(scale_key(i, keyframe=0), np.array([prims.log_scales[i]]))
     factor_cost = sum(f.error(values) for f in group.factors)
     tc = TrackingCost(kf, pyr.images[level], pyr.cameras[level], level,
                       cfg.tracker, selection=None)

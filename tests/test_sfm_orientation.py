@@ -10,8 +10,9 @@ from spgeo import synthetic
 from spgeo.frontend import make_frontend
 from spgeo.geometry import relative_pose
 from spgeo.images import gaussian_pyramid, to_gray
-from spgeo.sfm import SfMConfig, brightness_key, pose_key, scale_key
-from spgeo.sfm.graph import build_graph
+from spgeo.graph.builders import build_level_graph
+from spgeo.graph.keys import brightness_key, pose_key, scale_key, symbol_index
+from spgeo.sfm import SfMConfig
 from spgeo.sfm.orientation import (centre_rays, choose_orientations, orientation_ratios,
                                    planes_with_orientation, primitive_costs, scene_orientations)
 
@@ -36,12 +37,11 @@ def setup():
         values.insert(scale_key(i), planes[i].copy())
     pyr = [gaussian_pyramid(to_gray(r.rgb).astype(np.float32), CAM, cfg.levels) for r in (r0, r1)]
     rays = CAM.rays().reshape(-1, 3)[prims.pixels]
-    _, groups = build_graph(prims, rays, pyr[0], pyr[1:], 0, values, cfg)
+    _, groups = build_level_graph(prims, rays, pyr[0], pyr[1:], 0, values, cfg)
     return {"prims": prims, "planes": planes, "values": values, "groups": groups}
 
 
-def _index(key):
-    return gtsam.Symbol(key).index()
+_index = symbol_index
 
 
 def test_orientation_ratios_are_the_normals_slopes(setup):

@@ -11,8 +11,9 @@ from spgeo import synthetic
 from spgeo.factors.photometric import PhotometricConfig
 from spgeo.frontend import make_frontend
 from spgeo.geometry import relative_pose, rotation_angle_deg, so3_exp
-from spgeo.sfm import SfMConfig, brightness_key, pose_key, scale_key
-from spgeo.sfm.graph import build_graph as _build_graph
+from spgeo.graph.builders import build_level_graph as _build_graph
+from spgeo.graph.keys import brightness_key, pose_key, scale_key
+from spgeo.sfm import SfMConfig
 from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, constant_velocity_guess,
                             track_frame)
 
@@ -45,7 +46,7 @@ def seq():
 
 def graph_cost_and_gradient(kf, pyr, lvl, T_frame, ab, pc):
     """Sum of factor errors and of -A^T b (frame pose, brightness) over the
-    per-primitive photometric factors built by spgeo.sfm.graph.build_graph at
+    per-primitive photometric factors built by spgeo.graph.builders.build_level_graph at
     ``lvl`` (chunk = 1: one gtsam factor per primitive)."""
     prims = kf.primitives
     rays_all = prims.camera.rays().reshape(-1, 3)[prims.pixels]

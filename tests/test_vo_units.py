@@ -1,6 +1,6 @@
 """Unit tests of the VO's parts without an Odometry run: the map
 :class:`~spgeo.vo.initialisation.Initialiser` (its decisions on tracked
-frames) and the :class:`~spgeo.vo.mapping.WindowMapper` (keyframes with known
+frames) and the :class:`~spgeo.vo.smoother.WindowMapper` (keyframes with known
 poses).  Synthetic 160x120 frames, depth-derived ("depth") front-end: metric
 primitives, so poses compare with ground truth without a scale."""
 import dataclasses
@@ -12,9 +12,11 @@ import pytest
 from spgeo import synthetic
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose, rotation_angle_deg
-from spgeo.vo import OdometryConfig, WindowMapper, kf_pose_key, kf_scale_key
+from spgeo.graph.keys import pose_key, scale_key
+from spgeo.vo import OdometryConfig
 from spgeo.vo.initialisation import FAILED, START, WAIT, Initialiser
 from spgeo.vo.mapping import MapKeyframe, SupportCandidate
+from spgeo.vo.smoother import WindowMapper
 from spgeo.vo.tracking import Keyframe, track_frame
 
 CAM = synthetic.default_camera(160, 120)
@@ -161,7 +163,7 @@ def mapped(frames, frontend):
                                   np.zeros(2)) for j in range(prev.frame + 1, i)]
         assert mapper.map_keyframe(kfs, cands, 0) is False
         est = mapper.estimate()
-        states.append([est.exists(kf_pose_key(j)) for j in range(len(kfs))])
+        states.append([est.exists(pose_key(j)) for j in range(len(kfs))])
     return mapper, kfs, states, cfg
 
 
@@ -194,6 +196,6 @@ def test_window_mapper_marginalises_the_oldest_and_resets(mapped):
     mapper, kfs, states, cfg = mapped
     assert states == [[True, True], [True, True, True], [False, True, True, True]]
     est = mapper.estimate()
-    assert not est.exists(kf_scale_key(0, 0)) and est.exists(kf_scale_key(3, 0))
+    assert not est.exists(scale_key(0, keyframe=0)) and est.exists(scale_key(0, keyframe=3))
     mapper.reset()
     assert mapper.estimate().size() == 0

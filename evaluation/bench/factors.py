@@ -26,6 +26,7 @@ from spgeo.factors.photometric import PhotometricConfig, PrimitivePhotometricFac
 from spgeo.factors.photometric_group import PhotometricFactorGroup
 from spgeo.frontend.pipeline import split_regions
 from spgeo.geometry import so3_exp
+from spgeo.graph.keys import brightness_key, pose_key, scale_key
 
 
 def build(n_prims: int = 300, n_targets: int = 4, width: int = 320, height: int = 240,
@@ -46,34 +47,34 @@ def build(n_prims: int = 300, n_targets: int = 4, width: int = 320, height: int 
     rays = cam.rays().reshape(-1, 3)
     img = (0.5 + 0.3 * np.sin(u / 7.0) * np.cos(v / 5.0)).astype(np.float64)
     values = gtsam.Values()
-    values.insert(gtsam.symbol("x", 0), gtsam.Pose3())
+    values.insert(pose_key(0), gtsam.Pose3())
     graph = gtsam.NonlinearFactorGraph()
     for t in range(n_targets):
         T = np.eye(4)
         T[:3, :3] = so3_exp(rng.normal(scale=0.02, size=3))
         T[:3, 3] = rng.normal(scale=0.05, size=3)
-        values.insert(gtsam.symbol("x", t + 1), gtsam.Pose3(T))
-        values.insert(gtsam.symbol("b", t + 1), np.zeros(2))
+        values.insert(pose_key(t + 1), gtsam.Pose3(T))
+        values.insert(brightness_key(t + 1), np.zeros(2))
     for i, reg in enumerate(regions):
-        values.insert(gtsam.symbol("s", i), np.array([np.log(2.0)]))
+        values.insert(scale_key(i), np.array([np.log(2.0)]))
         if chunk > 0:
             continue
         shape = ScaledShape(rays[reg], np.zeros(reg.size))
         ref = img.reshape(-1)[reg]
         for t in range(n_targets):
-            f = PrimitivePhotometricFactor(gtsam.symbol("x", 0), gtsam.symbol("x", t + 1),
-                                           gtsam.symbol("s", i), shape, ref, img, cam,
-                                           gtsam.symbol("b", t + 1), config)
+            f = PrimitivePhotometricFactor(pose_key(0), pose_key(t + 1),
+                                           scale_key(i), shape, ref, img, cam,
+                                           brightness_key(t + 1), config)
             graph.add(f.factor)
     groups = []
     if chunk > 0:
         pix = np.concatenate(regions)
         offsets = np.concatenate([[0], np.cumsum([r.size for r in regions])])
-        keys = [gtsam.symbol("s", i) for i in range(len(regions))]
+        keys = [scale_key(i) for i in range(len(regions))]
         for t in range(n_targets):
-            g = PhotometricFactorGroup(gtsam.symbol("x", 0), gtsam.symbol("x", t + 1), keys,
+            g = PhotometricFactorGroup(pose_key(0), pose_key(t + 1), keys,
                                        ScaledShape(rays[pix], np.zeros(pix.size)), offsets,
-                                       img.reshape(-1)[pix], img, cam, gtsam.symbol("b", t + 1),
+                                       img.reshape(-1)[pix], img, cam, brightness_key(t + 1),
                                        config, chunk=chunk)
             for f in g.factors:
                 graph.add(f)

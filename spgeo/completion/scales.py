@@ -75,7 +75,7 @@ def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d:
                            ) -> Tuple[np.ndarray, Dict[str, float]]:
     """Log-scales of all primitives by Levenberg–Marquardt on a GTSAM graph with
     one :class:`~spgeo.factors.sparse_depth.SparseDepthFactor` per primitive
-    that has points (keys ``gtsam.symbol('s', i)``).
+    that has points (keys :func:`spgeo.graph.keys.scale_key` ``(i)``).
 
     Args:
         point_prim, point_l, point_d: per (point, primitive) pair: primitive
@@ -89,6 +89,7 @@ def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d:
     import gtsam
 
     from ..factors.sparse_depth import SparseDepthFactor
+    from ..graph.keys import scale_key
 
     point_prim = np.asarray(point_prim, dtype=np.int64)
     out = np.full(n_primitives, np.nan)
@@ -104,7 +105,7 @@ def solve_log_scales_joint(point_prim: np.ndarray, point_l: np.ndarray, point_d:
     keys = []
     for a, b in zip(starts, ends):  # one factor per primitive (vectorised inside)
         i = int(pp[a])
-        key = gtsam.symbol("s", i)
+        key = scale_key(i)
         s0 = (float(initial[i]) if np.isfinite(initial[i])
               else float(np.median(np.log(dd[a:b]) - ll[a:b])))
         graph.add(SparseDepthFactor(key, ll[a:b], dd[a:b], sigma, huber_k).factor)

@@ -17,10 +17,10 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..geometry import check_pose, invert_pose
+from ..similarity import moved_frame, sim3, sim3_parts
 from .config import LoopClosureConfig
 from .database import Candidate, KeyframeDatabase
 from .pose_graph import PoseGraphResult, Sim3Edge, odometry_edges, optimise_sim3_pose_graph
-from ..similarity import moved_frame, sim3, sim3_parts
 from .verify import KeyframeFeatures, count_inliers, extract_features, verify_sim3
 
 __all__ = ["LoopClosure", "LoopCorrection", "LoopCloser"]

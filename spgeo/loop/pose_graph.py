@@ -20,8 +20,9 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from ..geometry import check_pose, invert_pose
-from .config import PoseGraphConfig
+from ..graph.keys import similarity_key
 from ..similarity import check_sim3, from_gtsam, sim3_parts, to_gtsam
+from .config import PoseGraphConfig
 
 __all__ = ["Sim3Edge", "PoseGraphResult", "odometry_edges", "optimise_sim3_pose_graph"]
 
@@ -107,15 +108,17 @@ def _build_graph(poses: List[np.ndarray], edges: Sequence[Sim3Edge], config: Pos
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k, T in enumerate(poses):
-        values.insert(k, to_gtsam(T))
+        values.insert(similarity_key(k), to_gtsam(T))
     graph.add(gtsam.PriorFactorSimilarity3(
-        0, to_gtsam(poses[0]), gtsam.noiseModel.Isotropic.Sigma(7, config.gauge_sigma)))
+        similarity_key(0), to_gtsam(poses[0]),
+        gtsam.noiseModel.Isotropic.Sigma(7, config.gauge_sigma)))
     for e in edges:
         if not (0 <= e.i < len(poses) and 0 <= e.j < len(poses)) or e.i == e.j:
             raise ValueError(f"Sim3Edge({e.i}, {e.j}): indices must differ and lie in "
                              f"[0, {len(poses)})")
         S = check_sim3(e.S_i_j, f"Sim3Edge({e.i}, {e.j}).S_i_j")
-        graph.add(gtsam.BetweenFactorSimilarity3(e.i, e.j, to_gtsam(S), _edge_noise(e, config)))
+        graph.add(gtsam.BetweenFactorSimilarity3(similarity_key(e.i), similarity_key(e.j),
+                                                 to_gtsam(S), _edge_noise(e, config)))
     return graph, values
 
 
@@ -147,7 +150,7 @@ def optimise_sim3_pose_graph(T_world_kf: Sequence[np.ndarray], edges: Sequence[S
     optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     initial = float(graph.error(values))
     solution = optimiser.optimize()
-    S = np.stack([from_gtsam(solution.atSimilarity3(k)) for k in range(len(poses))])
+    S = np.stack([from_gtsam(solution.atSimilarity3(similarity_key(k))) for k in range(len(poses))])
     T = np.repeat(np.eye(4)[None], len(poses), axis=0)
     scales = np.empty(len(poses))
     for k in range(len(poses)):

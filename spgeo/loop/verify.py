@@ -16,11 +16,11 @@ from typing import Optional
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..similarity import sim3_inverse, umeyama
 from ..twoview import TwoViewConfig, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 from .config import VerificationConfig
 from .refine import refine_sim3
-from ..similarity import sim3_inverse, umeyama
 
 __all__ = ["KeyframeFeatures", "extract_features", "match_features", "Sim3Verification",
            "count_inliers", "verify_sim3"]

@@ -4,18 +4,17 @@ The method is described in :mod:`spgeo.sfm.solve`.  Modules, one job each:
 
 * :mod:`~spgeo.sfm.config`: :class:`SfMConfig` (the options).
 * :mod:`~spgeo.sfm.solve`: :func:`few_view_sfm`: coarse-to-fine Levenberg-Marquardt
-  over photometric factors, marginals.
+  over photometric factors (one pyramid level's graph:
+  :func:`spgeo.graph.builders.build_level_graph`; keys: :mod:`spgeo.graph.keys`),
+  marginals, gauge-free scale stds.
 * :mod:`~spgeo.sfm.result`: :class:`SfMResult` and the status assessment of a solution.
-* :mod:`~spgeo.sfm.graph`: the factor graph: variable keys, one pyramid
-  level's factors and priors, gauge-free scale stds.
 * :mod:`~spgeo.sfm.init`: initialisation from two-view geometry (poses,
   initial log-scales).
 * :mod:`~spgeo.sfm.orientation`: planar primitives' orientation hypotheses
   decided by the photometric cost.
 """
 from .config import SfMConfig
-from .graph import brightness_key, pose_key, scale_key
 from .result import SfMResult
 from .solve import SFM_WORKING_SIZE, few_view_sfm
 
-__all__ = ["SfMConfig", "SfMResult", "SFM_WORKING_SIZE", "few_view_sfm", "pose_key", "scale_key", "brightness_key"]
+__all__ = ["SfMConfig", "SfMResult", "SFM_WORKING_SIZE", "few_view_sfm"]

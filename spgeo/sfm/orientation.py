@@ -23,8 +23,8 @@ import numpy as np
 import gtsam
 
 from ..factors.photometric_group import PhotometricFactorGroup
+from ..graph.keys import scale_key, symbol_index
 from ..primitives import PrimitiveSet
-from .graph import scale_key
 
 __all__ = ["orientation_ratios", "scene_orientations", "centre_rays", "planes_with_orientation",
            "primitive_costs", "choose_orientations", "choose_planar_orientations"]
@@ -154,7 +154,7 @@ def choose_planar_orientations(prims: PrimitiveSet, builders: Sequence[Photometr
     hypotheses are each primitive's own front-end orientation and the scene's
     dominant ones (:func:`scene_orientations`); ``builders`` are the finest
     level's groups, ``values`` the solved variables (planes under
-    :func:`spgeo.sfm.graph.scale_key`).  Returns ``(values, orientations)``:
+    :func:`spgeo.graph.keys.scale_key`).  Returns ``(values, orientations)``:
     the values with the chosen planes and the (N, 2) slope ratios for the
     priors, or ``(values, None)`` when no primitive has another orientation
     to offer or none changed; ``report["orientation_choice"]`` gets the
@@ -166,7 +166,7 @@ def choose_planar_orientations(prims: PrimitiveSet, builders: Sequence[Photometr
     hyps = [own] + [np.broadcast_to(r, own.shape) for r in scene_orientations(prims, own)]
     planes, choice, rep = choose_orientations(
         builders, values, thetas, centre_rays(prims), hyps,
-        lambda key: gtsam.Symbol(key).index())
+        symbol_index)
     report["orientation_choice"] = rep
     log.debug("orientation choice: %s", rep)
     if not np.any(choice >= 0):

@@ -30,12 +30,12 @@ from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape
 from ..factors.photometric_group import PhotometricFactorGroup, release_groups
 from ..frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
+from ..graph.builders import build_level_graph, gtsam_error_line, hold_translation_and_shape
+from ..graph.keys import brightness_key, pose_key, scale_key
 from ..images import gaussian_pyramid, to_float_image, to_gray
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import SfMConfig
-from .graph import (brightness_key, build_graph, gauge_free_scale_std, gtsam_error_line,
-                    hold_translation_and_shape, pose_key, scale_key)
 from .init import twoview_initialisation
 from .orientation import choose_planar_orientations
 from .result import SfMResult, assess_result
@@ -204,7 +204,7 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
     orientations = None     # planar slope priors: fronto-parallel until a choice is made
     for lvl, rotation_only in stages:
         release_groups(builders)      # the previous stage's (else never freed)
-        graph, builders = build_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
+        graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
                                       values, config, orientations)
         if rotation_only:
             hold_translation_and_shape(graph, values, pb.n_views, len(pb.prims))
@@ -252,6 +252,29 @@ class _Marginals:
     covs: List[Optional[np.ndarray]]
 
 
+def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
+    """Std of each log-scale with the global-scale gauge removed, and a mask of
+    the scales constrained by nothing but their prior.
+
+    The joint marginal ``C`` of all log-scales carries the global scale (fixed
+    only by the weak prior) as one large shared mode.  Scales whose own std is
+    over half the prior's are constrained by the prior alone (returned in the
+    mask, raw std kept).  The others are conditioned on their mean log-scale:
+    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
+    """
+    keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
+    C = marg.jointMarginalCovariance(keys).fullMatrix()
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    con = np.flatnonzero(std <= 0.5 * prior_sigma)
+    if con.size >= 2:
+        Cc = C[np.ix_(con, con)]
+        c1 = Cc.sum(axis=1)
+        std[con] = np.sqrt(np.maximum(np.diag(Cc) - c1 ** 2 / c1.sum(), 0.0))
+    prior_only = np.ones(n, dtype=bool)
+    prior_only[con] = False
+    return std, prior_only
+
+
 def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[PhotometricFactorGroup],
                config: SfMConfig, status: str, report: dict) -> _Marginals:
     """Marginal uncertainties at the solution (``config.marginals``, not when
@@ -278,7 +301,7 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
                                           photometric=dataclasses.replace(
                                               config.photometric, normalise="none",
                                               pixel_sigma=sigma))
-            mgraph, mgroups = build_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
+            mgraph, mgroups = build_level_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
                                           values, pix_cfg)
             marg = gtsam.Marginals(mgraph, values)
             release_groups(mgroups)

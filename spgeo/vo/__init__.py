@@ -4,21 +4,20 @@
 its map initialisation, :mod:`spgeo.vo.initialisation`), its options (:mod:`spgeo.vo.config`), frame-to-keyframe tracking
 (:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
 (:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
-(:mod:`spgeo.vo.mapping`), the global bundle adjustment after a run
+(:mod:`spgeo.vo.smoother`; its keyframes: :mod:`spgeo.vo.mapping`; its graph's keys
+and builders: :mod:`spgeo.graph`), the global bundle adjustment after a run
 (:mod:`spgeo.vo.global_ba`) and the results (:mod:`spgeo.vo.result`).
 """
-from .config import PRIMITIVE_MODELS, OdometryConfig, TrackerConfig
+from ..primitive_models import PRIMITIVE_MODELS
+from .config import OdometryConfig, TrackerConfig
 from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
-from .mapping import (WindowMapper, apply_primitive_model, kf_brightness_key, kf_pose_key,
-                      kf_scale_key, support_pose_key)
 from .odometry import Odometry
 from .rendering import ScaleInit, init_scales_from_render, render_depth, render_primitives
 from .result import STATUSES, FrameResult, FrameStatus, OdometryResult
 from .tracking import Keyframe, TrackingCost, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Odometry", "OdometryConfig", "TrackerConfig", "PRIMITIVE_MODELS", "FrameResult",
-           "FrameStatus", "OdometryResult", "STATUSES", "WindowMapper", "apply_primitive_model",
-           "kf_pose_key", "kf_scale_key", "kf_brightness_key", "support_pose_key", "Keyframe",
+           "FrameStatus", "OdometryResult", "STATUSES", "Keyframe",
            "TrackResult", "TrackingCost", "track_frame", "constant_velocity_guess",
            "render_depth", "render_primitives", "init_scales_from_render", "ScaleInit",
            "GlobalBAConfig", "GlobalBAResult", "refine_keyframes"]

@@ -1,6 +1,7 @@
 """Typed options of the monocular VO: :class:`TrackerConfig` (frame-to-keyframe
 tracking) and :class:`OdometryConfig` (keyframes, window mapping,
-initialisation), and the primitive-shape ablations :data:`PRIMITIVE_MODELS`."""
+initialisation); the primitive-shape ablations are
+:data:`spgeo.primitive_models.PRIMITIVE_MODELS`."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,19 +13,14 @@ import numpy as np
 from ..configs import config_repr
 from ..factors.photometric import PhotometricConfig
 from ..loop.config import LoopClosureConfig
+from ..primitive_models import PRIMITIVE_MODELS
 from ..sfm import SfMConfig
 from ..validation import MAX_IMAGE_SIDE, InputError
 from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
-__all__ = ["TrackerConfig", "OdometryConfig", "PRIMITIVE_MODELS", "INIT_METHODS"]
-
-#: ``OdometryConfig.primitive_model`` values: ``"integrated"`` (the paper's model),
-#: ``"constant_depth"`` (each primitive a fronto-parallel plane at its anchor depth),
-#: ``"constant_normal"`` (the least-squares plane of its integrated shape) and
-#: ``"planar"`` (those planes with their three parameters optimised in mapping).
-PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar")
+__all__ = ["TrackerConfig", "OdometryConfig", "INIT_METHODS"]
 
 #: how a monocular map's initialisation SfM starts (``OdometryConfig.init_method``)
 INIT_METHODS = ("twoview", "tracked")
@@ -182,7 +178,7 @@ class OdometryConfig:
         pixel_selection: :class:`~spgeo.vo.pixels.PixelSelectionConfig` (its
             ``budget`` is replaced by ``pixel_budget``).
         map_iterations: LM iterations per smoother update (default 10; the
-            other LM constants are :mod:`spgeo.vo.mapping`'s module constants).
+            other LM constants are :mod:`spgeo.vo.smoother`'s module constants).
         map_chunk: shape-variable columns per gtsam factor in mapping
             (default 128: 128 scaled or 42 planar primitives; 1 = one factor
             per primitive; the cost and the Gauss-Newton system

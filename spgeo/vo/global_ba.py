@@ -1,6 +1,6 @@
 """Global photometric bundle adjustment of all keyframes after a VO run (``--refine``).
 
-The window smoother (:class:`spgeo.vo.mapping.WindowMapper`) optimises only the
+The window smoother (:class:`spgeo.vo.smoother.WindowMapper`) optimises only the
 last ``window`` keyframes; a keyframe that leaves the window is final.
 :func:`refine_keyframes` optimises again every keyframe of each map segment
 (``MapKeyframe.segment``) in one GTSAM graph per segment, solved with
@@ -11,13 +11,13 @@ last ``window`` keyframes; a keyframe that leaves the window is final.
   ``primitive_model="planar"``) and one affine brightness per directed
   keyframe pair, all at their current values;
 * factors: the window mapper's photometric factor groups (built by the same
-  functions, :func:`spgeo.vo.mapping.link_keyframe_pair`) between each keyframe
+  functions, :func:`spgeo.graph.builders.link_keyframe_pair`) between each keyframe
   and its ``GlobalBAConfig.neighbours`` previous keyframes of the segment, in
   both directions; the brightness priors; the shape priors at the current
   values (default weight: ``OdometryConfig.render_prior_weight``, the weight
   the window gives scales rendered from the map; ``GlobalBAConfig.shape_prior_weight``);
 * gauge: the segment's first keyframe pose has a tight prior
-  (``mapping.GAUGE_SIGMA``) and the *scale gauge* fixes the length of the
+  (``spgeo.graph.builders.GAUGE_SIGMA``) and the *scale gauge* fixes the length of the
   baseline between the segment's first two keyframes (its component along
   the initial baseline direction, linear in the positions) at its current
   value (:class:`_DistanceGauge`, relative sigma :data:`SCALE_GAUGE_SIGMA`).
@@ -56,10 +56,11 @@ import gtsam
 from ..configs import config_repr
 from ..factors.photometric_group import release_groups
 from ..factors.priors import pose_gauge_prior
-from ..sfm.graph import gtsam_error_line
+from ..graph.builders import (GAUGE_SIGMA, FactorBatch, add_keyframe_variables,
+                              gtsam_error_line, link_keyframe_pair)
+from ..graph.keys import pose_key, scale_key
 from .config import OdometryConfig
-from .mapping import (GAUGE_SIGMA, FactorBatch, MapKeyframe, add_keyframe_variables,
-                      kf_pose_key, kf_scale_key, link_keyframe_pair)
+from .mapping import MapKeyframe
 
 __all__ = ["GlobalBAConfig", "GlobalBAResult", "refine_keyframes", "SCALE_GAUGE_SIGMA"]
 
@@ -118,7 +119,7 @@ class GlobalBAResult:
             keyframes of segments solved with status ``"ok"``).
         shapes: keyframe index -> refined ``(N, dim)`` shape variables of its
             primitives (log-scales ``(N, 1)``, or planes ``(N, 3)``;
-            :func:`spgeo.vo.mapping.shape_values` order).
+            :func:`spgeo.primitive_models.shape_values` order).
         initial_cost, final_cost: graph error (gtsam's ``0.5 * sum of squared
             whitened residuals``) before and after, summed over the segments.
         iterations: LM iterations, summed over the segments.
@@ -188,13 +189,13 @@ def _build(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
     share a position (no scale gauge)."""
     first = kfs[0]
     baseline = kfs[1].keyframe.T_world_kf[:3, 3] - first.keyframe.T_world_kf[:3, 3]
-    gauge = _DistanceGauge(kf_pose_key(first.index), kf_pose_key(kfs[1].index), baseline,
+    gauge = _DistanceGauge(pose_key(first.index), pose_key(kfs[1].index), baseline,
                            SCALE_GAUGE_SIGMA)
     batch = FactorBatch()
     w = config.render_prior_weight if ba.shape_prior_weight is None else ba.shape_prior_weight
     for kf in kfs:
         add_keyframe_variables(batch, kf, config, np.full(len(kf.keyframe.primitives), float(w)))
-    batch.graph.add(pose_gauge_prior(kf_pose_key(first.index), first.keyframe.T_world_kf,
+    batch.graph.add(pose_gauge_prior(pose_key(first.index), first.keyframe.T_world_kf,
                                      GAUGE_SIGMA))
     batch.graph.add(gauge.factor)
     n = 0
@@ -226,8 +227,8 @@ def _segment(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
         batch, n, _gauge = _build(kfs, config, ba, groups)
         rep["n_factors"] = int(n)
         est, iters, c0, c1 = _solve(batch, ba)
-        poses = {k.index: est.atPose3(kf_pose_key(k.index)).matrix() for k in kfs}
-        shapes = {k.index: np.array([est.atVector(kf_scale_key(k.index, i))
+        poses = {k.index: est.atPose3(pose_key(k.index)).matrix() for k in kfs}
+        shapes = {k.index: np.array([est.atVector(scale_key(i, keyframe=k.index))
                                      for i in range(len(k.keyframe.primitives))]) for k in kfs}
         if not all(np.all(np.isfinite(a)) for a in [*poses.values(), *shapes.values()]):
             raise RuntimeError("non-finite estimate")

@@ -27,11 +27,12 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..geometry import invert_pose, rotation_angle_deg
+from ..primitive_models import apply_primitive_model
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
 from ..sfm.init import twoview_initialisation
 from .config import OdometryConfig
-from .mapping import MapKeyframe, apply_primitive_model
+from .mapping import MapKeyframe
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection",

@@ -30,10 +30,11 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..geometry import check_pose
 from ..images import Pyramid, gaussian_pyramid, to_float_image, to_gray
+from ..primitive_models import from_shape_values
 from ..primitives import PrimitiveSet
 from .pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
 
-__all__ = ["Keyframe"]
+__all__ = ["Keyframe", "with_shape_values"]
 
 log = logging.getLogger(__name__)
 
@@ -234,3 +235,12 @@ class Keyframe:
         grey = _prepare_grey(image, self.input_shape, self.camera.shape, "frame image")
         n = len(self.pyramid) if levels is None else min(int(levels), len(self.pyramid))
         return gaussian_pyramid(grey, self.camera, max(n, 1))
+
+
+def with_shape_values(keyframe: Keyframe, thetas: np.ndarray, primitive_model: str,
+                      T_world_kf: np.ndarray) -> Keyframe:
+    """The keyframe rebuilt at pose ``T_world_kf`` (4x4 camera-to-world) with
+    the shape variables ``thetas`` (as :func:`spgeo.primitive_models.shape_values`
+    returns them for its primitives)."""
+    prims = from_shape_values(keyframe.primitives, thetas, primitive_model)
+    return keyframe.rebuilt(prims, T_world_kf)

@@ -1,7 +1,7 @@
 """Keyframes that left the VO's window, kept on disk (bounded memory).
 
 A keyframe whose variables the window's smoother marginalised never changes
-again (:class:`spgeo.vo.mapping.WindowMapper`): :class:`spgeo.vo.Odometry`
+again (:class:`spgeo.vo.smoother.WindowMapper`): :class:`spgeo.vo.Odometry`
 *retires* it (:meth:`spgeo.vo.mapping.MapKeyframe.retire`).  Its pose and median
 depth stay in memory (the trajectory needs them); its input image and
 primitives go to a :class:`KeyframeStore` (one pickle file per keyframe, exact

@@ -34,6 +34,7 @@ from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..similarity import moved_frame, sim3
+from ..primitive_models import apply_primitive_model
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import OdometryConfig
@@ -43,8 +44,9 @@ from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
 from .processing import resize_for_vo
-from .mapping import (MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model,
-                      with_shape_values)
+from .keyframe import with_shape_values
+from .mapping import MapKeyframe, SupportCandidate
+from .smoother import WindowMapper
 from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
 from .result import FrameResult, FrameStatus, OdometryResult, save_run

@@ -10,7 +10,7 @@ primitive ``i`` of the keyframe the
 
 (Huber IRLS weight ``rho``, per-primitive mean over the pixels valid in the
 target, constant penalty rows for points behind the frame's camera), built at
-each pyramid level exactly as :func:`spgeo.sfm.graph.build_graph` builds it,
+each pyramid level exactly as :func:`spgeo.graph.builders.build_level_graph` builds it,
 on the pixels of :meth:`spgeo.vo.keyframe.Keyframe.level_data` and the frame's
 level-``l`` image and camera.  The brightness has no prior
 (``TrackerConfig``'s docstring says why).
@@ -43,7 +43,7 @@ class TrackingCost:
 
     ``cost = sum_i 0.5 |e_i|^2``: the sum of the errors of the
     :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` of every
-    keyframe primitive (built as :func:`spgeo.sfm.graph.build_graph` builds
+    keyframe primitive (built as :func:`spgeo.graph.builders.build_level_graph` builds
     them at this level).
 
     Args:

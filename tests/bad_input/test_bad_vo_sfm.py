@@ -16,7 +16,7 @@ from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes, ate_sim3
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
-from spgeo.sfm.graph import gtsam_error_line
+from spgeo.graph.builders import gtsam_error_line
 from spgeo.sfm.init import triangulate_depths
 from spgeo.validation import InputError
 from spgeo.vo import Odometry, OdometryConfig

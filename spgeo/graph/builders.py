@@ -1,0 +1,265 @@
+"""The factor builders shared by the project's GTSAM graphs (keys: :mod:`spgeo.graph.keys`).
+
+* :class:`FactorBatch`: new factors, values and smoother timestamps.
+* Keyframe graphs (the VO window smoother :class:`spgeo.vo.smoother.WindowMapper` and the
+  global refinement :func:`spgeo.vo.global_ba.refine_keyframes` build their keyframe
+  variables and photometric factor groups with these functions only):
+  :func:`mapping_pixels`, :func:`pair_factor_group`, :func:`add_keyframe_variables`,
+  :func:`add_factor_group`, :func:`link_keyframe_pair`.  Each keyframe is a
+  :class:`~spgeo.vo.mapping.MapKeyframe` (live: its ``keyframe`` set), the options an
+  :class:`~spgeo.vo.config.OdometryConfig`.
+* The few-view SfM graph of one pyramid level (:func:`build_level_graph`, shared by
+  :func:`spgeo.sfm.few_view_sfm` and the tests of the VO tracker, which minimises the
+  same cost), its lattice pixels (:func:`level_pixels`) and the rotation-only stage's
+  holding priors (:func:`hold_translation_and_shape`).
+* :func:`gtsam_error_line`: a gtsam exception's message in one line (every solver's
+  report and log).
+
+Prior sigmas of the keyframe graphs (module constants: nothing overrides them):
+:data:`GAUGE_SIGMA`, :data:`PLANAR_SLOPE_SIGMA`, :data:`BRIGHTNESS_PRIOR_SIGMA`.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, List, Optional, Tuple
+
+import numpy as np
+
+import gtsam
+
+from ..camera import PinholeCamera
+from ..factors.photometric import PlanarShape, ScaledShape
+from ..factors.photometric_group import PhotometricFactorGroup
+from ..factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
+                              pose_gauge_prior)
+from ..primitive_models import shape_values
+from ..primitives import PrimitiveSet
+from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
+
+if TYPE_CHECKING:
+    from ..sfm.config import SfMConfig
+    from ..vo.config import OdometryConfig
+    from ..vo.mapping import MapKeyframe
+
+__all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam_error_line",
+           "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
+           "add_factor_group", "link_keyframe_pair", "level_pixels",
+           "hold_translation_and_shape", "build_level_graph"]
+
+#: sigma of the first keyframe's pose prior (the gauge)
+GAUGE_SIGMA = 1e-6
+#: sigma of the planar model's slope prior (towards fronto-parallel; weak)
+PLANAR_SLOPE_SIGMA = 2.0
+#: sigmas of the priors of the brightness ``(a, b)`` variables (as the SfM graph's
+#: default ``SfMConfig.brightness_prior_sigma``)
+BRIGHTNESS_PRIOR_SIGMA: Tuple[float, float] = (0.3, 0.3)
+
+
+def gtsam_error_line(exc: BaseException) -> str:
+    """The first paragraph of a gtsam exception's message joined into one line
+    (``IndeterminantLinearSystemException``'s names the variable there, then
+    adds a many-line explanation that must not reach the user's terminal), for
+    one logged line or a report entry."""
+    para = str(exc).strip().split("\n\n")[0]
+    return " ".join(para.split()) or type(exc).__name__
+
+
+class FactorBatch:
+    """New factors, values and key timestamps: of one smoother update, or (the
+    timestamps unused) a whole graph (:mod:`spgeo.vo.global_ba`)."""
+
+    def __init__(self) -> None:
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.values = gtsam.Values()
+        self.stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+
+    def insert(self, key: int, value, t: int) -> None:
+        """A new variable and its smoother timestamp ``t`` (a keyframe index)."""
+        self.values.insert(key, value)
+        self.stamps.insert((key, float(t)))
+
+
+# ------------------------------------------------------------ keyframe graphs (VO)
+def mapping_pixels(config: OdometryConfig, ref: MapKeyframe):
+    """Mapping pixels of a (live) keyframe: ``(entries, compact ids, primitive
+    index, reference intensities)`` or None when no primitive has enough
+    pixels: the pixels of level ``map_level``; with ``map_pixel_fraction < 1``
+    its highest-gradient fraction (at least ``min_level_pixels`` per
+    primitive).  Cached in ``ref.map_pixels`` (mapping changes scales and pose,
+    never pixels or image)."""
+    cfg = config
+    if ref.map_pixels is not None:
+        return ref.map_pixels[0]
+    data = ref.keyframe.level_data(cfg.map_level, 1, cfg.tracker.min_level_pixels, None)
+    out = None
+    if data.prim_index.size:
+        entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
+        if cfg.map_pixel_fraction < 1.0:
+            # central differences, as the factors' bilinear image derivatives
+            img = ref.keyframe.pyramid.images[cfg.map_level].astype(np.float64)
+            gy, gx = np.gradient(img)
+            mag = np.hypot(gx, gy)
+            w = ref.keyframe.primitives.camera.width
+            stride = 2 ** cfg.map_level
+            pix = ref.keyframe.primitives.pixels[entries]
+            g = mag[(pix // w) // stride, (pix % w) // stride]
+            thr = np.quantile(g, 1.0 - cfg.map_pixel_fraction)
+            order = np.lexsort((-g, ids))                  # by primitive, strongest first
+            rank = np.empty(ids.size, dtype=np.int64)
+            starts = np.concatenate([[0], np.cumsum(np.bincount(ids))[:-1]])
+            rank[order] = np.arange(ids.size) - starts[ids[order]]
+            keep = (g >= thr) | (rank < cfg.tracker.min_level_pixels)
+            entries, ids, ref_int = entries[keep], ids[keep], ref_int[keep]
+        out = (entries, ids, data.prim_index, ref_int)
+    ref.map_pixels = (out,)
+    return out
+
+
+def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
+                      tgt_image: np.ndarray, tgt_camera: PinholeCamera,
+                      bkey: int) -> Optional[PhotometricFactorGroup]:
+    """The photometric factors of ``ref``'s primitives (its :func:`mapping_pixels`)
+    observed in a target: pose key ``tgt_key``, grey image ``tgt_image`` (H, W)
+    of camera ``tgt_camera`` (level ``map_level``), brightness key ``bkey``.
+    None when ``ref`` has no mapping pixel."""
+    sel = mapping_pixels(config, ref)
+    if sel is None:
+        return None
+    entries, ids, prim_index, ref_int = sel
+    prims = ref.keyframe.primitives
+    rays = prims.camera.rays().reshape(-1, 3)[prims.pixels[entries]]
+    shape = (PlanarShape(rays) if config.primitive_model == "planar"
+             else ScaledShape(rays, prims.log_depth[entries]))
+    counts = np.bincount(ids, minlength=prim_index.size)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    keys = [scale_key(i, keyframe=ref.index) for i in prim_index]
+    return PhotometricFactorGroup(pose_key(ref.index), tgt_key, keys, shape, offsets,
+                                  ref_int, tgt_image, tgt_camera, bkey,
+                                  config.tracker.photometric, n_pixels=counts.astype(float),
+                                  chunk=max(1, config.map_chunk // shape.dim))
+
+
+def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig,
+                           prior_weights: Optional[np.ndarray] = None) -> None:
+    """A (live) keyframe's pose and shape variables at their current values,
+    with the shapes' priors (weights ``prior_weights`` (N,), default
+    ``kf.prior_weights``, else ``scale_prior_weight``; planar: the slope prior
+    too); timestamps ``kf.index``."""
+    batch.insert(pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
+    th = shape_values(kf.keyframe.primitives, config.primitive_model)
+    pw = prior_weights if prior_weights is not None else kf.prior_weights
+    if pw is None:
+        pw = np.full(th.shape[0], config.scale_prior_weight)
+    for i in range(th.shape[0]):
+        key = scale_key(i, keyframe=kf.index)
+        batch.insert(key, th[i].copy(), kf.index)
+        if config.primitive_model == "planar":
+            batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
+                                               1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
+        else:
+            batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
+
+
+def add_factor_group(batch: FactorBatch, group: Optional[PhotometricFactorGroup], bkey: int,
+                     b0, t: int, groups: List[PhotometricFactorGroup]) -> int:
+    """A factor group (None: nothing) with its brightness variable (initial
+    ``b0``, timestamp ``t``) and prior, appended to ``groups``; its factor count."""
+    if group is None:
+        return 0
+    for f in group.factors:
+        batch.graph.add(f)
+    groups.append(group)
+    batch.insert(bkey, np.asarray(b0, dtype=float), t)
+    batch.graph.add(brightness_prior(bkey, BRIGHTNESS_PRIOR_SIGMA))
+    return len(group)
+
+
+def link_keyframe_pair(batch: FactorBatch, config: OdometryConfig, a: MapKeyframe,
+                       b: MapKeyframe, t: int, groups: List[PhotometricFactorGroup]) -> int:
+    """Photometric factors between two live keyframes in both directions (a's
+    primitives in b's image and b's in a's, level ``map_level``), each
+    direction with its brightness (:func:`~spgeo.graph.keys.pair_brightness_key`, initial 0,
+    timestamp ``t``); the groups go to ``groups``.  Returns the factor count."""
+    lvl = config.map_level
+    n = 0
+    for ref, tgt in ((a, b), (b, a)):
+        bkey = pair_brightness_key(ref.index, tgt.index)
+        g = pair_factor_group(config, ref, pose_key(tgt.index),
+                              tgt.keyframe.pyramid.images[lvl],
+                              tgt.keyframe.pyramid.cameras[lvl], bkey)
+        n += add_factor_group(batch, g, bkey, np.zeros(2), t, groups)
+    return n
+
+
+# ------------------------------------------------------------ few-view SfM graph
+def level_pixels(prims: PrimitiveSet, stride: int):
+    """Per primitive: entry indices whose pixel lies on the level's lattice."""
+    w = prims.camera.width
+    on = ((prims.pixels % w) % stride == 0) & ((prims.pixels // w) % stride == 0)
+    return [np.flatnonzero(on[a:b]) + a for a, b in zip(prims.offsets[:-1], prims.offsets[1:])]
+
+
+def hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                               n_views: int, n_prims: int) -> None:
+    """Tight priors that keep view translations and primitive shapes at their
+    current values (rotation-only stage)."""
+    sig = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e3, 1e3, 1e3, 1e-6, 1e-6, 1e-6]))
+    for j in range(n_views):
+        k = pose_key(j + 1)
+        graph.add(gtsam.PriorFactorPose3(k, values.atPose3(k), sig))
+    for i in range(n_prims):
+        theta = values.atVector(scale_key(i))
+        graph.add(gtsam.PriorFactorVector(scale_key(i), theta,
+                                          gtsam.noiseModel.Isotropic.Sigma(theta.size, 1e-6)))
+
+
+def build_level_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
+                values: gtsam.Values, config: "SfMConfig",
+                orientations: Optional[np.ndarray] = None):
+    """The graph of one pyramid level; returns ``(graph, groups)``: one
+    :class:`PhotometricFactorGroup` per view over the primitives with at least
+    ``min_level_pixels`` pixels on the level's lattice.  ``orientations``:
+    planar model, (N, 2) ``(a / c, b / c)`` the slope priors pull towards
+    (None: fronto-parallel)."""
+    graph = gtsam.NonlinearFactorGraph()
+    builders: List[PhotometricFactorGroup] = []
+    graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
+    n_views = len(view_pyrs)
+    if config.brightness:
+        for j in range(n_views):
+            graph.add(brightness_prior(brightness_key(j + 1), config.brightness_prior_sigma))
+    if config.shape_model == "scaled":
+        for i in range(len(prims)):
+            graph.add(log_scale_prior(scale_key(i), prims.log_scales[i], config.scale_prior_weight))
+    else:
+        for i in range(len(prims)):
+            c0 = values.atVector(scale_key(i))[2]
+            # slope prior towards the primitive's orientation (a/c, b/c), at the current c
+            slope = (0.0, 0.0) if orientations is None else c0 * orientations[i]
+            graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
+                                         1.0 / np.sqrt(config.scale_prior_weight), slope=slope))
+    stride = 2 ** lvl
+    ref_img = ref_pyr.images[lvl]
+    w = prims.camera.width
+    per_prim = level_pixels(prims, stride)
+    keep = [i for i, ent in enumerate(per_prim) if ent.size >= config.min_level_pixels]
+    if not keep:
+        return graph, builders
+    ent = np.concatenate([per_prim[i] for i in keep])
+    sizes = np.array([per_prim[i].size for i in keep])
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    pix = prims.pixels[ent]
+    ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
+    rays = rays_all[ent]
+    shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
+             else PlanarShape(rays))
+    keys = [scale_key(i) for i in keep]
+    for j in range(n_views):
+        g = PhotometricFactorGroup(
+            pose_key(0), pose_key(j + 1), keys, shape, offsets, ref_int,
+            view_pyrs[j].images[lvl], view_pyrs[j].cameras[lvl],
+            brightness_key(j + 1) if config.brightness else None, config.photometric,
+            chunk=config.chunk)
+        for f in g.factors:
+            graph.add(f)
+        builders.append(g)
+    return graph, builders
