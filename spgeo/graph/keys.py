@@ -19,7 +19,7 @@ e     affine brightness ``(a, b)``             VO: keyframe ``hi`` seen from ``l
 g     affine brightness ``(a, b)``             VO: keyframe ``lo`` seen from ``hi > lo + 1``:
                                                ``hi * MAX_PRIMS + lo``
 f     supporting frame's pose (Pose3)          VO: frame number
-d     supporting frame's brightness          VO: frame number
+d     supporting frame's brightness            VO: frame number
 ====  =======================================  ============================================
 
 The loop-closure pose graph (:mod:`spgeo.loop.pose_graph`) holds one kind of variable,
