@@ -21,7 +21,7 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth
   monocular front-end (the depth files are not even opened).
 * :func:`run_vo`: :func:`run_odometry` returning ``(odometry, ground truth,
   FPS)`` (the former ``spgeo.evaluation.vo_run.run_vo``).
-* :class:`VORun` (:mod:`spgeo.apps.vo_outcome`, re-exported here) holds the result:
+* :class:`~spgeo.apps.vo_outcome.VORun` (:mod:`spgeo.apps.vo_outcome`) holds the result:
   :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
   ``evo_ape -as`` equivalent) over the frames not flagged ``"lost"``.
 * :meth:`VORun.save`: ``trajectory.txt`` (every processed frame, TUM format,
@@ -57,10 +57,10 @@ from ..vo.processing import resize_for_vo
 from ..vo.global_ba import GlobalBAConfig
 from ..validation import FrameReadError
 from .memory import RssCheckpoints
-from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
+from .vo_outcome import SkippedFrame, VORun
 
-__all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset", "run_vo",
-           "make_vo_frontend", "blas_threads", "ATE_LABELS"]
+__all__ = ["VORunConfig", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
+           "blas_threads"]
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +174,7 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             as the VO saw it (resized) with the ground-truth ``T_world_cam``
             when known (never given to the VO), ``frame_result`` the
             :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
-            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.viz.RerunLogger`).
+            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.rerun_logger.RerunLogger`).
 
     Ctrl-C (``KeyboardInterrupt``) after the first frame ends the run early: the
     frames processed so far are returned with ``VORun.interrupted`` set.
