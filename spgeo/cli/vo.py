@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 
 from ..frontend import FRONTENDS
-from ..validation import InputError
+from ..validation import FOV_RANGE_DEG, InputError
 from ..apps.args import DATASET_KINDS, parse_intrinsics, parse_resolution
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
@@ -221,8 +221,8 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="camera intrinsics in pixels of the input images (replace the "
                         "data set's calibration; no distortion)")
     p.add_argument("--fov", default=None, metavar="DEGREES",
-                   help="horizontal field of view in (10, 170) degrees, principal point at "
-                        "the centre (instead of --intrinsics)")
+                   help=f"horizontal field of view in ({FOV_RANGE_DEG[0]:g}, {FOV_RANGE_DEG[1]:g}) "
+                        "degrees, principal point at the centre (instead of --intrinsics)")
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "
