@@ -98,8 +98,12 @@ class VORunConfig:
             ``onnx-depth`` (``ValueError`` pointing to ``depth_model``).
         depth_model: ``onnx-depth``: depth-network registry name (built-in or
             registered with ``spgeo models register``) or ``.onnx`` path
-            (default None: ``depth-anything-v2-small``); other front-ends
-            ignore it.
+            (default None: ``depth-anything-v2-small``).  Refused with any
+            other ``frontend``: :func:`run_odometry` / :func:`run_dataset` raise
+            ``ValueError`` naming it before the first frame
+            (:func:`spgeo.frontend.check_model_options`; checked when the run
+            starts, not here, so that ``--set`` / ``--config`` may give
+            ``depth_model`` and ``frontend`` in any order).
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
@@ -180,12 +184,15 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
     frames processed so far are returned with ``VORun.interrupted`` set.
 
     Raises:
-        ValueError: no frame (or every frame skipped), frames of different
-            camera sizes, timestamps not strictly increasing, a depth-using
-            front-end and a frame without depth, or an image the VO rejects.
+        ValueError: ``config.depth_model`` with a front-end other than
+            ``onnx-depth`` (before any frame), no frame (or every frame
+            skipped), frames of different camera sizes, timestamps not
+            strictly increasing, a depth-using front-end and a frame without
+            depth, or an image the VO rejects.
         FrameReadError: (a ``ValueError``) with ``config.strict``, the first
             frame whose file cannot be read.
     """
+    check_model_options(config.frontend, config.normal_model, config.depth_model)
     with blas_threads(config.blas_threads):
         return _run_odometry(frames, config, frontend, n_frames, on_frame)
 
@@ -369,9 +376,13 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
 
     With a monocular front-end the data set is opened with ``load_depth=False``
     (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
-    from the reader (missing folder, empty selection, ...).
+    from the reader (missing folder, empty selection, ...), and ``ValueError``
+    for ``config.depth_model`` with a front-end other than ``onnx-depth``
+    before the data set is opened.
     """
     from ..datasets import open_dataset
+
+    check_model_options(config.frontend, config.normal_model, config.depth_model)
 
     uses_depth = (bool(frontend.uses_depth) if frontend is not None
                   else config.frontend not in MONOCULAR_FRONTENDS)

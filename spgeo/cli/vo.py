@@ -89,7 +89,7 @@ def _run_config(args: argparse.Namespace):
     if explicit:
         cfg = apply_overrides(cfg, explicit)
     cfg = resolve_config(cfg, sets=args.set, route="odometry")
-    check_depth_model_flag(args.depth_model, cfg.frontend)
+    check_depth_model_flag(cfg.depth_model, cfg.frontend)
     return cfg
 
 
