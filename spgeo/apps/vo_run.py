@@ -110,12 +110,15 @@ class VORunConfig:
         blas_threads: BLAS threads while the run lasts (threadpoolctl; default
             1: the VO's matrices are small, and idle BLAS workers spinning on
             the other core slow the main thread); None leaves BLAS as it is.
-        refine: after the last frame (not after an interrupted run), the
-            global photometric bundle adjustment of all keyframes
-            (:meth:`spgeo.vo.Odometry.refine` with ``refinement``); its seconds
-            and costs are ``report.json``'s ``"refine"``, the peak RSS before
-            it ``run.memory.peak_rss_mb_before_refine`` (default False).
-        refinement: :class:`~spgeo.vo.global_ba.GlobalBAConfig` of ``refine``.
+        refine: the global photometric bundle adjustment of all keyframes
+            after the last frame (not after an interrupted run), with this
+            :class:`~spgeo.vo.global_ba.GlobalBAConfig`
+            (:meth:`spgeo.vo.Odometry.refine`); default None: no refinement
+            (``--refine`` sets ``GlobalBAConfig()``; ``--set refine=True`` too,
+            ``--set refine.FIELD=VALUE`` switches it on with that value,
+            :func:`spgeo.configs.apply_overrides`).  Its seconds and costs are
+            ``report.json``'s ``"refine"``, the peak RSS before it
+            ``run.memory.peak_rss_mb_before_refine``.
     """
 
     strict: bool = False
@@ -127,8 +130,7 @@ class VORunConfig:
     depth_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
-    refine: bool = False
-    refinement: GlobalBAConfig = field(default_factory=GlobalBAConfig)
+    refine: Optional[GlobalBAConfig] = None
 
     def __post_init__(self) -> None:
         if self.frontend not in FRONTENDS:
@@ -139,6 +141,9 @@ class VORunConfig:
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
+        if self.refine is not None and not isinstance(self.refine, GlobalBAConfig):
+            raise ValueError("VORunConfig.refine must be a GlobalBAConfig (refine with it) or "
+                             f"None (no refinement), got {self.refine!r}")
 
 
 def make_vo_frontend(config: VORunConfig = VORunConfig(),
@@ -340,9 +345,9 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
                 if loop.skipped else "no frames (empty sequence or frame selection)")
         raise ValueError(f"run_odometry: {what}")
     memory_before = None
-    if loop.config.refine and not interrupted:
+    if loop.config.refine is not None and not interrupted:
         memory_before = loop.memory.report()["peak_rss_mb"]
-        ba = loop.vo.refine(loop.config.refinement)
+        ba = loop.vo.refine(loop.config.refine)
         log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
                  ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)

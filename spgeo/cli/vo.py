@@ -78,7 +78,7 @@ def _run_config(args: argparse.Namespace):
         explicit["progress"] = False
     if args.strict:
         explicit["strict"] = True
-    if args.refine:
+    if args.refine:      # on with its defaults, or as --config set it
         explicit["refine"] = True
     if args.sam_family is not None:
         explicit["sam_family"] = args.sam_family
