@@ -195,3 +195,24 @@ def test_config_repr_shows_only_changed_fields():
     changed = Shown(inner=Inner(iters=3))
     assert repr(changed) == "Shown(inner=Inner(tol=0.001, iters=3))"
     assert apply_overrides(Shown(), ["b=(3, 4)"]).b == (3, 4)
+
+
+def test_feature_options_of_feature_retry_and_loop_closure():
+    """The VO's feature retry and loop closure hold a FeatureOptions (the feature part
+    of TwoViewConfig), with their own counts; ``--set`` reaches its fields."""
+    from spgeo.twoview import FeatureOptions, TwoViewConfig
+
+    cfg = OdometryConfig()
+    assert cfg.feature_retry.features == FeatureOptions(max_features=1500)
+    assert cfg.loop_closure.recognition.features == FeatureOptions(max_features=1000)
+    assert TwoViewConfig(features="orb", ratio=0.7).feature_options == FeatureOptions(
+        features="orb", ratio=0.7)
+    cfg = apply_overrides(cfg, ["feature_retry.features.max_features=900",
+                                "loop_closure.recognition.features.features=orb"])
+    assert cfg.feature_retry.features.max_features == 900
+    assert cfg.loop_closure.recognition.features.features == "orb"
+    with pytest.raises(ConfigError, match="backend"):          # a TwoViewConfig field
+        apply_overrides(cfg, ["feature_retry.features.backend=pycolmap"])
+    for bad in ({"features": "surf"}, {"max_features": 4}, {"ratio": 1.5}):
+        with pytest.raises(ValueError, match="FeatureOptions"):
+            FeatureOptions(**bad)
