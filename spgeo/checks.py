@@ -13,7 +13,9 @@ __all__ = ["InputError", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_
            "check_intrinsics"]
 
 #: plausible field of view of a pinhole (rectilinear) camera, degrees: each axis at most
-#: the upper bound (wider needs a fisheye model), the wider axis at least the lower one
+#: the upper bound (wider needs a fisheye model), the wider axis at least the lower one;
+#: a horizontal field of view given as ``--fov`` must lie strictly inside it
+#: (:func:`spgeo.datasets.calibration.check_fov`): the one range of both checks
 FOV_RANGE_DEG: Tuple[float, float] = (10.0, 160.0)
 #: plausible ``fx / fy`` (square pixels give 1)
 FOCAL_RATIO_RANGE: Tuple[float, float] = (0.5, 2.0)

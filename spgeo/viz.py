@@ -78,12 +78,3 @@ def save_png(path, rgb: np.ndarray) -> None:
     if not cv2.imwrite(os.fspath(path), np.ascontiguousarray(rgb[..., ::-1])):
         raise OSError(f"could not write {path}")
 
-
-def __getattr__(name: str):
-    """``spgeo.viz.RerunLogger`` / ``RerunLoggerConfig``: imported on first use
-    (:mod:`spgeo.rerun_logger`; rerun itself only when a logger is created)."""
-    if name in ("RerunLogger", "RerunLoggerConfig"):
-        from . import rerun_logger
-
-        return getattr(rerun_logger, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

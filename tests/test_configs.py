@@ -52,6 +52,27 @@ def test_apply_overrides_nested_and_types():
             apply_overrides(Outer(), bad)
 
 
+@dataclass(frozen=True)
+class Switched:
+    extra: Optional[Inner] = None     # an optional sub-config: off when None
+    size: int = 1
+
+
+def test_optional_sub_config_switches_on_and_off():
+    on = apply_overrides(Switched(), ["extra=True"])
+    assert on == Switched(extra=Inner())                        # on with its defaults
+    # a sub-field of one that is off: on with its defaults and that value
+    assert apply_overrides(Switched(), ["extra.iters=3"]) == Switched(extra=Inner(iters=3))
+    assert apply_overrides(Switched(), {"extra": {"tol": 0.5}}).extra == Inner(tol=0.5)
+    # True keeps one that is on as it is; False / None switch it off
+    assert apply_overrides(on, ["extra.iters=4", "extra=True"]).extra == Inner(iters=4)
+    assert apply_overrides(on, ["extra=False"]) == Switched()
+    assert apply_overrides(on, ["extra=None"]) == Switched()
+    for bad in (["extra=3"], ["extra=x"], ["extra.bogus=1"], ["extra.iters=1.5"]):
+        with pytest.raises(ConfigError):
+            apply_overrides(Switched(), bad)
+
+
 def test_unknown_field_names_it_and_lists_valid_fields():
     with pytest.raises(ConfigError) as exc:
         apply_overrides(Outer(), ["inner.bogus=1"])
@@ -174,3 +195,24 @@ def test_config_repr_shows_only_changed_fields():
     changed = Shown(inner=Inner(iters=3))
     assert repr(changed) == "Shown(inner=Inner(tol=0.001, iters=3))"
     assert apply_overrides(Shown(), ["b=(3, 4)"]).b == (3, 4)
+
+
+def test_feature_options_of_feature_retry_and_loop_closure():
+    """The VO's feature retry and loop closure hold a FeatureOptions (the feature part
+    of TwoViewConfig), with their own counts; ``--set`` reaches its fields."""
+    from spgeo.twoview import FeatureOptions, TwoViewConfig
+
+    cfg = OdometryConfig()
+    assert cfg.feature_retry.features == FeatureOptions(max_features=1500)
+    assert cfg.loop_closure.recognition.features == FeatureOptions(max_features=1000)
+    assert TwoViewConfig(features="orb", ratio=0.7).feature_options == FeatureOptions(
+        features="orb", ratio=0.7)
+    cfg = apply_overrides(cfg, ["feature_retry.features.max_features=900",
+                                "loop_closure.recognition.features.features=orb"])
+    assert cfg.feature_retry.features.max_features == 900
+    assert cfg.loop_closure.recognition.features.features == "orb"
+    with pytest.raises(ConfigError, match="backend"):          # a TwoViewConfig field
+        apply_overrides(cfg, ["feature_retry.features.backend=pycolmap"])
+    for bad in ({"features": "surf"}, {"max_features": 4}, {"ratio": 1.5}):
+        with pytest.raises(ValueError, match="FeatureOptions"):
+            FeatureOptions(**bad)

@@ -16,7 +16,7 @@ from spgeo.datasets import (DEFAULT_HFOV_DEG, CameraSpec, EuRoCSequence, FolderS
                             KITTISequence, VideoSequence, camera_from_fov, guess_camera,
                             open_dataset)
 from spgeo.geometry import invert_pose, rot_to_quat, so3_exp
-from spgeo.validation import InputError
+from spgeo.validation import FOV_RANGE_DEG, InputError, check_intrinsics
 
 W, H = 160, 120
 CAM = synthetic.default_camera(W, H)
@@ -56,9 +56,14 @@ def test_camera_from_fov_and_spec():
     fov = math.degrees(2 * math.atan(W / 2 / CAM.fx))
     assert camera_from_fov(W, H, fov).fx == pytest.approx(CAM.fx)
     assert CameraSpec(intrinsics=(100, 101, 79.5, 59.5)).camera(W, H).fy == 101
-    for bad in (5, 175, 10, 170, float("nan")):
+    for bad in (5, 175, 10, 160, 165, 170, float("nan")):
         with pytest.raises(InputError, match="--fov"):
             CameraSpec(fov_deg=bad)
+    # one range: a --fov just inside it gives intrinsics the intrinsics check accepts
+    lo, hi = FOV_RANGE_DEG
+    for fov in (lo + 0.01, hi - 0.01):
+        cam = CameraSpec(fov_deg=fov).camera(W, H)
+        check_intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, W, H)
     with pytest.raises(InputError, match="not both"):
         CameraSpec((1, 2, 3, 4), 60)
     assert CameraSpec.from_options(None, None) is None

@@ -62,8 +62,32 @@ def test_build_frontend_routes_the_depth_model(mdir):
     assert isinstance(fe.normal_estimator, OnnxDepthNormals)
     assert fe.normal_estimator.config.model_path == str(mdir / "dyn.onnx")
     assert fe.config.working_size == (64, 48) and fe.uses_depth is False
-    # other front-ends ignore the depth model
-    assert build_frontend("classical", depth_model="nowhere.onnx").name == "classical"
+    # other front-ends refuse the depth model (it would be ignored), naming it
+    for name in ("classical", "onnx", "depth"):
+        with pytest.raises(ValueError, match=r"depth model 'nowhere\.onnx'.*" + name):
+            build_frontend(name, depth_model="nowhere.onnx")
+
+
+def test_library_vo_run_refuses_an_unused_depth_model(tmp_path):
+    """``VORunConfig(depth_model=..., frontend="classical")`` is refused when the run
+    starts (before any frame or data set is read), as ``spgeo vo`` refuses it."""
+    from spgeo.apps.vo_run import run_dataset, run_odometry
+
+    cfg = VORunConfig(depth_model="some-depth.onnx", frontend="classical", progress=False)
+
+    def no_frames():
+        raise AssertionError("a frame was read")
+        yield
+
+    with pytest.raises(ValueError, match=r"depth model 'some-depth\.onnx'.*'classical'"):
+        run_odometry(no_frames(), cfg)
+    with pytest.raises(ValueError, match=r"depth model 'some-depth\.onnx'"):
+        run_dataset("folder", tmp_path / "nowhere", config=cfg)
+    with pytest.raises(ValueError, match=r"depth model 'some-depth\.onnx'"):
+        make_vo_frontend(cfg, (64, 48))
+    # a depth_model from --set with another front-end is the CLI's input error too
+    with pytest.raises(InputError, match="add --frontend onnx-depth"):
+        _run_config(vo_args("--set", "depth_model=some-depth.onnx"))
 
 
 def test_normal_model_is_refused_for_onnx_depth(mdir):

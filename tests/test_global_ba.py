@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from spgeo import synthetic
+from spgeo.configs import config_to_dict
 from spgeo.evaluation.trajectory import ate_sim3
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
@@ -193,7 +194,7 @@ def test_run_odometry_refine_reports_time_and_memory(frames, tmp_path):
     "refine" (seconds, costs, iterations) and the peak RSS before it."""
     from spgeo.apps.vo_run import VORunConfig, run_odometry
 
-    cfg = VORunConfig(frontend="depth", progress=False, refine=True,
+    cfg = VORunConfig(frontend="depth", progress=False, refine=GlobalBAConfig(),
                       odometry=OdometryConfig(resolution=(160, 120), window=2,
                                               kf_max_translation=0.02))
     run = run_odometry(frames, cfg)
@@ -202,7 +203,7 @@ def test_run_odometry_refine_reports_time_and_memory(frames, tmp_path):
     assert rep["refine"]["status"] == "ok" and rep["refine"]["seconds"] > 0
     assert rep["refine"]["iterations"] >= 1
     assert rep["run"]["memory"]["peak_rss_mb_before_refine"] > 0
-    assert rep["run_config"]["refine"] is True
+    assert rep["run_config"]["refine"] == config_to_dict(GlobalBAConfig())
 
 
 def test_cli_refine_flag_sets_the_run_config():
@@ -211,6 +212,13 @@ def test_cli_refine_flag_sets_the_run_config():
 
     parse = build_parser().parse_args
     args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y", "--refine"])
-    assert _run_config(args).refine is True
+    assert _run_config(args).refine == GlobalBAConfig()
     args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y"])
-    assert _run_config(args).refine is False
+    assert _run_config(args).refine is None
+    # --set refine.FIELD=VALUE switches the refinement on with that value
+    args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y",
+                  "--set", "refine.max_iterations=7"])
+    assert _run_config(args).refine == GlobalBAConfig(max_iterations=7)
+    args = parse(["vo", "--dataset", "7scenes", "x", "--out", "y", "--refine",
+                  "--set", "refine=False"])
+    assert _run_config(args).refine is None

@@ -12,6 +12,8 @@
   ``a`` unless the importer lies inside them).  A failure lists every cycle found.  Imports
   deferred into function bodies make no exception: counted too, they form no cycle either
   (only a module ``__getattr__``, the lazy re-export of an optional piece, is left out).
+* No import circle among the modules of ``spgeo/``, ``factors/`` and ``evaluation/`` when every
+  import statement counts (``TYPE_CHECKING`` blocks and a module ``__getattr__`` included).
 * Every function of ``spgeo/`` and ``factors/`` (methods and nested functions included; a
   nested function counts within its parent and on its own) has at most 60 lines of code:
   lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
@@ -79,7 +81,7 @@ def _import_nodes(tree: ast.AST, module_level: bool, lazy: bool = False) -> Iter
     """Import statements of ``tree``; with ``module_level`` only those that run when the
     module loads (not in function bodies nor under ``if TYPE_CHECKING:``); with ``lazy``
     also those in function bodies, except a module ``__getattr__`` (the lazy re-export of
-    an optional piece, e.g. ``spgeo.viz.RerunLogger``)."""
+    an optional piece)."""
     if not (module_level or lazy):
         yield from (n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
         return
@@ -165,17 +167,21 @@ def _packages_loaded(module: str, importer: str) -> list[str]:
 
 
 def module_dependencies(source: str, importer: str, package: str, modules: Set[str],
-                        known: Optional[Set[str]] = None, lazy: bool = False) -> Set[str]:
+                        known: Optional[Set[str]] = None, lazy: bool = False,
+                        everywhere: bool = False) -> Set[str]:
     """The modules of ``modules`` that loading ``importer`` (held by ``package``) runs.
 
     ``from X import a`` needs ``X.a`` when that is a module (of ``known``, default
     ``modules``), else ``X`` itself (even when ``X`` is a package holding ``importer``:
     ``a`` must already be defined there).  With ``lazy`` the imports inside functions
-    count too (:func:`_import_nodes`).
+    count too (:func:`_import_nodes`); with ``everywhere`` every import statement of
+    the module counts (``if TYPE_CHECKING:`` blocks and a module ``__getattr__`` too).
     """
     known = modules if known is None else known
     deps: Set[str] = set()
-    for _, base, names in import_statements(source, package, module_level=True, lazy=lazy):
+    statements = (import_statements(source, package) if everywhere
+                  else import_statements(source, package, module_level=True, lazy=lazy))
+    for _, base, names in statements:
         if names is None:
             needed = [base]
         else:
@@ -188,14 +194,16 @@ def module_dependencies(source: str, importer: str, package: str, modules: Set[s
     return deps
 
 
-def import_graph(files: List[Path], known: Set[str], lazy: bool = False
-                 ) -> Dict[str, Set[str]]:
+def import_graph(files: List[Path], known: Set[str], lazy: bool = False,
+                 everywhere: bool = False) -> Dict[str, Set[str]]:
     """Module name -> the modules (among ``files``) it imports when it loads (with
-    ``lazy``: or when its functions run); ``known``: every module name, to tell
+    ``lazy``: or when its functions run; with ``everywhere``: anywhere in its source,
+    ``TYPE_CHECKING`` blocks included); ``known``: every module name, to tell
     ``from X import module`` from ``from X import name``."""
     names = {module_name(p): p for p in files}
     return {name: module_dependencies(path.read_text(encoding="utf-8"), name,
-                                      module_package(path), set(names), known, lazy)
+                                      module_package(path), set(names), known, lazy,
+                                      everywhere)
             for name, path in names.items()}
 
 
@@ -353,6 +361,9 @@ def test_module_level_imports_skip_functions_and_type_checking():
     # lazy: the function body's import counts, a module __getattr__'s does not
     assert module_dependencies(source, "p.a", "p", modules, lazy=True) == {
         "p.b", "p.d", "p.e", "p.f", "p.h"}
+    # everywhere: TYPE_CHECKING blocks and a module __getattr__ too
+    assert module_dependencies(source, "p.a", "p", modules, everywhere=True) == {
+        f"p.{x}" for x in "bcdefhi"}
     # importing p.q.r from p.a also loads the package p.q; ``from p import name`` needs p
     assert module_dependencies("import p.q.r\nfrom p import name\n", "p.a", "p",
                                modules | {"p.q", "p.q.r"}) == {"p.q", "p.q.r", "p"}
@@ -389,6 +400,20 @@ def test_no_import_cycles(lazy):
     cycles = import_cycles(import_graph(files, known, lazy))
     assert not cycles, ("import cycles among the modules of spgeo/ and factors/"
                         + (" (imports inside functions counted)" if lazy else "") + ":\n"
+                        + "\n".join(" -> ".join(c) for c in cycles))
+
+
+def test_no_import_circles_anywhere():
+    """No two modules of ``spgeo/``, ``factors/`` and ``evaluation/`` import each other,
+    directly or round a circle, by any import statement in their source: module level,
+    class bodies, function bodies, a module ``__getattr__`` and ``if TYPE_CHECKING:``
+    blocks alike (relative imports resolved), so no module re-exports a name of a module
+    that imports it (docs/design.md §6.1)."""
+    files = [p for folder in PACKAGE_OF_DIR for p in _python_files(folder)]
+    known = {module_name(p) for p in files}
+    cycles = import_cycles(import_graph(files, known, everywhere=True))
+    assert not cycles, ("import circles among the modules of spgeo/, factors/ and evaluation/ "
+                        "(every import statement counted):\n"
                         + "\n".join(" -> ".join(c) for c in cycles))
 
 

@@ -199,7 +199,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "default": {},
     "loops": {"odometry.loop_closure.enabled": True},
     "refine": {"refine": True},
-    "refine-loose": {"refine": True, "refinement.shape_prior_weight": 1e-5},
+    "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
     "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
 }
 

@@ -354,7 +354,7 @@ class VORow:
         fps: frames per wall-clock second of the VO loop (resizing included;
             rendering / loading excluded).
         seconds: wall time of that loop (s).
-        out_dir: folder written by :meth:`spgeo.apps.vo_run.VORun.save`
+        out_dir: folder written by :meth:`spgeo.apps.vo_outcome.VORun.save`
             (trajectory, keyframes, status, report with the ATE, keyframe
             clouds) plus ``groundtruth.txt`` (TUM format).
     """

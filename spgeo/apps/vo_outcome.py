@@ -15,7 +15,7 @@ from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, Iterable, Iterator, List, Optional, Tuple, Union
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -23,9 +23,6 @@ from ..configs import config_to_dict
 from ..frame import Frame
 from ..trajectory import Trajectory
 from ..vo import Odometry, OdometryResult
-
-if TYPE_CHECKING:
-    from .vo_run import VORunConfig
 
 __all__ = ["VORun", "SkippedFrame", "ATE_LABELS"]
 
@@ -72,7 +69,8 @@ class VORun:
         wall_seconds: wall time of the whole loop (frame loading, resizing and
             VO), seconds.
         fps: processed frames per wall-clock second (``n / wall_seconds``).
-        config: the :class:`VORunConfig` used.
+        config: the :class:`~spgeo.apps.vo_run.VORunConfig` used (typed ``Any``:
+            this module does not import the runner, which imports it).
         interrupted: the run was stopped by Ctrl-C (``KeyboardInterrupt``)
             between or during frames; it holds the frames processed before.
         resolution: the processing ``(width, height)`` the VO saw
@@ -96,7 +94,7 @@ class VORun:
     names: List[str]
     wall_seconds: float
     fps: float
-    config: "VORunConfig"
+    config: Any
     interrupted: bool = False
     resolution: Optional[Tuple[int, int]] = None
     skipped: List[SkippedFrame] = field(default_factory=list)
@@ -253,7 +251,7 @@ class VORun:
         ``"skipped"`` (one :meth:`SkippedFrame.to_dict` per skipped frame; such a
         frame is ``skipped`` in the status file and has no line in
         ``trajectory.txt``), ``"run_config"``
-        (this :class:`VORunConfig` without ``odometry``) and, with
+        (this :class:`~spgeo.apps.vo_run.VORunConfig` without ``odometry``) and, with
         ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
         report and the plots ``trajectory_topview.png`` and
         ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,

@@ -21,7 +21,7 @@ frame sequence or a data set, with Sim(3) ATE against the ground truth
   monocular front-end (the depth files are not even opened).
 * :func:`run_vo`: :func:`run_odometry` returning ``(odometry, ground truth,
   FPS)`` (the former ``spgeo.evaluation.vo_run.run_vo``).
-* :class:`VORun` (:mod:`spgeo.apps.vo_outcome`, re-exported here) holds the result:
+* :class:`~spgeo.apps.vo_outcome.VORun` (:mod:`spgeo.apps.vo_outcome`) holds the result:
   :meth:`VORun.ate`: per-frame and keyframe-only Sim(3)-aligned ATE (evo,
   ``evo_ape -as`` equivalent) over the frames not flagged ``"lost"``.
 * :meth:`VORun.save`: ``trajectory.txt`` (every processed frame, TUM format,
@@ -57,10 +57,10 @@ from ..vo.processing import resize_for_vo
 from ..vo.global_ba import GlobalBAConfig
 from ..validation import FrameReadError
 from .memory import RssCheckpoints
-from .vo_outcome import ATE_LABELS, SkippedFrame, VORun
+from .vo_outcome import SkippedFrame, VORun
 
-__all__ = ["VORunConfig", "VORun", "SkippedFrame", "run_odometry", "run_dataset", "run_vo",
-           "make_vo_frontend", "blas_threads", "ATE_LABELS"]
+__all__ = ["VORunConfig", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
+           "blas_threads"]
 
 log = logging.getLogger(__name__)
 
@@ -98,20 +98,27 @@ class VORunConfig:
             ``onnx-depth`` (``ValueError`` pointing to ``depth_model``).
         depth_model: ``onnx-depth``: depth-network registry name (built-in or
             registered with ``spgeo models register``) or ``.onnx`` path
-            (default None: ``depth-anything-v2-small``); other front-ends
-            ignore it.
+            (default None: ``depth-anything-v2-small``).  Refused with any
+            other ``frontend``: :func:`run_odometry` / :func:`run_dataset` raise
+            ``ValueError`` naming it before the first frame
+            (:func:`spgeo.frontend.check_model_options`; checked when the run
+            starts, not here, so that ``--set`` / ``--config`` may give
+            ``depth_model`` and ``frontend`` in any order).
         ate_max_time_diff: timestamp tolerance (seconds, or frames for data
             sets timed by frame number) of the ATE association (default 1e-3:
             estimate and ground truth share the frames' timestamps).
         blas_threads: BLAS threads while the run lasts (threadpoolctl; default
             1: the VO's matrices are small, and idle BLAS workers spinning on
             the other core slow the main thread); None leaves BLAS as it is.
-        refine: after the last frame (not after an interrupted run), the
-            global photometric bundle adjustment of all keyframes
-            (:meth:`spgeo.vo.Odometry.refine` with ``refinement``); its seconds
-            and costs are ``report.json``'s ``"refine"``, the peak RSS before
-            it ``run.memory.peak_rss_mb_before_refine`` (default False).
-        refinement: :class:`~spgeo.vo.global_ba.GlobalBAConfig` of ``refine``.
+        refine: the global photometric bundle adjustment of all keyframes
+            after the last frame (not after an interrupted run), with this
+            :class:`~spgeo.vo.global_ba.GlobalBAConfig`
+            (:meth:`spgeo.vo.Odometry.refine`); default None: no refinement
+            (``--refine`` sets ``GlobalBAConfig()``; ``--set refine=True`` too,
+            ``--set refine.FIELD=VALUE`` switches it on with that value,
+            :func:`spgeo.configs.apply_overrides`).  Its seconds and costs are
+            ``report.json``'s ``"refine"``, the peak RSS before it
+            ``run.memory.peak_rss_mb_before_refine``.
     """
 
     strict: bool = False
@@ -123,8 +130,7 @@ class VORunConfig:
     depth_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
-    refine: bool = False
-    refinement: GlobalBAConfig = field(default_factory=GlobalBAConfig)
+    refine: Optional[GlobalBAConfig] = None
 
     def __post_init__(self) -> None:
         if self.frontend not in FRONTENDS:
@@ -135,6 +141,9 @@ class VORunConfig:
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
+        if self.refine is not None and not isinstance(self.refine, GlobalBAConfig):
+            raise ValueError("VORunConfig.refine must be a GlobalBAConfig (refine with it) or "
+                             f"None (no refinement), got {self.refine!r}")
 
 
 def make_vo_frontend(config: VORunConfig = VORunConfig(),
@@ -174,18 +183,21 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             as the VO saw it (resized) with the ground-truth ``T_world_cam``
             when known (never given to the VO), ``frame_result`` the
             :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
-            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.viz.RerunLogger`).
+            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.rerun_logger.RerunLogger`).
 
     Ctrl-C (``KeyboardInterrupt``) after the first frame ends the run early: the
     frames processed so far are returned with ``VORun.interrupted`` set.
 
     Raises:
-        ValueError: no frame (or every frame skipped), frames of different
-            camera sizes, timestamps not strictly increasing, a depth-using
-            front-end and a frame without depth, or an image the VO rejects.
+        ValueError: ``config.depth_model`` with a front-end other than
+            ``onnx-depth`` (before any frame), no frame (or every frame
+            skipped), frames of different camera sizes, timestamps not
+            strictly increasing, a depth-using front-end and a frame without
+            depth, or an image the VO rejects.
         FrameReadError: (a ``ValueError``) with ``config.strict``, the first
             frame whose file cannot be read.
     """
+    check_model_options(config.frontend, config.normal_model, config.depth_model)
     with blas_threads(config.blas_threads):
         return _run_odometry(frames, config, frontend, n_frames, on_frame)
 
@@ -333,9 +345,9 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
                 if loop.skipped else "no frames (empty sequence or frame selection)")
         raise ValueError(f"run_odometry: {what}")
     memory_before = None
-    if loop.config.refine and not interrupted:
+    if loop.config.refine is not None and not interrupted:
         memory_before = loop.memory.report()["peak_rss_mb"]
-        ba = loop.vo.refine(loop.config.refinement)
+        ba = loop.vo.refine(loop.config.refine)
         log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
                  ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)
@@ -369,9 +381,13 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
 
     With a monocular front-end the data set is opened with ``load_depth=False``
     (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
-    from the reader (missing folder, empty selection, ...).
+    from the reader (missing folder, empty selection, ...), and ``ValueError``
+    for ``config.depth_model`` with a front-end other than ``onnx-depth``
+    before the data set is opened.
     """
     from ..datasets import open_dataset
+
+    check_model_options(config.frontend, config.normal_model, config.depth_model)
 
     uses_depth = (bool(frontend.uses_depth) if frontend is not None
                   else config.frontend not in MONOCULAR_FRONTENDS)

@@ -35,8 +35,9 @@ def add_model_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def check_depth_model_flag(depth_model: Optional[str], frontend: str) -> None:
-    """:class:`~spgeo.validation.InputError` when ``--depth-model`` is given for a
-    front-end other than ``onnx-depth`` (``frontend`` is the effective one)."""
+    """:class:`~spgeo.validation.InputError` when a depth model (``--depth-model``,
+    or ``depth_model`` from ``--set`` / ``--config``) is given for a front-end other
+    than ``onnx-depth`` (``frontend`` is the effective one)."""
     if depth_model is not None and frontend != "onnx-depth":
         raise InputError(f"--depth-model is the onnx-depth front-end's depth network; the "
                          f"front-end is {frontend!r}: add --frontend onnx-depth")

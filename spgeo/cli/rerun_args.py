@@ -1,5 +1,5 @@
 """``--rerun {spawn | save FILE.rrd | connect [ADDR]}`` for ``spgeo vo|sfm|complete``
-(argparse wiring of :class:`spgeo.viz.RerunLogger`; rerun is imported only
+(argparse wiring of :class:`spgeo.rerun_logger.RerunLogger`; rerun is imported only
 when the option is given)."""
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def add_rerun_argument(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def open_rerun(args: argparse.Namespace):
-    """Context manager giving a :class:`spgeo.viz.RerunLogger` for ``args.rerun``
+    """Context manager giving a :class:`spgeo.rerun_logger.RerunLogger` for ``args.rerun``
     (closed on exit), or None without the option."""
     cfg = getattr(args, "rerun", None)
     if cfg is None:

@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 
 from ..frontend import FRONTENDS
-from ..validation import InputError
+from ..validation import FOV_RANGE_DEG, InputError
 from ..apps.args import DATASET_KINDS, parse_intrinsics, parse_resolution
 from ..configs import apply_overrides, resolve_config
 from .config_args import add_config_arguments
@@ -78,7 +78,7 @@ def _run_config(args: argparse.Namespace):
         explicit["progress"] = False
     if args.strict:
         explicit["strict"] = True
-    if args.refine:
+    if args.refine:      # on with its defaults, or as --config set it
         explicit["refine"] = True
     if args.sam_family is not None:
         explicit["sam_family"] = args.sam_family
@@ -89,7 +89,7 @@ def _run_config(args: argparse.Namespace):
     if explicit:
         cfg = apply_overrides(cfg, explicit)
     cfg = resolve_config(cfg, sets=args.set, route="odometry")
-    check_depth_model_flag(args.depth_model, cfg.frontend)
+    check_depth_model_flag(cfg.depth_model, cfg.frontend)
     return cfg
 
 
@@ -221,8 +221,8 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="camera intrinsics in pixels of the input images (replace the "
                         "data set's calibration; no distortion)")
     p.add_argument("--fov", default=None, metavar="DEGREES",
-                   help="horizontal field of view in (10, 170) degrees, principal point at "
-                        "the centre (instead of --intrinsics)")
+                   help=f"horizontal field of view in ({FOV_RANGE_DEG[0]:g}, {FOV_RANGE_DEG[1]:g}) "
+                        "degrees, principal point at the centre (instead of --intrinsics)")
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "

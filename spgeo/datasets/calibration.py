@@ -27,16 +27,13 @@ from pathlib import Path
 from typing import Optional, Sequence, Tuple, Union
 
 from ..camera import PinholeCamera
-from ..validation import InputError
+from ..validation import FOV_RANGE_DEG, InputError
 
-__all__ = ["CameraSpec", "FOV_LIMITS_DEG", "DEFAULT_HFOV_DEG", "FULL_FRAME_DIAGONAL_MM",
+__all__ = ["CameraSpec", "DEFAULT_HFOV_DEG", "FULL_FRAME_DIAGONAL_MM",
            "camera_from_fov", "camera_from_focal_35mm", "exif_focal_35mm", "guess_camera",
            "intrinsics_report", "INTRINSICS_SOURCES"]
 
 logger = logging.getLogger(__name__)
-
-#: ``--fov`` must lie strictly inside this range (degrees, horizontal).
-FOV_LIMITS_DEG: Tuple[float, float] = (10.0, 170.0)
 
 #: Horizontal field of view (degrees) assumed when nothing tells the intrinsics.
 #: Most videos without calibration come from a phone's main camera, whose lens
@@ -59,12 +56,13 @@ _EXIF_IFD = 0x8769
 
 def check_fov(fov_deg: float) -> float:
     """``fov_deg`` as a float; :class:`~spgeo.validation.InputError` naming the
-    value unless it is finite and strictly inside :data:`FOV_LIMITS_DEG`."""
+    value unless it is finite and strictly inside
+    :data:`~spgeo.validation.FOV_RANGE_DEG` (the range the intrinsics check accepts)."""
     try:
         fov = float(fov_deg)
     except (TypeError, ValueError):
         raise InputError(f"--fov {fov_deg} is not a number of degrees") from None
-    lo, hi = FOV_LIMITS_DEG
+    lo, hi = FOV_RANGE_DEG
     if not (math.isfinite(fov) and lo < fov < hi):
         raise InputError(f"--fov {fov_deg} degrees is outside ({lo:g}, {hi:g}): give the "
                          "horizontal field of view of the camera")
@@ -77,7 +75,7 @@ def camera_from_fov(width: int, height: int, fov_deg: float) -> PinholeCamera:
     (square pixels), principal point at the image centre, no distortion.
 
     Raises :class:`~spgeo.validation.InputError` for a field of view outside
-    :data:`FOV_LIMITS_DEG` (naming the value) or intrinsics that
+    :data:`~spgeo.validation.FOV_RANGE_DEG` (naming the value) or intrinsics that
     :class:`PinholeCamera` refuses (e.g. a vertical field of view too wide).
     """
     fov = check_fov(fov_deg)
@@ -157,7 +155,7 @@ class CameraSpec:
     Attributes:
         intrinsics: ``(fx, fy, cx, cy)`` in pixels of the stored images, or None.
         fov_deg: horizontal field of view in degrees (strictly inside
-            :data:`FOV_LIMITS_DEG`), or None.
+            :data:`~spgeo.validation.FOV_RANGE_DEG`), or None.
 
     Exactly one must be set; construction raises
     :class:`~spgeo.validation.InputError` naming the bad value otherwise.

@@ -83,18 +83,25 @@ def make_frontend(name: str, config: FrontEndConfig = FrontEndConfig(),
     raise ValueError(f"unknown front-end {name!r}; choose one of {FRONTENDS}")
 
 
-def check_model_options(name: str, normal_model: Optional[str] = None) -> None:
-    """Refuse a normal model for the ``onnx-depth`` front-end.
+def check_model_options(name: str, normal_model: Optional[str] = None,
+                        depth_model: Optional[str] = None) -> None:
+    """Refuse a model option the front-end ``name`` would not use.
 
     ``normal_model`` names the ``onnx`` front-end's normal network only; the
     ``onnx-depth`` front-end's depth network is ``depth_model``
-    (``--depth-model NAME|PATH``).  Raises ``ValueError`` saying so when
-    ``name`` is ``"onnx-depth"`` and ``normal_model`` is given.
+    (``--depth-model NAME|PATH``), which no other front-end uses.  Raises
+    ``ValueError`` saying so (naming the value) when ``name`` is ``"onnx-depth"``
+    and ``normal_model`` is given, or ``name`` is another front-end and
+    ``depth_model`` is given.
     """
     if name == "onnx-depth" and normal_model:
         raise ValueError(f"the normal model {normal_model!r} names the onnx front-end's normal "
                          "network; onnx-depth takes its depth network as the depth model "
                          f"(--depth-model {normal_model})")
+    if name != "onnx-depth" and depth_model:
+        raise ValueError(f"the depth model {depth_model!r} is the onnx-depth front-end's depth "
+                         f"network; the front-end {name!r} does not use it (choose the "
+                         "onnx-depth front-end or leave the depth model out)")
 
 
 def build_frontend(name: str, working_size: Optional[Tuple[int, int]] = None, *,
@@ -114,14 +121,15 @@ def build_frontend(name: str, working_size: Optional[Tuple[int, int]] = None, *,
             (:func:`check_model_options`).
         depth_model: ``onnx-depth``: depth network, registry name or path
             (default ``depth-anything-v2-small``; a path without a registry entry
-            gets the ``generic-depth-518`` preset).  Other front-ends ignore it.
+            gets the ``generic-depth-518`` preset).  Refused for the other
+            front-ends (:func:`check_model_options`).
 
-    Raises ``ValueError`` for an unknown name, a normal model with ``onnx-depth``
-    or a model that breaks its preset's contract (the message names the file,
-    the sizes and the fix); ``FileNotFoundError`` for a model neither in the
+    Raises ``ValueError`` for an unknown name, a normal model with ``onnx-depth``,
+    a depth model with another front-end, or a model that breaks its preset's
+    contract (the message names the file, the sizes and the fix); ``FileNotFoundError`` for a model neither in the
     cache nor on disk.  Nothing is downloaded.
     """
-    check_model_options(name, normal_model)
+    check_model_options(name, normal_model, depth_model)
     sam = normals = None
     if name == "onnx":
         sam = {"family": sam_family} if sam_family else None

@@ -19,7 +19,7 @@ from ..camera import PinholeCamera
 from ..configs import config_repr
 from .base import Segmentation
 
-if TYPE_CHECKING:  # annotations only: onnx_sam re-exports this module's names
+if TYPE_CHECKING:  # annotations only
     from .onnx_sam import SamEmbedding, SegmentModel
 
 __all__ = ["SamMaskGeneratorConfig", "SamMaskGenerator", "box_nms", "mask_boxes",

@@ -30,9 +30,9 @@ Two pieces:
     ``output_masks`` (1,Q,3,H,W) logits, ``iou_predictions`` (1,Q,3).  Many
     prompts go through one decoder call.
 
-* :class:`SamMaskGenerator` (:mod:`.mask_generator`, re-exported here)
-  implements :class:`~spgeo.frontend.base.Segmenter` as docs/design.md §3
-  describes.
+* :class:`spgeo.frontend.mask_generator.SamMaskGenerator` (its own module) turns a
+  :class:`SegmentModel` into a :class:`~spgeo.frontend.base.Segmenter` as
+  docs/design.md §3 describes.
 
 Pixel convention: prompts are integer pixels ``(u, v)`` (column, row) with
 pixel centres at integers, as :mod:`spgeo.camera`; the official SAM decoder
@@ -50,16 +50,10 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..configs import config_repr
-from .mask_generator import (SamMaskGenerator, SamMaskGeneratorConfig, box_nms, mask_boxes,
-                             stability_scores)
 from .onnx_runtime import (as_rgb01, check_rank, check_size, io_nodes, np_type, open_session,
                            require_names, resize_map, resize_stack)
 
-__all__ = [
-    "SamOnnxConfig", "SAM_PRESETS", "SamEmbedding", "SegmentModel",
-    "SamMaskGeneratorConfig", "SamMaskGenerator", "box_nms", "mask_boxes",
-    "stability_scores",
-]
+__all__ = ["SamOnnxConfig", "SAM_PRESETS", "SamEmbedding", "SegmentModel"]
 
 logger = logging.getLogger(__name__)
 

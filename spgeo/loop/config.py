@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Tuple
 
 from ..configs import config_repr
-from ..twoview.config import TwoViewConfig
+from ..twoview.config import FeatureOptions
 
 __all__ = ["PlaceRecognitionConfig", "VerificationConfig", "PoseGraphConfig",
            "LoopClosureConfig"]
@@ -18,9 +18,8 @@ class PlaceRecognitionConfig:
     """Keyframe database and candidate retrieval (:class:`spgeo.loop.KeyframeDatabase`).
 
     Attributes:
-        features: feature type, count and matching (``features``, ``max_features``,
-            ``sift_contrast_threshold``, ``ratio``, ``cross_check`` of
-            :class:`~spgeo.twoview.TwoViewConfig` are used).
+        features: feature type, count and matching
+            (:class:`~spgeo.twoview.FeatureOptions`; default 1000 SIFT features).
         min_keyframe_gap: a keyframe is a candidate for a query only when its id is
             at most ``query id - min_keyframe_gap`` (recent keyframes are the
             odometry's business, not a loop).
@@ -29,7 +28,7 @@ class PlaceRecognitionConfig:
         max_candidates: candidates returned per query, most matches first.
     """
 
-    features: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(max_features=1000))
+    features: FeatureOptions = field(default_factory=lambda: FeatureOptions(max_features=1000))
     min_keyframe_gap: int = 10
     min_matches: int = 30
     max_candidates: int = 3

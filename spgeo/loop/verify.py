@@ -17,7 +17,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..similarity import sim3_inverse, umeyama
-from ..twoview import TwoViewConfig, to_gray_uint8
+from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 from .config import VerificationConfig
 from .refine import refine_sim3
@@ -52,7 +52,7 @@ class KeyframeFeatures:
 
 
 def extract_features(image: np.ndarray, camera: PinholeCamera, depth: np.ndarray,
-                     config: TwoViewConfig) -> KeyframeFeatures:
+                     config: FeatureOptions) -> KeyframeFeatures:
     """SIFT / ORB features of ``image`` lifted to 3-D with ``depth``.
 
     Args:
@@ -60,8 +60,7 @@ def extract_features(image: np.ndarray, camera: PinholeCamera, depth: np.ndarray
         camera: the image's pinhole camera.
         depth: (h, w) depth map of the same view at any resolution (z along the optical
             axis; NaN or <= 0 where unknown), e.g. the keyframe's primitive depth map.
-        config: feature type and count (``features``, ``max_features``,
-            ``sift_contrast_threshold``).
+        config: feature type and count (:class:`~spgeo.twoview.FeatureOptions`).
     Returns:
         :class:`KeyframeFeatures`.
     """
@@ -81,13 +80,11 @@ def extract_features(image: np.ndarray, camera: PinholeCamera, depth: np.ndarray
     return KeyframeFeatures(pts, desc, np.where(ok[:, None], X, np.nan), camera)
 
 
-def match_features(a: KeyframeFeatures, b: KeyframeFeatures, config: TwoViewConfig) -> np.ndarray:
+def match_features(a: KeyframeFeatures, b: KeyframeFeatures, config: FeatureOptions
+                   ) -> np.ndarray:
     """(M, 2) index pairs ``(index in a, index in b)`` passing the ratio test (and the
     mutual check when ``config.cross_check``)."""
-    import cv2
-
-    norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
-    return ratio_matches(a.descriptors, b.descriptors, config, norm)
+    return ratio_matches(a.descriptors, b.descriptors, config)
 
 
 @dataclass

@@ -12,7 +12,7 @@ The method is described in :mod:`spgeo.twoview.pose`.  Modules, one job each:
   rotation-only fit, refinement, pose uncertainty).
 """
 from .backends import colmap_camera, quiet_colmap
-from .config import TWO_VIEW_STATUSES, TwoViewConfig
+from .config import TWO_VIEW_STATUSES, FeatureOptions, TwoViewConfig
 from .geometry import parallax_angles_deg, rotation_only_fit
 from .pose import TwoViewResult, estimate_relative_pose, to_gray_uint8
 

@@ -19,7 +19,7 @@ from typing import List, Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from .config import TwoViewConfig
+from .config import FeatureOptions, TwoViewConfig
 from .geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
 
 __all__ = [
@@ -39,27 +39,31 @@ def colmap_camera(camera: PinholeCamera):
                            params=[camera.fx, camera.fy, camera.cx + 0.5, camera.cy + 0.5])
 
 
-def opencv_features(grey: np.ndarray, config: TwoViewConfig):
-    """SIFT / ORB keypoints of a uint8 grey image: ``((N, 2) pixels, descriptors or None)``."""
+def opencv_features(grey: np.ndarray, options: FeatureOptions):
+    """SIFT / ORB keypoints of a uint8 grey image with ``options``
+    (:class:`~spgeo.twoview.config.FeatureOptions`): ``((N, 2) pixels, descriptors or None)``."""
     import cv2
 
-    if config.features == "sift":
-        det = cv2.SIFT_create(nfeatures=int(config.max_features),
-                              contrastThreshold=float(config.sift_contrast_threshold))
+    if options.features == "sift":
+        det = cv2.SIFT_create(nfeatures=int(options.max_features),
+                              contrastThreshold=float(options.sift_contrast_threshold))
     else:
-        det = cv2.ORB_create(nfeatures=int(config.max_features))
+        det = cv2.ORB_create(nfeatures=int(options.max_features))
     kps, desc = det.detectAndCompute(grey, None)
     pts = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
     return pts, desc
 
 
-def ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray], config: TwoViewConfig,
-                  norm: int) -> np.ndarray:
-    """(M, 2) index pairs passing the ratio test (and the mutual check)."""
+def ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray],
+                  options: FeatureOptions) -> np.ndarray:
+    """(M, 2) index pairs of descriptors ``d1`` -> ``d2`` (of :func:`opencv_features`
+    with ``options``) passing the ratio test (and, with ``options.cross_check``, the
+    mutual check); L2 distances for SIFT, Hamming for ORB."""
     import cv2
 
     if d1 is None or d2 is None or len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), np.int64)
+    norm = cv2.NORM_L2 if options.features == "sift" else cv2.NORM_HAMMING
     bf = cv2.BFMatcher(norm, crossCheck=False)
 
     def one_way(a, b):
@@ -68,12 +72,12 @@ def ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray], config: Tw
             if len(pair) < 2:
                 continue
             m, n = pair
-            if m.distance < config.ratio * n.distance:
+            if m.distance < options.ratio * n.distance:
                 out[m.queryIdx] = m.trainIdx
         return out
 
     fwd = one_way(d1, d2)
-    if config.cross_check:
+    if options.cross_check:
         bwd = one_way(d2, d1)
         pairs = [(i, j) for i, j in fwd.items() if bwd.get(j) == i]
     else:

@@ -1,18 +1,60 @@
 """Options of :func:`spgeo.twoview.estimate_relative_pose`: :class:`TwoViewConfig`,
-the result statuses and the back-end / feature names it accepts."""
+the result statuses and the back-end / feature names it accepts; and
+:class:`FeatureOptions`, the feature type, count and matching alone (what the VO's
+feature retry and loop closure use)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from ..configs import config_repr
 
-__all__ = ["TWO_VIEW_STATUSES", "TwoViewConfig"]
+__all__ = ["TWO_VIEW_STATUSES", "FeatureOptions", "TwoViewConfig"]
 
 #: Possible values of :attr:`TwoViewResult.status`.
 TWO_VIEW_STATUSES = ("ok", "too_few_matches", "low_parallax", "degenerate")
 
 _BACKENDS = ("opencv", "pycolmap")
 _FEATURES = ("sift", "orb")
+
+
+def _check_feature_fields(owner: str, features: str, max_features: int, ratio: float) -> None:
+    """``ValueError`` (naming ``owner``'s field) for an unknown feature type, fewer than
+    8 features or a ratio outside (0, 1]."""
+    if features not in _FEATURES:
+        raise ValueError(f"{owner}.features must be one of {_FEATURES}, got {features!r}")
+    if int(max_features) < 8:
+        raise ValueError(f"{owner}.max_features must be >= 8, got {max_features}")
+    if not 0.0 < float(ratio) <= 1.0:
+        raise ValueError(f"{owner}.ratio must be in (0, 1], got {ratio}")
+
+
+@config_repr
+@dataclass(frozen=True)
+class FeatureOptions:
+    """OpenCV features and their matching (:func:`spgeo.twoview.backends.opencv_features`,
+    :func:`~spgeo.twoview.backends.ratio_matches`): the feature part of
+    :class:`TwoViewConfig`, alone for the VO's feature retry
+    (:class:`spgeo.vo.feature_retry.FeatureRetryConfig`) and loop closure
+    (:class:`spgeo.loop.config.PlaceRecognitionConfig`).
+
+    Attributes:
+        features: ``"sift"`` (default) or ``"orb"``.
+        max_features: maximum number of features per image, default 8000.
+        sift_contrast_threshold: ``contrastThreshold`` of ``cv2.SIFT_create``,
+            default 0.02.
+        ratio: Lowe ratio-test threshold (best / second-best descriptor
+            distance), default 0.8.
+        cross_check: keep only mutual nearest neighbours, default True.
+    """
+
+    features: str = "sift"
+    max_features: int = 8000
+    sift_contrast_threshold: float = 0.02
+    ratio: float = 0.8
+    cross_check: bool = True
+
+    def __post_init__(self) -> None:
+        _check_feature_fields("FeatureOptions", self.features, self.max_features, self.ratio)
 
 
 @config_repr
@@ -84,13 +126,7 @@ class TwoViewConfig:
         if self.backend not in _BACKENDS:
             raise ValueError(f"TwoViewConfig.backend must be one of {_BACKENDS}, "
                              f"got {self.backend!r}")
-        if self.features not in _FEATURES:
-            raise ValueError(f"TwoViewConfig.features must be one of {_FEATURES}, "
-                             f"got {self.features!r}")
-        if int(self.max_features) < 8:
-            raise ValueError(f"TwoViewConfig.max_features must be >= 8, got {self.max_features}")
-        if not 0.0 < float(self.ratio) <= 1.0:
-            raise ValueError(f"TwoViewConfig.ratio must be in (0, 1], got {self.ratio}")
+        _check_feature_fields("TwoViewConfig", self.features, self.max_features, self.ratio)
         if not float(self.ransac_threshold_px) > 0:
             raise ValueError("TwoViewConfig.ransac_threshold_px must be > 0, "
                              f"got {self.ransac_threshold_px}")
@@ -102,3 +138,10 @@ class TwoViewConfig:
                              "(the five-point solver needs five correspondences)")
         if self.min_flow_px < 0 or self.min_parallax_deg < 0 or self.min_inlier_ratio < 0:
             raise ValueError("TwoViewConfig thresholds must be non-negative")
+
+    @property
+    def feature_options(self) -> FeatureOptions:
+        """The :class:`FeatureOptions` of this config (its ``features``,
+        ``max_features``, ``sift_contrast_threshold``, ``ratio``, ``cross_check``)."""
+        return FeatureOptions(self.features, self.max_features, self.sift_contrast_threshold,
+                              self.ratio, self.cross_check)

@@ -178,13 +178,11 @@ def _putative_matches(g1: np.ndarray, g2: np.ndarray, config: TwoViewConfig,
     spgeo pixel coordinates; records the ``features`` and ``matching`` timings.
     Returns ``(p1, p2, matches (M, 2) indices, time matching ended)``."""
     if config.backend == "opencv":
-        import cv2
-
-        p1, d1 = opencv_features(g1, config)
-        p2, d2 = opencv_features(g2, config)
+        options = config.feature_options
+        p1, d1 = opencv_features(g1, options)
+        p2, d2 = opencv_features(g2, options)
         t_feat = time.perf_counter()
-        norm = cv2.NORM_L2 if config.features == "sift" else cv2.NORM_HAMMING
-        matches = ratio_matches(d1, d2, config, norm)
+        matches = ratio_matches(d1, d2, options)
     else:
         with quiet_colmap():
             p1, p2, matches, t_feat = pycolmap_features_and_matches(g1, g2, config)

@@ -20,7 +20,7 @@ from ..configs import config_repr
 from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
-from ..twoview import TwoViewConfig, to_gray_uint8
+from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
 __all__ = ["FeatureRetryConfig", "FeatureRetry"]
@@ -36,9 +36,8 @@ class FeatureRetryConfig:
     Attributes:
         enabled: try the feature-based pose when photometric tracking fails
             (default True).
-        features: feature type, count and matching (``features``,
-            ``max_features``, ``sift_contrast_threshold``, ``ratio``,
-            ``cross_check`` of :class:`~spgeo.twoview.TwoViewConfig` are used).
+        features: feature type, count and matching
+            (:class:`~spgeo.twoview.FeatureOptions`; default 1500 SIFT features).
         min_inliers: PnP inliers needed to accept a pose (default 25).
         reprojection_px: RANSAC inlier threshold (pixels of the frame's
             image, default 2.0).
@@ -46,7 +45,7 @@ class FeatureRetryConfig:
     """
 
     enabled: bool = True
-    features: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(max_features=1500))
+    features: FeatureOptions = field(default_factory=lambda: FeatureOptions(max_features=1500))
     min_inliers: int = 25
     reprojection_px: float = 2.0
     ransac_iterations: int = 500
@@ -130,8 +129,7 @@ class FeatureRetry:
         cfg = self.config
         kf = self._keyframe_features(key, kf_image, primitives)
         pts, desc = self._features(image)
-        norm = cv2.NORM_L2 if cfg.features.features == "sift" else cv2.NORM_HAMMING
-        pairs = ratio_matches(kf.descriptors, desc, cfg.features, norm)
+        pairs = ratio_matches(kf.descriptors, desc, cfg.features)
         if len(pairs):
             pairs = pairs[np.isfinite(kf.points[pairs[:, 0], 0])]
         if len(pairs) < cfg.min_inliers:
