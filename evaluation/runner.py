@@ -75,3 +75,13 @@ def run_protocol(parser: argparse.ArgumentParser,
     except BAD_INPUT as exc:
         print(f"{name or parser.prog}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def protocol_argv(argv: Optional[Sequence[str]] = None) -> list:
+    """``argv`` as a list; ``sys.argv[1:]`` when None (what ``argparse`` would parse).
+    For the protocols that look at their arguments before parsing them (a child
+    process mode) or record them (provenance)."""
+    return list(sys.argv[1:] if argv is None else argv)
+
+
+__all__ += ["protocol_argv"]
