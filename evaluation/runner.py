@@ -49,9 +49,10 @@ def protocol_parser(prog: str, description: str, dataset: bool = True,
     return parser
 
 
-def open_sequence(args: argparse.Namespace, load_depth: bool = False, **kwargs):
+def open_sequence(args: argparse.Namespace, load_depth: Optional[bool] = False, **kwargs):
     """The data set of ``args.dataset`` / ``args.frames``
-    (:func:`spgeo.datasets.open_dataset`; ``kwargs`` go to it).
+    (:func:`spgeo.datasets.open_dataset`; ``kwargs`` go to it).  ``load_depth``
+    None: the reader's own default (sensor depth where the kind has it).
 
     Raises:
         ValueError / OSError: unknown kind, missing folder, bad frame range (the
@@ -59,6 +60,8 @@ def open_sequence(args: argparse.Namespace, load_depth: bool = False, **kwargs):
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset
+    if load_depth is None:
+        return open_dataset(kind, path, frames=args.frames, **kwargs)
     return open_dataset(kind, path, frames=args.frames, load_depth=load_depth, **kwargs)
 
 
