@@ -32,16 +32,17 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, Iterator, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+
 __all__ = ["MeshMetrics", "sample_surface", "distance_to_mesh", "mesh_metrics",
            "sim3_transform_mesh", "aligned_pose", "keyframe_rotation_errors_deg",
-           "sensor_views", "main"]
+           "sensor_views", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +203,6 @@ def _evaluate(args) -> Dict[str, object]:
     """Run the VO, fuse, build the reference and measure (the protocol)."""
     from spgeo.apps.vo_run import VORunConfig, run_dataset
     from spgeo.configs import apply_overrides, nest, parse_assignments
-    from spgeo.datasets import open_dataset
     from spgeo.io.fusion import FusionConfig, fuse_views
 
     kind, path = args.dataset
@@ -214,7 +214,7 @@ def _evaluate(args) -> Dict[str, object]:
     if ate is None or ate.get("per-frame") is None:
         raise ValueError("no ATE alignment (no ground truth or too few poses)")
     a = ate["per-frame"]
-    frames = open_dataset(kind, path, frames=args.frames)
+    frames = open_sequence(args, load_depth=None)
     ref = fuse_views(sensor_views(frames, args.gt_stride), FusionConfig())
     est = run.fuse()
     v = sim3_transform_mesh(est.vertices, a.scale, a.rotation, a.translation)
@@ -266,12 +266,12 @@ def _table(res: Dict[str, object]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    from spgeo.apps.args import add_dataset_arguments, add_verbose_argument, setup_logging
+NAME = "vo_mesh"
 
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_dataset_arguments(ap)
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__)
     ap.add_argument("--frontend", default="classical")
     ap.add_argument("--threshold", type=float, default=0.05,
                     help="completeness threshold in metres (default 0.05)")
@@ -283,19 +283,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     help="OdometryConfig overrides (Python literals)")
     ap.add_argument("--out", default=None,
                     help="folder for results.json and the two meshes (aligned VO, reference)")
-    add_verbose_argument(ap)
-    args = ap.parse_args(argv)
-    setup_logging(args.verbose)
-    try:
-        res = _evaluate(args)
-    except (ValueError, TypeError, OSError) as exc:
-        print(f"vo_mesh: error: {exc}", file=sys.stderr)
-        return 2
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate (:func:`_evaluate`), print the table, write ``--out/results.json``."""
+    res = _evaluate(args)
     print(_table(res))
     if args.out:
         (Path(args.out) / "results.json").write_text(json.dumps(res, indent=1) + "\n",
                                                      encoding="utf-8")
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":
