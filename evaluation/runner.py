@@ -31,12 +31,13 @@ log = logging.getLogger(__name__)
 BAD_INPUT = (ValueError, TypeError, OSError)
 
 
-def protocol_parser(prog: str, description: str, dataset: bool = True,
+def protocol_parser(prog: Optional[str], description: str, dataset: bool = True,
                     frames_help: Optional[str] = None,
                     verbose: bool = True) -> argparse.ArgumentParser:
     """An ``ArgumentParser`` for ``spgeo eval``'s protocol ``prog`` with the shared
     arguments: ``--dataset KIND PATH`` and ``--frames`` (``dataset``; ``frames_help``
-    replaces the default help text) and ``-v`` / ``--verbose`` (``verbose``)."""
+    replaces the default help text) and ``-v`` / ``--verbose`` (``verbose``).  ``prog``
+    None: argparse's default (``spgeo eval NAME`` when run by ``spgeo eval``)."""
     parser = argparse.ArgumentParser(prog=prog, description=description,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     if dataset:
