@@ -89,3 +89,32 @@ def protocol_argv(argv: Optional[Sequence[str]] = None) -> list:
 
 
 __all__ += ["protocol_argv"]
+
+
+def add_vo_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--frontend`` (default ``classical``) and ``--set FIELD=VALUE ...``
+    (:class:`~spgeo.vo.OdometryConfig` overrides) of a protocol that runs the VO on
+    ``--dataset`` (:func:`run_vo_dataset`)."""
+    parser.add_argument("--frontend", default="classical")
+    parser.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="OdometryConfig overrides (Python literals)")
+
+
+def run_vo_dataset(args: argparse.Namespace):
+    """The :class:`spgeo.apps.vo_run.VORun` of ``args.dataset`` / ``args.frames``
+    (:func:`spgeo.apps.vo_run.run_dataset`, no progress bar) with ``args.frontend``
+    and the ``args.set`` overrides (:func:`add_vo_arguments`).
+
+    Raises:
+        ValueError / TypeError / OSError: a bad override, front-end or data set."""
+    from spgeo.apps.vo_run import VORunConfig, run_dataset
+    from spgeo.configs import apply_overrides, nest, parse_assignments
+
+    kind, path = args.dataset
+    over = nest(parse_assignments(args.set, strict=True))
+    cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
+                          {"odometry": over} if over else {})
+    return run_dataset(kind, path, args.frames, cfg)
+
+
+__all__ += ["add_vo_arguments", "run_vo_dataset"]

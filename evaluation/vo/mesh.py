@@ -38,7 +38,8 @@ from typing import Dict, Iterator, Optional, Sequence
 
 import numpy as np
 
-from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
+                                     run_protocol, run_vo_dataset)
 
 __all__ = ["MeshMetrics", "sample_surface", "distance_to_mesh", "mesh_metrics",
            "sim3_transform_mesh", "aligned_pose", "keyframe_rotation_errors_deg",
@@ -287,15 +288,13 @@ NAME = "vo_mesh"
 def build_parser() -> argparse.ArgumentParser:
     """The command line (module docstring)."""
     ap = protocol_parser(None, __doc__)
-    ap.add_argument("--frontend", default="classical")
+    add_vo_arguments(ap)
     ap.add_argument("--threshold", type=float, default=0.05,
                     help="completeness threshold in metres (default 0.05)")
     ap.add_argument("--samples", type=int, default=200_000,
                     help="points sampled on each mesh (default 200000)")
     ap.add_argument("--gt-stride", type=int, default=1,
                     help="fuse every N-th sensor depth map into the reference (default 1)")
-    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
-                    help="OdometryConfig overrides (Python literals)")
     ap.add_argument("--out", default=None,
                     help="folder for results.json and the two meshes (aligned VO, reference)")
     return ap
@@ -304,14 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run the VO on ``args.dataset``, :func:`evaluate_mesh`, print the table, write
     ``--out/results.json``."""
-    from spgeo.apps.vo_run import VORunConfig, run_dataset
-    from spgeo.configs import apply_overrides, nest, parse_assignments
-
-    kind, path = args.dataset
-    over = nest(parse_assignments(args.set, strict=True))
-    cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
-                          {"odometry": over} if over else {})
-    vo_run = run_dataset(kind, path, args.frames, cfg)
+    vo_run = run_vo_dataset(args)
     res = evaluate_mesh(vo_run, open_sequence(args, load_depth=None), args.threshold,
                         args.samples, args.gt_stride, args.out)
     print(res.table())

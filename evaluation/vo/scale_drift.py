@@ -21,7 +21,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
+                                     run_protocol, run_vo_dataset)
 
 __all__ = ["keyframe_depth_ratios", "keyframe_baseline_ratios", "ScaleDriftResult", "scale_drift",
            "build_parser", "run", "main"]
@@ -101,22 +102,13 @@ NAME = "vo_scale_drift"
 def build_parser() -> argparse.ArgumentParser:
     """The command line (module docstring)."""
     ap = protocol_parser(None, __doc__)
-    ap.add_argument("--frontend", default="classical")
-    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
-                    help="OdometryConfig overrides (Python literals)")
+    add_vo_arguments(ap)
     return ap
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the VO on ``args.dataset`` and print the :class:`ScaleDriftResult` table."""
-    from spgeo.apps.vo_run import VORunConfig, run_dataset
-    from spgeo.configs import parse_assignments, nest, apply_overrides
-
-    kind, path = args.dataset
-    over: Dict[str, object] = nest(parse_assignments(args.set, strict=True))
-    cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
-                          {"odometry": over} if over else {})
-    vo_run = run_dataset(kind, path, args.frames, cfg)
+    vo_run = run_vo_dataset(args)
     frames = open_sequence(args, load_depth=None)
     print(scale_drift(vo_run, frames).table())
     return 0
