@@ -31,12 +31,13 @@ log = logging.getLogger(__name__)
 BAD_INPUT = (ValueError, TypeError, OSError)
 
 
-def protocol_parser(prog: str, description: str, dataset: bool = True,
+def protocol_parser(prog: Optional[str], description: str, dataset: bool = True,
                     frames_help: Optional[str] = None,
                     verbose: bool = True) -> argparse.ArgumentParser:
     """An ``ArgumentParser`` for ``spgeo eval``'s protocol ``prog`` with the shared
     arguments: ``--dataset KIND PATH`` and ``--frames`` (``dataset``; ``frames_help``
-    replaces the default help text) and ``-v`` / ``--verbose`` (``verbose``)."""
+    replaces the default help text) and ``-v`` / ``--verbose`` (``verbose``).  ``prog``
+    None: argparse's default (``spgeo eval NAME`` when run by ``spgeo eval``)."""
     parser = argparse.ArgumentParser(prog=prog, description=description,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     if dataset:
@@ -49,9 +50,10 @@ def protocol_parser(prog: str, description: str, dataset: bool = True,
     return parser
 
 
-def open_sequence(args: argparse.Namespace, load_depth: bool = False, **kwargs):
+def open_sequence(args: argparse.Namespace, load_depth: Optional[bool] = False, **kwargs):
     """The data set of ``args.dataset`` / ``args.frames``
-    (:func:`spgeo.datasets.open_dataset`; ``kwargs`` go to it).
+    (:func:`spgeo.datasets.open_dataset`; ``kwargs`` go to it).  ``load_depth``
+    None: the reader's own default (sensor depth where the kind has it).
 
     Raises:
         ValueError / OSError: unknown kind, missing folder, bad frame range (the
@@ -59,6 +61,8 @@ def open_sequence(args: argparse.Namespace, load_depth: bool = False, **kwargs):
     from spgeo.datasets import open_dataset
 
     kind, path = args.dataset
+    if load_depth is None:
+        return open_dataset(kind, path, frames=args.frames, **kwargs)
     return open_dataset(kind, path, frames=args.frames, load_depth=load_depth, **kwargs)
 
 
@@ -75,3 +79,42 @@ def run_protocol(parser: argparse.ArgumentParser,
     except BAD_INPUT as exc:
         print(f"{name or parser.prog}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def protocol_argv(argv: Optional[Sequence[str]] = None) -> list:
+    """``argv`` as a list; ``sys.argv[1:]`` when None (what ``argparse`` would parse).
+    For the protocols that look at their arguments before parsing them (a child
+    process mode) or record them (provenance)."""
+    return list(sys.argv[1:] if argv is None else argv)
+
+
+__all__ += ["protocol_argv"]
+
+
+def add_vo_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--frontend`` (default ``classical``) and ``--set FIELD=VALUE ...``
+    (:class:`~spgeo.vo.OdometryConfig` overrides) of a protocol that runs the VO on
+    ``--dataset`` (:func:`run_vo_dataset`)."""
+    parser.add_argument("--frontend", default="classical")
+    parser.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="OdometryConfig overrides (Python literals)")
+
+
+def run_vo_dataset(args: argparse.Namespace):
+    """The :class:`spgeo.apps.vo_run.VORun` of ``args.dataset`` / ``args.frames``
+    (:func:`spgeo.apps.vo_run.run_dataset`, no progress bar) with ``args.frontend``
+    and the ``args.set`` overrides (:func:`add_vo_arguments`).
+
+    Raises:
+        ValueError / TypeError / OSError: a bad override, front-end or data set."""
+    from spgeo.apps.vo_run import VORunConfig, run_dataset
+    from spgeo.configs import apply_overrides, nest, parse_assignments
+
+    kind, path = args.dataset
+    over = nest(parse_assignments(args.set, strict=True))
+    cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
+                          {"odometry": over} if over else {})
+    return run_dataset(kind, path, args.frames, cfg)
+
+
+__all__ += ["add_vo_arguments", "run_vo_dataset"]

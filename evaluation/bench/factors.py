@@ -22,6 +22,7 @@ import numpy as np
 import gtsam
 
 from spgeo.camera import PinholeCamera
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.factors.photometric import PhotometricConfig, PrimitivePhotometricFactor, ScaledShape
 from spgeo.factors.photometric_group import PhotometricFactorGroup
 from spgeo.frontend.pipeline import split_regions
@@ -113,9 +114,12 @@ def _interleaved(fns: dict, runs: int) -> dict:
     return {name: float(np.median(t)) for name, t in times.items()}
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "bench_factors"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--primitives", type=int, default=300)
     ap.add_argument("--targets", type=int, default=4)
@@ -125,7 +129,12 @@ def main(argv=None) -> None:
                     choices=["numpy", "numba", "auto"])
     ap.add_argument("--tracking", nargs="*", default=[], metavar="WxH",
                     help="also time track_frame at these resolutions")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _graph_fns(args: argparse.Namespace):
+    """``(callables "linearize BACKEND" / "error BACKEND", graph, primitives)``: one
+    graph per backend (:func:`build`)."""
     fns = {}
     for bk in args.backends:
         graph, values, n, groups = build(args.primitives, args.targets,
@@ -137,16 +146,11 @@ def main(argv=None) -> None:
             return getattr(g, method)(v)
         fns[f"linearize {bk}"] = lambda run=run: run("linearize")
         fns[f"error {bk}"] = lambda run=run: run("error")
-    nf = graph.size()
-    kind = f"groups chunk={args.chunk}" if args.chunk > 0 else "per-primitive factors"
-    print(f"{n} primitives x {args.targets} targets: {nf} gtsam factors ({kind}), "
-          f"320x240, all pixels")
-    med = _interleaved(fns, args.runs)
-    for bk in args.backends:
-        lin = med[f"linearize {bk}"]
-        print(f"{bk:6s} linearize: median {1e3 * lin:.1f} ms ({1e6 * lin / nf:.0f} us per "
-              f"factor); error: median {1e3 * med[f'error {bk}']:.1f} ms")
-    _ratio(med, args.backends, "linearize")
+    return fns, graph, n
+
+
+def _time_tracking(args: argparse.Namespace) -> None:
+    """Print the median ``track_frame`` time per backend at each ``--tracking`` size."""
     from spgeo.vo.tracking import track_frame
     for res in args.tracking:
         w, h = (int(x) for x in res.lower().split("x"))
@@ -162,10 +166,31 @@ def main(argv=None) -> None:
         _ratio(med, args.backends, "track")
 
 
+def run(args: argparse.Namespace) -> int:
+    """Time and print linearize / error per backend, then ``--tracking``."""
+    fns, graph, n = _graph_fns(args)
+    nf = graph.size()
+    kind = f"groups chunk={args.chunk}" if args.chunk > 0 else "per-primitive factors"
+    print(f"{n} primitives x {args.targets} targets: {nf} gtsam factors ({kind}), "
+          f"320x240, all pixels")
+    med = _interleaved(fns, args.runs)
+    for bk in args.backends:
+        lin = med[f"linearize {bk}"]
+        print(f"{bk:6s} linearize: median {1e3 * lin:.1f} ms ({1e6 * lin / nf:.0f} us per "
+              f"factor); error: median {1e3 * med[f'error {bk}']:.1f} ms")
+    _ratio(med, args.backends, "linearize")
+    _time_tracking(args)
+    return 0
+
+
+def main(argv=None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
+
+
 def _ratio(med: dict, backends, what: str) -> None:
     if "numpy" in backends and "numba" in backends:
         print(f"{what}: numpy / numba = {med[f'{what} numpy'] / med[f'{what} numba']:.2f}x")
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -25,6 +25,7 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 
 from spgeo.camera import PinholeCamera
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.integration import IntegrationConfig, integrate_normals_regions
 
 log = logging.getLogger(__name__)
@@ -77,8 +78,10 @@ def make_case(n_masks: int = 200, width: int = 320, height: int = 240, seed: int
     return cam, n, z, regions
 
 
-def run(n_masks: int = 200, runs: int = 20, solvers: Sequence[str] = SOLVERS,
-        width: int = 320, height: int = 240) -> List[BenchResult]:
+def benchmark(n_masks: int = 200, runs: int = 20, solvers: Sequence[str] = SOLVERS,
+              width: int = 320, height: int = 240) -> List[BenchResult]:
+    """One :class:`BenchResult` per solver: ``runs`` timed calls each, the solvers
+    interleaved, on :func:`make_case` (``n_masks`` masks over ``width`` x ``height``)."""
     cam, normals, depth, regions = make_case(n_masks, width, height)
     logz = np.log(depth).ravel()
     cfgs = {s: IntegrationConfig(solver=s) for s in solvers}
@@ -115,31 +118,50 @@ def run(n_masks: int = 200, runs: int = 20, solvers: Sequence[str] = SOLVERS,
     return results
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def results_table(results: Sequence[BenchResult]) -> str:
+    """The results as aligned text columns (ratio: median time over the first solver's)."""
+    base = results[0].median_ms
+    lines = [f"{'solver':8s} {'masks':>6s} {'grid':>9s} {'median ms':>10s} {'ratio':>6s} "
+             f"{'min ms':>8s} {'med rel err':>12s} {'p95 rel err':>12s} {'diff':>8s} "
+             f"{'factor MB':>9s} {'peak MB':>8s}  stages (median ms)"]
+    for r in results:
+        st = " ".join(f"{k[2:]}={v:.1f}" for k, v in r.stages_ms.items() if k != "t_total")
+        lines.append(f"{r.solver:8s} {r.n_masks:6d} {r.grid[1]}x{r.grid[0]:<5d} {r.median_ms:10.1f} "
+                     f"{r.median_ms / base:6.2f} {r.min_ms:8.1f} {r.median_rel_error:12.2e} "
+                     f"{r.p95_rel_error:12.2e} {r.max_abs_diff_to_first:8.1e} {r.factor_mb:9.1f} "
+                     f"{r.peak_traced_mb:8.1f}  {st}")
+    return "\n".join(lines)
+
+
+NAME = "bench_integration"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--masks", type=int, default=200, help="Voronoi sites (default 200)")
     ap.add_argument("--runs", type=int, default=20, help="timed runs per solver (default 20)")
     ap.add_argument("--grid", default="320x240", help="WIDTHxHEIGHT (default 320x240)")
     ap.add_argument("--solvers", nargs="+", default=list(SOLVERS), choices=SOLVERS,
                     help="solvers to compare, interleaved (default: all)")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Benchmark (:func:`benchmark`) and print the table or JSON."""
     width, height = (int(x) for x in args.grid.lower().split("x"))
-    results = run(args.masks, args.runs, args.solvers, width, height)
+    results = benchmark(args.masks, args.runs, args.solvers, width, height)
     if args.json:
         print(json.dumps([asdict(r) for r in results], indent=2))
-        return
-    base = results[0].median_ms
-    print(f"{'solver':8s} {'masks':>6s} {'grid':>9s} {'median ms':>10s} {'ratio':>6s} "
-          f"{'min ms':>8s} {'med rel err':>12s} {'p95 rel err':>12s} {'diff':>8s} "
-          f"{'factor MB':>9s} {'peak MB':>8s}  stages (median ms)")
-    for r in results:
-        st = " ".join(f"{k[2:]}={v:.1f}" for k, v in r.stages_ms.items() if k != "t_total")
-        print(f"{r.solver:8s} {r.n_masks:6d} {r.grid[1]}x{r.grid[0]:<5d} {r.median_ms:10.1f} "
-              f"{r.median_ms / base:6.2f} {r.min_ms:8.1f} {r.median_rel_error:12.2e} "
-              f"{r.p95_rel_error:12.2e} {r.max_abs_diff_to_first:8.1e} {r.factor_mb:9.1f} "
-              f"{r.peak_traced_mb:8.1f}  {st}")
+        return 0
+    print(results_table(results))
+    return 0
+
+
+def main(argv=None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -36,12 +36,13 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.vo.frontier import setting_config
 from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
 from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
 
-__all__ = ["bench_tracking", "main"]
+__all__ = ["bench_tracking", "build_parser", "run", "main"]
 
 #: the default pipeline rows (``--settings``): defaults, full-resolution mapping
 #: on half the pixels, one factor per primitive
@@ -76,9 +77,12 @@ def bench_tracking(frames, config: TrackerConfig = TrackerConfig(),
             "fps": 1.0 / float(np.median(secs)), "median_translation_err_m": float(np.median(errs))}
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "bench_vo"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--frontend", default="classical", choices=["classical", "depth"])
@@ -86,12 +90,22 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--settings", nargs="+", default=None, metavar="SETTING",
                     help="pipeline rows: OdometryConfig overrides per row, e.g. 'defaults' "
                          "'map_level=0 tracker.levels=4' (default: rows 2-4 above)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _settings(args: argparse.Namespace):
+    """``[(setting, OdometryConfig), ...]`` of the pipeline rows; ValueError naming
+    ``--settings``."""
     settings = args.settings or (list(_DEFAULT_SETTINGS)[:2 if args.no_chunk_compare else 3])
     try:
-        runs = [(st, setting_config(st)) for st in settings]
+        return [(st, setting_config(st)) for st in settings]
     except (ValueError, TypeError, SyntaxError) as exc:
-        ap.error(f"--settings: {exc}")
+        raise ValueError(f"--settings: {exc}") from exc
+
+
+def run(args: argparse.Namespace) -> int:
+    """Time tracking alone and each pipeline row; print them (a table)."""
+    runs = _settings(args)
     frames = synthetic_sequence(SyntheticVOConfig(args.frames, args.seed))
     print(f"machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; "
           f"{args.frames} synthetic frames (seed {args.seed}) at 160x120")
@@ -111,6 +125,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               f"{st['frontend']:.1f} | {st['mapping']:.1f} | {st['init']:.1f} | "
               f"{r['per-frame']['percent']:.2f} |", flush=True)
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -54,8 +54,7 @@ from tqdm import tqdm
 
 
 from spgeo.vo import OdometryConfig
-from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
-                             setup_logging)
+from spgeo.apps.args import parse_resolution
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
@@ -64,10 +63,11 @@ from spgeo.evaluation.references.feature_vo import FeatureVOConfig, run_feature_
 from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
                                          default_max_time_diff, path_length, status_path_for,
                                          write_status, write_tum)
+from spgeo.evaluation.runner import open_sequence, protocol_argv, protocol_parser, run_protocol
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "DEFAULT_RESOLUTION", "VOCompareConfig",
            "AUTO_RESOLUTION", "compare_size", "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table",
-           "write_results", "main"]
+           "write_results", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -253,6 +253,91 @@ def _run_colmap(frames: List[Frame], config: VOCompareConfig):
     return res.timestamps, res.poses, None, res.status, info
 
 
+def _check_methods(methods: Sequence[str]) -> List[str]:
+    """``methods`` as a list; ValueError for an unknown one or none."""
+    methods = list(methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"compare_vo: unknown method(s) {unknown}; expected {list(METHODS)}")
+    if not methods:
+        raise ValueError("compare_vo: no methods")
+    return methods
+
+
+def _ground_truth(frames: List[Frame]) -> Tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(stamps of all frames, stamps with ground truth, their camera-to-world
+    poses, path length)``; ValueError with fewer than 3 ground-truth poses."""
+    stamps = np.array([f.timestamp for f in frames], dtype=np.float64)
+    has_gt = [f.T_world_cam is not None for f in frames]
+    if sum(has_gt) < 3:
+        raise ValueError(f"compare_vo: {sum(has_gt)} frames have ground truth (need >= 3)")
+    gt_ts = stamps[has_gt]
+    gt_poses = np.array([f.T_world_cam for f in frames if f.T_world_cam is not None])
+    gt_length = path_length(gt_poses[:, :3, 3])
+    return stamps, gt_ts, gt_poses, gt_length
+
+
+def _run_method(method: str, frames: List[Frame], cfg: VOCompareConfig):
+    """``(timestamps, poses, is_keyframe, status, info)`` of one method on ``frames``."""
+    n = len(frames)
+    if method == "spgeo-depth" and any(f.depth is None for f in frames):
+        raise ValueError("the depth front-end needs depth on every frame "
+                         f"({sum(f.depth is None for f in frames)} of {n} have none)")
+    if method.startswith("spgeo-"):
+        return _run_spgeo(frames, method.split("-", 1)[1], cfg)
+    if method == "feature":
+        return _run_feature(frames, cfg)
+    return _run_colmap(frames, cfg)
+
+
+def _fill_ate(row: VOCompareRow, out, gt_ts: np.ndarray, gt_poses: np.ndarray,
+              gt_length: float, tol: float) -> None:
+    """Store the method's output ``out`` (:func:`_run_method`) and its ATE in ``row``
+    (``row.error`` set when the ATE is not available)."""
+    ts, poses, kf, status, info = out
+    row.timestamps, row.poses, row.is_keyframe, row.status = ts, poses, kf, status
+    row.info = info
+    valid = np.all(np.isfinite(poses.reshape(len(poses), -1)), axis=1)
+    row.n_tracked = int(valid.sum())
+    row.n_keyframes = int(np.sum(kf)) if kf is not None else 0
+    try:
+        ates: Mapping[str, Optional[AteResult]] = ate_per_frame_and_keyframes(
+            (ts, poses), (gt_ts, gt_poses), kf, max_time_diff=tol)
+    except ValueError as exc:
+        row.error = f"ATE not available: {exc}"
+        return
+    pf, kfa = ates["per-frame"], ates["keyframe-only"]
+    if pf is not None:
+        row.ate_rmse_m, row.ate_n, row.ate_scale = pf.rmse, pf.n_associated, pf.scale
+        row.ate_percent = 100.0 * pf.rmse / gt_length if gt_length > 0 else float("nan")
+    if kfa is not None:
+        row.kf_ate_rmse_m, row.kf_ate_n = kfa.rmse, kfa.n_associated
+        row.kf_ate_percent = 100.0 * kfa.rmse / gt_length if gt_length > 0 else float("nan")
+    logger.info("compare_vo: %s: %d/%d posed, per-frame ATE %.4f m, %.1f s", row.method,
+                row.n_tracked, row.n_frames, row.ate_rmse_m, row.wall_s)
+
+
+def _method_row(method: str, frames: List[Frame], cfg: VOCompareConfig, gt_ts: np.ndarray,
+                gt_poses: np.ndarray, gt_length: float, tol: float) -> VOCompareRow:
+    """One method's :class:`VOCompareRow` (``error`` set when it raised)."""
+    n = len(frames)
+    row = VOCompareRow(method=method, label=METHOD_LABELS[method],
+                       oracle=method in ORACLE_METHODS, n_frames=n, gt_length_m=gt_length)
+    logger.info("compare_vo: running %s on %d frames", method, n)
+    t0 = time.perf_counter()
+    try:
+        out = _run_method(method, frames, cfg)
+    except Exception as exc:  # an evaluation must report, not die
+        logger.exception("compare_vo: method %s failed", method)
+        row.wall_s = time.perf_counter() - t0
+        row.error = f"{type(exc).__name__}: {exc}"
+        return row
+    row.wall_s = time.perf_counter() - t0
+    row.fps = n / row.wall_s if row.wall_s > 0 else float("nan")
+    _fill_ate(row, out, gt_ts, gt_poses, gt_length, tol)
+    return row
+
+
 def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
                resolution: Union[None, str, Tuple[int, int]] = DEFAULT_RESOLUTION,
                config: Optional[VOCompareConfig] = None) -> List[VOCompareRow]:
@@ -278,75 +363,17 @@ def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
         with ground truth.
     """
     cfg = dataclasses.replace(config or VOCompareConfig(), resolution=resolution)
-    methods = list(methods)
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ValueError(f"compare_vo: unknown method(s) {unknown}; expected {list(METHODS)}")
-    if not methods:
-        raise ValueError("compare_vo: no methods")
+    methods = _check_methods(methods)
     need_depth = any(m in ORACLE_METHODS for m in methods)
     frames = prepare_frames(frames, cfg.resolution, keep_depth=need_depth, progress=cfg.progress)
     if not frames:
         raise ValueError("compare_vo: no frames")
     if isinstance(cfg.resolution, str):     # "auto": the size the frames now have
         cfg = dataclasses.replace(cfg, resolution=tuple(frames[0].camera.size))
-    stamps = np.array([f.timestamp for f in frames], dtype=np.float64)
-    has_gt = [f.T_world_cam is not None for f in frames]
-    if sum(has_gt) < 3:
-        raise ValueError(f"compare_vo: {sum(has_gt)} frames have ground truth (need >= 3)")
-    gt_ts = stamps[has_gt]
-    gt_poses = np.array([f.T_world_cam for f in frames if f.T_world_cam is not None])
-    gt_length = path_length(gt_poses[:, :3, 3])
+    stamps, gt_ts, gt_poses, gt_length = _ground_truth(frames)
     tol = cfg.max_time_diff if cfg.max_time_diff is not None else default_max_time_diff(stamps)
-    n = len(frames)
-    rows: List[VOCompareRow] = []
-    for method in methods:
-        row = VOCompareRow(method=method, label=METHOD_LABELS[method],
-                           oracle=method in ORACLE_METHODS, n_frames=n, gt_length_m=gt_length)
-        logger.info("compare_vo: running %s on %d frames", method, n)
-        t0 = time.perf_counter()
-        try:
-            if method == "spgeo-depth" and any(f.depth is None for f in frames):
-                raise ValueError("the depth front-end needs depth on every frame "
-                                 f"({sum(f.depth is None for f in frames)} of {n} have none)")
-            if method.startswith("spgeo-"):
-                out = _run_spgeo(frames, method.split("-", 1)[1], cfg)
-            elif method == "feature":
-                out = _run_feature(frames, cfg)
-            else:
-                out = _run_colmap(frames, cfg)
-        except Exception as exc:  # an evaluation must report, not die
-            logger.exception("compare_vo: method %s failed", method)
-            row.wall_s = time.perf_counter() - t0
-            row.error = f"{type(exc).__name__}: {exc}"
-            rows.append(row)
-            continue
-        row.wall_s = time.perf_counter() - t0
-        row.fps = n / row.wall_s if row.wall_s > 0 else float("nan")
-        ts, poses, kf, status, info = out
-        row.timestamps, row.poses, row.is_keyframe, row.status = ts, poses, kf, status
-        row.info = info
-        valid = np.all(np.isfinite(poses.reshape(len(poses), -1)), axis=1)
-        row.n_tracked = int(valid.sum())
-        row.n_keyframes = int(np.sum(kf)) if kf is not None else 0
-        try:
-            ates: Mapping[str, Optional[AteResult]] = ate_per_frame_and_keyframes(
-                (ts, poses), (gt_ts, gt_poses), kf, max_time_diff=tol)
-        except ValueError as exc:
-            row.error = f"ATE not available: {exc}"
-            rows.append(row)
-            continue
-        pf, kfa = ates["per-frame"], ates["keyframe-only"]
-        if pf is not None:
-            row.ate_rmse_m, row.ate_n, row.ate_scale = pf.rmse, pf.n_associated, pf.scale
-            row.ate_percent = 100.0 * pf.rmse / gt_length if gt_length > 0 else float("nan")
-        if kfa is not None:
-            row.kf_ate_rmse_m, row.kf_ate_n = kfa.rmse, kfa.n_associated
-            row.kf_ate_percent = 100.0 * kfa.rmse / gt_length if gt_length > 0 else float("nan")
-        rows.append(row)
-        logger.info("compare_vo: %s: %d/%d posed, per-frame ATE %.4f m, %.1f s", method,
-                    row.n_tracked, n, row.ate_rmse_m, row.wall_s)
-    return rows
+    return [_method_row(method, frames, cfg, gt_ts, gt_poses, gt_length, tol)
+            for method in methods]
 
 
 # ================================================================== output
@@ -423,15 +450,15 @@ def write_results(rows: Sequence[VOCompareRow], out_dir: Union[str, Path],
 
 
 # ===================================================================== CLI
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.vo.compare``: compare VO methods on a data-set
-    range; prints a markdown table, writes trajectories and ``results.json`` to
-    ``--out``.  Returns 0, 1 when every method failed, 2 for bad arguments."""
-    parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.vo.compare",
-        description="spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
-                    "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
-    add_dataset_arguments(parser)
+NAME = "vo_compare"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m spgeo.evaluation.vo.compare``."""
+    parser = protocol_parser(
+        "python -m spgeo.evaluation.vo.compare",
+        "spgeo VO vs the OpenCV feature baseline vs the COLMAP reference on the "
+        "same frames (Sim(3)-aligned ATE, per-frame and keyframe-only).")
     parser.add_argument("--resolution", default=AUTO_RESOLUTION,
                         help="WIDTHxHEIGHT every method sees, 'native', or 'auto' (default: "
                              "the processing size spgeo vo chooses: the input's aspect ratio "
@@ -443,23 +470,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help="ATE association tolerance (default 0.1 for frame-number "
                              "timestamps, else 0.02 s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    add_verbose_argument(parser)
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
-    from spgeo.datasets import open_dataset
+    return parser
 
+
+def run(args: argparse.Namespace) -> int:
+    """Compare the methods on ``args.dataset``; print the table, write ``--out``.
+    Returns 0, 1 when every method failed (bad input raises, see :func:`main`)."""
     kind, path = args.dataset
-    try:
-        resolution = (AUTO_RESOLUTION if args.resolution.strip().lower() == AUTO_RESOLUTION
-                      else parse_resolution(args.resolution, allow_native=True, min_size=1))
-        load_depth = any(m in ORACLE_METHODS for m in args.methods)
-        seq = open_dataset(kind, path, frames=args.frames, load_depth=load_depth)
-        config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,
-                                 progress=not args.no_progress)
-        rows = compare_vo(seq, args.methods, resolution, config)
-    except (ValueError, FileNotFoundError, OSError, TypeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    resolution = (AUTO_RESOLUTION if args.resolution.strip().lower() == AUTO_RESOLUTION
+                  else parse_resolution(args.resolution, allow_native=True, min_size=1))
+    load_depth = any(m in ORACLE_METHODS for m in args.methods)
+    seq = open_sequence(args, load_depth=load_depth)
+    config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,
+                             progress=not args.no_progress)
+    rows = compare_vo(seq, args.methods, resolution, config)
     size = compare_size(resolution, seq.camera.size)
     res_txt = "native" if size is None else f"{size[0]}x{size[1]}"
     title = (f"{getattr(seq, 'name', path)} ({kind}), frames {args.frames or 'all'}, "
@@ -470,9 +494,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             "dataset": kind, "path": str(path), "frames": args.frames,
             "resolution": res_txt, "methods": list(args.methods),
             "command": "python -m spgeo.evaluation.vo.compare " + " ".join(
-                argv if argv is not None else sys.argv[1:])})
+                getattr(args, "argv", []))})
         print(f"wrote {len(written)} files to {args.out}")
     return 0 if any(r.error is None for r in rows) else 1
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.vo.compare``: compare VO methods on a data-set
+    range; prints a markdown table, writes trajectories and ``results.json`` to
+    ``--out``.  Returns 0, 1 when every method failed, 2 for bad arguments."""
+    parser = build_parser()
+    parser.set_defaults(argv=protocol_argv(argv))      # recorded in results.json
+    return run_protocol(parser, run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -51,11 +51,12 @@ from spgeo.apps.memory import peak_rss_mb
 from spgeo.configs import apply_overrides, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_table, runner_config)
+from spgeo.evaluation.runner import protocol_argv, protocol_parser, run_protocol
 from spgeo.evaluation.shared_data import shared_data_root
 
 __all__ = ["Cell", "COLUMNS", "DEFAULT_SEVENSCENES", "parse_setting", "setting_config",
            "make_grid", "run_cell", "run_cell_subprocess", "make_jobs", "run_grid", "frontier_table",
-           "markdown_table", "write_outputs", "main"]
+           "markdown_table", "write_outputs", "build_parser", "run", "main"]
 
 #: The shared 7-Scenes sequence (:func:`spgeo.evaluation.shared_data.shared_data_root`).
 DEFAULT_SEVENSCENES = str(shared_data_root() / "7scenes_redkitchen_dev")
@@ -316,12 +317,12 @@ def write_outputs(rows: Sequence[Dict[str, object]], out: Path,
     return frontier_table(rows, prov).write(Path(out), "frontier")
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["--_cell"]:
-        return _child_main(argv[1])
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "vo_frontier"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--datasets", nargs="+", default=["7scenes", "synthetic"],
                     choices=sorted(_DEFAULT_FRAMES))
     ap.add_argument("--sevenscenes", default=DEFAULT_SEVENSCENES, metavar="PATH",
@@ -340,19 +341,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--out", default=None, help="write frontier.json/.csv/.md here")
     ap.add_argument("--no-progress", action="store_true")
     add_runner_arguments(ap)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the grid (:func:`run_grid`), print :func:`frontier_table`, one stderr line
+    per failed cell; 1 when a cell failed.  ValueError for a bad argument."""
     if args.frames is not None and args.frames < 3:
-        ap.error("--frames must be >= 3")
-    try:
-        resolutions = [parse_resolution(r) for r in args.resolutions]
-    except ValueError as exc:
-        ap.error(str(exc))
+        raise ValueError("--frames must be >= 3")
+    resolutions = [parse_resolution(r) for r in args.resolutions]
     cells = make_grid(args.datasets, args.frontends, resolutions, args.set_grid, args.seeds,
                       args.frames, args.sevenscenes)
-    try:
-        runner = runner_config(args, desc="vo_frontier")
-    except ValueError as exc:
-        ap.error(str(exc))
+    runner = runner_config(args, desc="vo_frontier")
     config = {k: getattr(args, k) for k in ("datasets", "frames", "resolutions", "frontends",
                                             "set_grid", "seeds", "sevenscenes")}
     rows = run_grid(cells, args.in_process, args.timeout, Path(args.out) if args.out else None,
@@ -363,6 +363,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(f"error: {r['dataset']} {r['frontend']} {r['resolution']} {r['setting']}: "
                   f"{r['error']}", file=sys.stderr)
     return 1 if any(r.get("error") for r in rows) else 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The protocol; ``--_cell JSON`` runs one cell (the child process of
+    :func:`run_cell_subprocess`)."""
+    argv = protocol_argv(argv)
+    if argv[:1] == ["--_cell"]:
+        return _child_main(argv[1])
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

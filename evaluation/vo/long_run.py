@@ -72,12 +72,13 @@ import numpy as np
 
 from spgeo.evaluation.jobs import (THREAD_ENV, EvalTable, Job, RunnerConfig, provenance,
                                    run_jobs, write_atomic)
+from spgeo.evaluation.runner import protocol_argv, protocol_parser, run_protocol
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.evaluation.vo.memory import palindrome
 
 __all__ = ["LongRunSequence", "SEQUENCES", "VARIANTS", "TABLE", "Reordered", "run_config",
            "run_one", "run_metrics", "end_pose_error", "scale_drift", "run_subprocess",
-           "make_jobs", "markdown", "write_outputs", "main"]
+           "make_jobs", "markdown", "write_outputs", "build_parser", "run", "main"]
 
 #: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
 SEVENSCENES_FRAMES = 300
@@ -428,9 +429,12 @@ def _names(text: str, known: Mapping[str, Any], what: str) -> List[str]:
     return names
 
 
-def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "vo_long_run"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--out", required=True, help="folder of the runs and long_run.json/.md")
     ap.add_argument("--sequences", default=",".join(SEQUENCES),
                     help="comma-separated (default %(default)s)")
@@ -442,23 +446,18 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["--_run"]:
-        return _child_main(*argv[1:5])
-    args = _parser().parse_args(argv)
-    try:
-        sequences = _names(args.sequences, SEQUENCES, "sequence")
-        variants = _names(args.variants, VARIANTS, "variant")
-        if args.frames is not None and args.frames < 5:
-            raise ValueError(f"--frames must be >= 5, got {args.frames}")
-    except ValueError as exc:
-        print(f"vo_long_run: error: {exc}", file=sys.stderr)
-        return 2
+def run(args: argparse.Namespace) -> int:
+    """Run every (sequence, variant), rewriting ``--out/long_run.json/.md`` after each;
+    print the table and one stderr line per failed run; 1 when a run failed.
+    ValueError for an unknown name or ``--frames`` < 5 (nothing written)."""
+    sequences = _names(args.sequences, SEQUENCES, "sequence")
+    variants = _names(args.variants, VARIANTS, "variant")
+    if args.frames is not None and args.frames < 5:
+        raise ValueError(f"--frames must be >= 5, got {args.frames}")
     out = Path(args.out)
     prov = provenance({"sequences": sequences, "variants": variants, "frames": args.frames,
                        "timeout": args.timeout, "variant_overrides": VARIANTS})
-    prov["argv_protocol"] = argv
+    prov["argv_protocol"] = getattr(args, "argv_protocol", [])
     done: Dict[int, Dict[str, Any]] = {}
 
     def on_row(i: int, row: Dict[str, Any]) -> None:
@@ -473,6 +472,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if r.get("error"):
             print(f"error: {r['sequence']} {r['variant']}: {r['error']}", file=sys.stderr)
     return 1 if any(r.get("error") for r in rows) else 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The protocol; ``--_run ...`` runs one (sequence, variant) (the child process of
+    :func:`run_subprocess`)."""
+    argv = protocol_argv(argv)
+    if argv[:1] == ["--_run"]:
+        return _child_main(*argv[1:5])
+    parser = build_parser()
+    parser.set_defaults(argv_protocol=argv)     # recorded in the provenance
+    return run_protocol(parser, run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -26,10 +26,13 @@ import argparse
 import json
 import logging
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Dict, Iterator, List, Optional, Sequence
 
-__all__ = ["palindrome", "synthetic_frames", "clip_frames", "measure", "growth_per_1000", "main"]
+from spgeo.evaluation.runner import protocol_parser, run_protocol
+
+__all__ = ["palindrome", "synthetic_frames", "clip_frames", "measure", "growth_per_1000",
+           "memory_report", "MemoryReport", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -110,9 +113,44 @@ def growth_per_1000(rows: Sequence[Dict[str, object]], key: str,
     return 1000.0 * (after[-1][key] - after[0][key]) / (after[-1]["frames"] - after[0]["frames"])
 
 
-def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+def memory_report(source: str, path: Optional[str], frames, n: int, every: int = 300,
+                  frontend: str = "classical", size: Optional[Sequence[int]] = None,
+                  warmup: int = 300) -> "MemoryReport":
+    """:func:`measure` over ``frames`` (``n`` of them, from ``source`` / ``path``)
+    and the growth per 1000 frames after ``warmup`` frames."""
+    rows = measure(frames, n, every, frontend, size)
+    return MemoryReport({"source": source, "path": path, "frames": n, "checkpoints": rows,
+                         "warmup": warmup,
+                         "rss_growth_mb_per_1000_frames": growth_per_1000(rows, "rss_mb", warmup),
+                         "peak_growth_mb_per_1000_frames": growth_per_1000(rows, "peak_rss_mb",
+                                                                           warmup)})
+
+
+@dataclass
+class MemoryReport:
+    """The checkpoints and growth of a run, as written to ``--out`` (``data``:
+    ``source``, ``path``, ``frames``, ``checkpoints``, ``warmup``,
+    ``rss_growth_mb_per_1000_frames``, ``peak_growth_mb_per_1000_frames``)."""
+
+    data: Dict[str, object]
+
+    def table(self) -> str:
+        """Markdown rows (frames, RSS, peak RSS in MiB) and the two growth lines."""
+        lines = ["| frames | RSS MiB | peak RSS MiB |\n|---|---|---|"]
+        for r in self.data["checkpoints"]:
+            lines.append(f"| {r['frames']} | {r['rss_mb']:.1f} | {r['peak_rss_mb']:.1f} |")
+        for key in ("rss_growth_mb_per_1000_frames", "peak_growth_mb_per_1000_frames"):
+            v = self.data[key]
+            lines.append(f"{key}: {'n/a' if v is None else f'{v:.1f}'}")
+        return "\n".join(lines)
+
+
+NAME = "vo_memory"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("source", choices=("synthetic", "7scenes", "tum", "icl", "folder"))
     ap.add_argument("path", nargs="?", help="data-set folder (not for synthetic)")
     ap.add_argument("--frames", type=int, default=None,
@@ -129,36 +167,32 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+def run(args: argparse.Namespace) -> int:
+    """Measure, print the :class:`MemoryReport` table, write ``--out``; progress is
+    logged (INFO) always."""
+    logging.basicConfig(level=logging.INFO, format="%(message)s", force=True)
     if args.source == "synthetic":
         n = args.frames or 3000
         size = tuple(args.size or (160, 120))
         frames = synthetic_frames(n, args.unique, size)
     else:
         if not args.path:
-            print(f"vo_memory: error: {args.source} needs a PATH", file=sys.stderr)
-            return 2
+            raise ValueError(f"{args.source} needs a PATH")
         n = args.frames or 1200
         size = args.size
         frames = clip_frames(args.source, args.path, args.clip, n)
-    rows = measure(frames, n, args.every, args.frontend, size)
-    out = {"source": args.source, "path": args.path, "frames": n, "checkpoints": rows,
-           "warmup": args.warmup,
-           "rss_growth_mb_per_1000_frames": growth_per_1000(rows, "rss_mb", args.warmup),
-           "peak_growth_mb_per_1000_frames": growth_per_1000(rows, "peak_rss_mb", args.warmup)}
-    print("| frames | RSS MiB | peak RSS MiB |\n|---|---|---|")
-    for r in rows:
-        print(f"| {r['frames']} | {r['rss_mb']:.1f} | {r['peak_rss_mb']:.1f} |")
-    for key in ("rss_growth_mb_per_1000_frames", "peak_growth_mb_per_1000_frames"):
-        v = out[key]
-        print(f"{key}: {'n/a' if v is None else f'{v:.1f}'}")
+    report = memory_report(args.source, args.path, frames, n, args.every, args.frontend, size,
+                           args.warmup)
+    print(report.table())
     if args.out:
         from spgeo.io.outputs import write_bytes_atomic
 
-        write_bytes_atomic(args.out, json.dumps(out, indent=1).encode("utf-8"), "--out")
+        write_bytes_atomic(args.out, json.dumps(report.data, indent=1).encode("utf-8"), "--out")
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

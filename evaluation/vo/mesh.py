@@ -32,16 +32,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, Iterator, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
+                                     run_protocol, run_vo_dataset)
+
 __all__ = ["MeshMetrics", "sample_surface", "distance_to_mesh", "mesh_metrics",
            "sim3_transform_mesh", "aligned_pose", "keyframe_rotation_errors_deg",
-           "sensor_views", "main"]
+           "sensor_views", "MeshResult", "evaluate_mesh", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -191,46 +193,60 @@ def keyframe_rotation_errors_deg(run, a) -> np.ndarray:
     return np.array(out)
 
 
-def _row(name: str, fused, vertices, ref, args) -> Dict[str, object]:
-    m = mesh_metrics(vertices, fused.triangles, ref.vertices, ref.triangles, args.threshold,
-                     args.samples)
+def _row(name: str, fused, vertices, ref, threshold: float, samples: int) -> Dict[str, object]:
+    m = mesh_metrics(vertices, fused.triangles, ref.vertices, ref.triangles, threshold, samples)
     return {"mesh": name, **m.to_dict(), "n_views": fused.n_views,
             "n_triangles": len(fused.triangles)}
 
 
-def _evaluate(args) -> Dict[str, object]:
-    """Run the VO, fuse, build the reference and measure (the protocol)."""
-    from spgeo.apps.vo_run import VORunConfig, run_dataset
-    from spgeo.configs import apply_overrides, nest, parse_assignments
-    from spgeo.datasets import open_dataset
+@dataclass
+class MeshResult:
+    """:func:`evaluate_mesh`'s measurements, as written to ``results.json``
+    (``data``: ``rows`` (one per mesh), ``keyframe_rotation_error_deg``,
+    ``ate_rmse_m``, ``sim3_scale``, ``vo``, ``reference``, ``n_frames``,
+    ``n_keyframes``, ``fps``)."""
+
+    data: Dict[str, object]
+
+    def table(self) -> str:
+        """Markdown table of the three meshes and a summary line."""
+        return _table(self.data)
+
+
+def evaluate_mesh(run, frames, threshold: float = 0.05, samples: int = 200_000,
+                  gt_stride: int = 1, out: Optional[Path] = None) -> MeshResult:
+    """Fuse the VO ``run`` (:class:`spgeo.apps.vo_run.VORun`), build the sensor-depth
+    reference from its input ``frames`` (every ``gt_stride``-th), and measure the
+    three meshes (module docstring; ``threshold`` metres, ``samples`` points per
+    mesh); ``out``: write the aligned VO mesh and the reference there.
+
+    Raises:
+        ValueError: the run has no per-frame ATE alignment."""
     from spgeo.io.fusion import FusionConfig, fuse_views
 
-    kind, path = args.dataset
-    over = nest(parse_assignments(args.set, strict=True))
-    cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
-                          {"odometry": over} if over else {})
-    run = run_dataset(kind, path, args.frames, cfg)
     ate = run.ate()
     if ate is None or ate.get("per-frame") is None:
         raise ValueError("no ATE alignment (no ground truth or too few poses)")
     a = ate["per-frame"]
-    frames = open_dataset(kind, path, frames=args.frames)
-    ref = fuse_views(sensor_views(frames, args.gt_stride), FusionConfig())
+    ref = fuse_views(sensor_views(frames, gt_stride), FusionConfig())
     est = run.fuse()
     v = sim3_transform_mesh(est.vertices, a.scale, a.rotation, a.translation)
     pose_only = fuse_views(_keyframe_views(run, frames, a, "pose"))
     depth_only = fuse_views(_keyframe_views(run, frames, a, "depth"))
-    rows = [_row("VO depth at VO poses (the fused map)", est, v, ref, args),
-            _row("sensor depth at VO poses", pose_only, pose_only.vertices, ref, args),
-            _row("VO depth at ground-truth poses", depth_only, depth_only.vertices, ref, args)]
-    if args.out:
-        _write_meshes(Path(args.out), est, v, ref)
+    rows = [_row("VO depth at VO poses (the fused map)", est, v, ref, threshold, samples),
+            _row("sensor depth at VO poses", pose_only, pose_only.vertices, ref, threshold,
+                 samples),
+            _row("VO depth at ground-truth poses", depth_only, depth_only.vertices, ref,
+                 threshold, samples)]
+    if out:
+        _write_meshes(Path(out), est, v, ref)
     rot = keyframe_rotation_errors_deg(run, a)
-    return {"rows": rows, "keyframe_rotation_error_deg": {
-                "mean": float(rot.mean()), "min": float(rot.min()), "max": float(rot.max())},
-            "ate_rmse_m": a.rmse, "sim3_scale": a.scale, "vo": est.summary(),
-            "reference": ref.summary(), "n_frames": run.n_frames,
-            "n_keyframes": int(run.result().is_keyframe.sum()), "fps": run.fps}
+    return MeshResult({"rows": rows, "keyframe_rotation_error_deg": {
+                           "mean": float(rot.mean()), "min": float(rot.min()),
+                           "max": float(rot.max())},
+                       "ate_rmse_m": a.rmse, "sim3_scale": a.scale, "vo": est.summary(),
+                       "reference": ref.summary(), "n_frames": run.n_frames,
+                       "n_keyframes": int(run.result().is_keyframe.sum()), "fps": run.fps})
 
 
 def _write_meshes(out: Path, est, aligned_vertices: np.ndarray, ref) -> None:
@@ -266,36 +282,39 @@ def _table(res: Dict[str, object]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    from spgeo.apps.args import add_dataset_arguments, add_verbose_argument, setup_logging
+NAME = "vo_mesh"
 
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_dataset_arguments(ap)
-    ap.add_argument("--frontend", default="classical")
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__)
+    add_vo_arguments(ap)
     ap.add_argument("--threshold", type=float, default=0.05,
                     help="completeness threshold in metres (default 0.05)")
     ap.add_argument("--samples", type=int, default=200_000,
                     help="points sampled on each mesh (default 200000)")
     ap.add_argument("--gt-stride", type=int, default=1,
                     help="fuse every N-th sensor depth map into the reference (default 1)")
-    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
-                    help="OdometryConfig overrides (Python literals)")
     ap.add_argument("--out", default=None,
                     help="folder for results.json and the two meshes (aligned VO, reference)")
-    add_verbose_argument(ap)
-    args = ap.parse_args(argv)
-    setup_logging(args.verbose)
-    try:
-        res = _evaluate(args)
-    except (ValueError, TypeError, OSError) as exc:
-        print(f"vo_mesh: error: {exc}", file=sys.stderr)
-        return 2
-    print(_table(res))
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the VO on ``args.dataset``, :func:`evaluate_mesh`, print the table, write
+    ``--out/results.json``."""
+    vo_run = run_vo_dataset(args)
+    res = evaluate_mesh(vo_run, open_sequence(args, load_depth=None), args.threshold,
+                        args.samples, args.gt_stride, args.out)
+    print(res.table())
     if args.out:
-        (Path(args.out) / "results.json").write_text(json.dumps(res, indent=1) + "\n",
+        (Path(args.out) / "results.json").write_text(json.dumps(res.data, indent=1) + "\n",
                                                      encoding="utf-8")
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

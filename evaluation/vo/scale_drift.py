@@ -16,12 +16,16 @@ depths of the map disagree).
 from __future__ import annotations
 
 import argparse
-import sys
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["keyframe_depth_ratios", "keyframe_baseline_ratios", "main"]
+from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
+                                     run_protocol, run_vo_dataset)
+
+__all__ = ["keyframe_depth_ratios", "keyframe_baseline_ratios", "ScaleDriftResult", "scale_drift",
+           "build_parser", "run", "main"]
 
 
 def keyframe_depth_ratios(run, frames) -> List[Tuple[int, float]]:
@@ -63,41 +67,55 @@ def keyframe_baseline_ratios(run) -> Dict[int, float]:
     return out
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    from spgeo.apps.vo_run import VORunConfig, run_dataset
-    from spgeo.apps.args import add_dataset_arguments
-    from spgeo.configs import parse_assignments, nest, apply_overrides
-    from spgeo.datasets import open_dataset
+@dataclass
+class ScaleDriftResult:
+    """:func:`scale_drift` of a run: ``ratios`` (:func:`keyframe_depth_ratios`) and
+    ``baselines`` (:func:`keyframe_baseline_ratios`)."""
 
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_dataset_arguments(ap)
-    ap.add_argument("--frontend", default="classical")
-    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
-                    help="OdometryConfig overrides (Python literals)")
-    args = ap.parse_args(argv)
-    kind, path = args.dataset
-    try:
-        over: Dict[str, object] = nest(parse_assignments(args.set, strict=True))
-        cfg = apply_overrides(VORunConfig(frontend=args.frontend, progress=False),
-                              {"odometry": over} if over else {})
-        run = run_dataset(kind, path, args.frames, cfg)
-        frames = open_dataset(kind, path, frames=args.frames)
-    except (ValueError, TypeError, OSError) as exc:
-        print(f"vo_scale_drift: error: {exc}", file=sys.stderr)
-        return 2
+    ratios: List[Tuple[int, float]]
+    baselines: Dict[int, float]
+
+    def table(self) -> str:
+        """Markdown: one line per keyframe (frame, ratio, ratio relative to keyframe 0's,
+        ground-truth / estimated baseline or ``-``)."""
+        r0 = self.ratios[0][1]
+        lines = ["| frame | sensor / keyframe depth | relative to keyframe 0 | "
+                 "GT / estimated baseline |", "|---|---|---|---|"]
+        for f, r in self.ratios:
+            b = self.baselines.get(f)
+            lines.append(f"| {f} | {r:.3f} | {r / r0:.3f} | {'-' if b is None else f'{b:.3f}'} |")
+        return "\n".join(lines)
+
+
+def scale_drift(run, frames) -> ScaleDriftResult:
+    """The keyframe depth and baseline ratios of ``run`` on ``frames`` (see
+    :func:`keyframe_depth_ratios`).  Raises ValueError when no keyframe has sensor depth."""
     ratios = keyframe_depth_ratios(run, frames)
     if not ratios:
-        print("vo_scale_drift: error: no keyframe with sensor depth", file=sys.stderr)
-        return 2
-    r0 = ratios[0][1]
-    baselines = keyframe_baseline_ratios(run)
-    print("| frame | sensor / keyframe depth | relative to keyframe 0 | GT / estimated baseline |")
-    print("|---|---|---|---|")
-    for f, r in ratios:
-        b = baselines.get(f)
-        print(f"| {f} | {r:.3f} | {r / r0:.3f} | {'-' if b is None else f'{b:.3f}'} |")
+        raise ValueError("no keyframe with sensor depth")
+    return ScaleDriftResult(ratios, keyframe_baseline_ratios(run))
+
+
+NAME = "vo_scale_drift"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__)
+    add_vo_arguments(ap)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the VO on ``args.dataset`` and print the :class:`ScaleDriftResult` table."""
+    vo_run = run_vo_dataset(args)
+    frames = open_sequence(args, load_depth=None)
+    print(scale_drift(vo_run, frames).table())
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -45,10 +45,11 @@ from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.configs import apply_overrides, nest, parse_assignments
 from spgeo.evaluation.jobs import (EvalTable, Job, add_runner_arguments, provenance,
                                     run_table, runner_config)
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.vo import Odometry, OdometryConfig
 
 __all__ = ["SyntheticVOConfig", "synthetic_sequence", "run_synthetic_vo", "synthetic_run_row",
-           "make_jobs", "TABLE_COLUMNS", "main"]
+           "make_jobs", "TABLE_COLUMNS", "build_parser", "run", "main"]
 
 
 @dataclass(frozen=True)
@@ -198,9 +199,12 @@ def make_jobs(seeds: Sequence[int], runs: Sequence[str], n_frames: int = 150,
             for seed in seeds for run in runs]
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "vo_synthetic"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (module docstring)."""
+    ap = protocol_parser(None, __doc__, dataset=False, verbose=False)
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--runs", nargs="+", default=["depth", "classical", "classical:planar"],
@@ -220,25 +224,34 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "trajectories here")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_runner_arguments(ap)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _options(args: argparse.Namespace):
+    """``(overrides, rotation, size, runner)`` of the command line; ValueError
+    naming the bad option."""
     try:
         overrides = parse_overrides(args.set)
         odometry_config(overrides)
     except (ValueError, TypeError, SyntaxError) as exc:
-        ap.error(f"--set: {exc}")
+        raise ValueError(f"--set: {exc}") from exc
     rot = None if args.rotation == "none" else tuple(int(x) for x in args.rotation.split(":"))
     try:
         size = tuple(int(x) for x in args.size.lower().split("x"))
         if len(size) != 2 or min(size) < 1:
             raise ValueError
     except ValueError:
-        ap.error(f"--size: expected WxH, got {args.size!r}")
-    try:
-        runner = runner_config(args, desc="vo_synthetic")
-    except ValueError as exc:
-        ap.error(str(exc))
+        raise ValueError(f"--size: expected WxH, got {args.size!r}") from None
+    runner = runner_config(args, desc="vo_synthetic")
     if args.forward is not None and not args.forward > 0:
-        ap.error(f"--forward: expected a step > 0 metres, got {args.forward}")
+        raise ValueError(f"--forward: expected a step > 0 metres, got {args.forward}")
+    return overrides, rot, size, runner
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the (seed, run) jobs, print the table (means per run over the seeds) and
+    one stderr line per failed job; 1 when a job failed."""
+    overrides, rot, size, runner = _options(args)
     prov = provenance({"frames": args.frames, "seeds": args.seeds, "runs": args.runs,
                        "size": list(size), "rotation": rot, "forward": args.forward,
                        "overrides": overrides}, runner)
@@ -252,6 +265,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     for r in result.failed:
         print(f"error: {r['job']}: {r['error']}", file=sys.stderr)
     return 1 if result.failed else 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

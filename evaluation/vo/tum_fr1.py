@@ -46,19 +46,20 @@ from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.apps.args import add_verbose_argument, setup_logging
 from spgeo.frame import Frame, resize_frame
 from spgeo.jsonio import json_default
 
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_jobs, runner_config)
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 
 from .compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
                       write_results)
 
 __all__ = ["FR1_SEQUENCES", "PAPER_MEAN_ATE_M", "FR1_METHODS", "FR1Config", "FR1SequenceResult",
            "FR1Report", "sequence_folder", "crop_camera", "crop_frame", "protocol_frames",
-           "run_fr1_sequence", "run_fr1", "fr1_table", "format_fr1_table", "main"]
+           "run_fr1_sequence", "run_fr1", "fr1_table", "format_fr1_table", "build_parser", "run",
+           "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -405,14 +406,15 @@ def format_fr1_table(report: FR1Report) -> str:
 
 
 # ===================================================================== CLI
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.vo.tum_fr1``: run the fr1 protocol and print the
-    table.  Returns 0 when at least one sequence was evaluated, 1 when all were
-    skipped, 2 for bad arguments."""
-    parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.vo.tum_fr1",
-        description="TUM RGB-D fr1 monocular VO protocol (undistort, crop 16/32 px, "
-                    "160x120, RGB only): per-frame Sim(3) ATE per sequence and mean.")
+NAME = "tum_fr1"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m spgeo.evaluation.vo.tum_fr1``."""
+    parser = protocol_parser(
+        "python -m spgeo.evaluation.vo.tum_fr1",
+        "TUM RGB-D fr1 monocular VO protocol (undistort, crop 16/32 px, "
+        "160x120, RGB only): per-frame Sim(3) ATE per sequence and mean.", dataset=False)
     parser.add_argument("--root", required=True,
                         help="folder with rgbd_dataset_freiburg1_<name> sequence folders")
     parser.add_argument("--sequences", nargs="+", default=list(FR1_SEQUENCES),
@@ -424,22 +426,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help="first N frames per sequence only (default: all = the protocol)")
     parser.add_argument("--out", default=None, help="write trajectories and JSON here")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    add_verbose_argument(parser)
     add_runner_arguments(parser)
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
-    try:
-        runner = runner_config(args, desc="tum_fr1")
-        # one bar across the sequences when they run on Ray, else one per method
-        config = FR1Config(methods=tuple(args.methods), max_frames=args.max_frames,
-                           compare=VOCompareConfig(progress=runner.progress
-                                                   and runner.backend == "local"))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the fr1 protocol (:func:`run_fr1`) and print :func:`format_fr1_table`.
+    Returns 0 when at least one sequence was evaluated, 1 when all were skipped."""
+    runner = runner_config(args, desc="tum_fr1")
+    # one bar across the sequences when they run on Ray, else one per method
+    config = FR1Config(methods=tuple(args.methods), max_frames=args.max_frames,
+                       compare=VOCompareConfig(progress=runner.progress
+                                               and runner.backend == "local"))
     if not Path(args.root).is_dir():
-        print(f"error: root folder not found: {args.root}", file=sys.stderr)
-        return 2
+        raise FileNotFoundError(f"root folder not found: {args.root}")
     report = run_fr1(args.root, args.sequences, config, out_dir=args.out,
                      runner=dataclasses.replace(runner, progress=runner.progress
                                                 and runner.backend != "local"))
@@ -448,6 +448,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"wrote {Path(args.out) / 'fr1_report.json'} and "
               f"{Path(args.out) / 'fr1_table.md'} (.json, .csv)")
     return 0 if report.evaluated else 1
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.vo.tum_fr1``: run the fr1 protocol and print the
+    table.  Returns 0 when at least one sequence was evaluated, 1 when all were
+    skipped, 2 for bad arguments."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover
