@@ -20,7 +20,7 @@ Prior sigmas of the keyframe graphs (module constants: nothing overrides them):
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -35,10 +35,9 @@ from ..primitive_models import shape_values
 from ..primitives import PrimitiveSet
 from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 
-if TYPE_CHECKING:
-    from ..sfm.config import SfMConfig
-    from ..vo.config import OdometryConfig
-    from ..vo.mapping import MapKeyframe
+# OdometryConfig, MapKeyframe and SfMConfig in the annotations are the VO's and the SfM's
+# (spgeo.vo.config, spgeo.vo.mapping, spgeo.sfm.config): not imported, as those packages
+# import this module (no import circle, not even a type-only one: tests/test_layering.py)
 
 __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam_error_line",
            "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
