@@ -75,3 +75,17 @@ def run_protocol(parser: argparse.ArgumentParser,
     except BAD_INPUT as exc:
         print(f"{name or parser.prog}: error: {exc}", file=sys.stderr)
         return 2
+
+
+__all__ += ["write_json"]
+
+
+def write_json(path, payload, indent: int = 2) -> None:
+    """Write ``payload`` to ``path`` as UTF-8 JSON (``indent``; numpy values through
+    :func:`spgeo.jsonio.json_default`)."""
+    import json
+
+    from spgeo.jsonio import json_default
+
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(payload, fh, indent=indent, default=json_default)

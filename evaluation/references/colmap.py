@@ -24,7 +24,6 @@ SIFT and brute-force matching (shared helpers: :mod:`.colmap_common`).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -38,10 +37,9 @@ import numpy as np
 from spgeo.camera import PinholeCamera
 from spgeo.apps.args import add_dataset_arguments, add_verbose_argument
 from spgeo.geometry import invert_pose, relative_pose
-from spgeo.jsonio import json_default
 
 from spgeo.evaluation.pose_compare import Estimator, compare_on_dataset, format_comparison
-from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 
 from .colmap_common import (ColmapOptions, ImageInput, cam_from_world, extract_sift,
                             incremental_mapping, load_images, mapper_options, pose_from_rigid,
@@ -548,8 +546,7 @@ def run(args: argparse.Namespace) -> int:
         print(out.status_line())
     print(out.table())
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(out.to_dict(), fh, indent=2, default=json_default)
+        write_json(args.json, out.to_dict())
     res = out.result
     return 0 if res is not None and res.status != "failed" else 1
 

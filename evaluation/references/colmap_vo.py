@@ -24,7 +24,6 @@ Deterministic: one thread, fixed seeds, CPU SIFT, brute-force matching
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -40,12 +39,11 @@ from spgeo.camera import PinholeCamera
 from spgeo.apps.args import add_verbose_argument, parse_resolution
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
-from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
 from spgeo.evaluation.trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
                                          default_max_time_diff)
-from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, incremental_mapping,
                             load_images, mapper_options, quiet, sift_matching_options,
                             verification_options, workspace)
@@ -499,8 +497,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         res.save_tum(out / "trajectory.txt")
-        with open(out / "report.json", "w", encoding="utf-8") as fh:
-            json.dump(report, fh, indent=2, default=json_default)
+        write_json(out / "report.json", report)
         print(f"wrote {out / 'trajectory.txt'}")
     return 0 if res.num_registered else 1
 

@@ -51,7 +51,6 @@ Command line::
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -66,11 +65,10 @@ from spgeo.camera import PinholeCamera
 from spgeo.apps.args import add_verbose_argument, parse_resolution
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
-from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
 from spgeo.evaluation.trajectory import default_max_time_diff
-from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 
 from .feature_vo_frontend import (FeatureGeometry, Features, FeatureVOConfig,
                                   fractional_velocity, gray_u8)
@@ -468,8 +466,7 @@ def run(args: argparse.Namespace) -> int:
     ate = _ate_report(result, frames, args.max_time_diff)
     if ate is not None:
         report["ate"] = ate
-    with open(out / "report.json", "w", encoding="utf-8") as fh:
-        json.dump(report, fh, indent=2, default=json_default)
+    write_json(out / "report.json", report)
     print(f"wrote {out / 'trajectory.txt'}")
     return 0
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -37,12 +36,11 @@ from spgeo.datasets.scannet import (ScanNetConfig, ScanNetScene, list_scenes,
                                     write_synthetic_scannet)
 from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
-from spgeo.jsonio import json_default
 from spgeo.sfm import SfMConfig, few_view_sfm
 
 from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.pose_metrics import relative_pose_errors
-from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
 
 __all__ = [
     "ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
@@ -493,8 +491,7 @@ def run(args: argparse.Namespace) -> int:
     res = run_scannet_sfm(args.root, args.scenes, cfg)
     print(res.table())
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(res.to_dict(), fh, indent=1, default=json_default)
+        write_json(args.json, res.to_dict(), indent=1)
     return 0
 
 
