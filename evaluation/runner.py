@@ -23,7 +23,8 @@ from typing import Callable, Optional, Sequence
 
 from spgeo.apps.args import add_dataset_arguments, add_verbose_argument, setup_logging
 
-__all__ = ["protocol_parser", "open_sequence", "run_protocol", "BAD_INPUT"]
+__all__ = ["protocol_parser", "open_sequence", "run_protocol", "BAD_INPUT", "protocol_argv",
+           "add_vo_arguments", "run_vo_dataset", "write_json"]
 
 log = logging.getLogger(__name__)
 
@@ -88,9 +89,6 @@ def protocol_argv(argv: Optional[Sequence[str]] = None) -> list:
     return list(sys.argv[1:] if argv is None else argv)
 
 
-__all__ += ["protocol_argv"]
-
-
 def add_vo_arguments(parser: argparse.ArgumentParser) -> None:
     """``--frontend`` (default ``classical``) and ``--set FIELD=VALUE ...``
     (:class:`~spgeo.vo.OdometryConfig` overrides) of a protocol that runs the VO on
@@ -117,4 +115,12 @@ def run_vo_dataset(args: argparse.Namespace):
     return run_dataset(kind, path, args.frames, cfg)
 
 
-__all__ += ["add_vo_arguments", "run_vo_dataset"]
+def write_json(path, payload, indent: int = 2) -> None:
+    """Write ``payload`` to ``path`` as UTF-8 JSON (``indent``; numpy values through
+    :func:`spgeo.jsonio.json_default`)."""
+    import json
+
+    from spgeo.jsonio import json_default
+
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(payload, fh, indent=indent, default=json_default)

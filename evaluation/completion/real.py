@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,14 +55,16 @@ import numpy as np
 from spgeo.completion import CompletionConfig, complete_depth, working_size_for
 
 from spgeo.evaluation.jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.references.depth_completion import (colorization_completion,
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
 
 from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
 
-__all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames", "RealCompletionResult", "run_dataset",
-           "run_completion_real", "main"]
+__all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames",
+           "RealCompletionResult", "run_dataset", "run_completion_real", "build_parser", "run",
+           "main"]
 
 log = logging.getLogger(__name__)
 
@@ -329,9 +330,13 @@ def run_completion_real(root: Optional[Path] = None, datasets: Sequence[str] = t
     return out
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description="spgeo depth completion vs baselines on the real "
-                                             "samples (7-Scenes, TUM, ICL-NUIM)")
+NAME = "completion_real"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, "spgeo depth completion vs baselines on the real "
+                               "samples (7-Scenes, TUM, ICL-NUIM)", dataset=False)
     ap.add_argument("--root", default=None, help=f"data root (default {default_root()})")
     ap.add_argument("--datasets", default=",".join(DATASETS),
                     help="comma-separated subset of " + ",".join(DATASETS))
@@ -353,37 +358,48 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--no-choose", action="store_true",
                     help="leave out the held-out-choice rows")
     add_runner_arguments(ap)
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
-    root = Path(args.root) if args.root else default_root()
-    if not root.is_dir():
-        print(f"completion_real: error: data root not found at {root} (give --root)",
-              file=sys.stderr)
-        return 2
-    names = [d for d in args.datasets.split(",") if d]
-    if args.depth_model:
+    return ap
+
+
+def _check_depth_model(depth_model: Optional[str]) -> None:
+    """Load ``--depth-model`` once (when given) so that a missing or misfit model is one
+    ``ValueError`` naming the option, not one failed job per data set."""
+    if depth_model:
         from spgeo.frontend import metric_depth_from_cache
 
         try:
-            metric_depth_from_cache(args.depth_model)
+            metric_depth_from_cache(depth_model)
         except (ValueError, FileNotFoundError) as exc:
-            print(f"completion_real: error: --depth-model: {exc}", file=sys.stderr)
-            return 2
+            raise ValueError(f"--depth-model: {exc}") from exc
+
+
+def _completion_config(assignments: Sequence[str]) -> CompletionConfig:
+    """:class:`CompletionConfig` with the ``--set FIELD=VALUE`` overrides; a bad one is a
+    ``ValueError`` naming the option."""
+    try:
+        from spgeo.configs import apply_overrides, nest, parse_assignments
+
+        over = nest(parse_assignments(assignments, strict=True))
+        return apply_overrides(CompletionConfig(), over) if over else CompletionConfig()
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"--set: {exc}") from exc
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_completion_real`, print the tables, write ``--out``."""
+    root = Path(args.root) if args.root else default_root()
+    if not root.is_dir():
+        raise FileNotFoundError(f"data root not found at {root} (give --root)")
+    names = [d for d in args.datasets.split(",") if d]
+    _check_depth_model(args.depth_model)
     fes = [f for f in args.frontends.split(",") if f] if args.frontends else None
     bls = [b for b in args.baselines.split(",") if b]
     try:
         runner = runner_config(args, desc="completion_real", progress=args.workers > 0
                                or args.address is not None)
     except ValueError as exc:
-        ap.error(str(exc))
-    try:
-        from spgeo.configs import apply_overrides, nest, parse_assignments
-
-        over = nest(parse_assignments(args.set, strict=True))
-        config = apply_overrides(CompletionConfig(), over) if over else CompletionConfig()
-    except (ValueError, TypeError) as exc:
-        print(f"completion_real: error: --set: {exc}", file=sys.stderr)
-        return 2
+        build_parser().error(str(exc))
+    config = _completion_config(args.set)
     res = run_completion_real(root, names, runner, frames=args.frames, n_points=args.points,
                               seed=args.seed, frontends=fes, baselines=bls, config=config,
                               choose=not args.no_choose, depth_model=args.depth_model,
@@ -397,6 +413,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         (out / "completion_real.json").write_text(
             json.dumps({k: r.to_dict() for k, r in res.items()}, indent=1), encoding="utf-8")
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Depth completion on the real samples (module docstring): print the tables,
+    write ``--out``; exit 2 for a missing data root, model or bad ``--set``."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

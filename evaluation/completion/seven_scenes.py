@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,10 +54,13 @@ from spgeo.evaluation.references.depth_completion import (IPBasicConfig, coloriz
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
 
+from spgeo.evaluation.runner import protocol_parser, run_protocol
+
 from .real import sparse_frames
 from .void import METRIC_KEYS, void_metrics
 
-__all__ = ["default_path", "SevenScenesCompletionResult", "run_7scenes", "main"]
+__all__ = ["default_path", "SevenScenesCompletionResult", "run_7scenes", "build_parser", "run",
+           "main"]
 
 log = logging.getLogger(__name__)
 
@@ -164,24 +166,35 @@ def run_7scenes(path=None, frames: str = "0:300:10", n_points: int = 150, seed: 
     return SevenScenesCompletionResult(names, per, secs, not_run, n_points)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description="spgeo depth completion vs baselines on 7-Scenes")
+NAME = "completion_7scenes"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, "spgeo depth completion vs baselines on 7-Scenes", dataset=False)
     ap.add_argument("path", nargs="?", default=None,
                     help=f"7-Scenes sequence folder (default {default_path()})")
     ap.add_argument("--frames", default="0:300:10", help="frame selection A:B:S (default 0:300:10)")
     ap.add_argument("--points", type=int, default=150, help="sparse points per frame (default 150)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-onnx", action="store_true", help="do not try the ONNX front-end")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_7scenes` and print its table."""
     path = Path(args.path) if args.path else default_path()
     if not path.is_dir():
-        print(f"completion_7scenes: error: 7-Scenes sample not found at {path} (give PATH)",
-              file=sys.stderr)
-        return 2
+        raise FileNotFoundError(f"7-Scenes sample not found at {path} (give PATH)")
     res = run_7scenes(path, args.frames, args.points, args.seed, with_onnx=not args.no_onnx)
     print(res.table())
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Depth completion on 7-Scenes (module docstring): print the table; exit 2 when
+    the data are missing."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -13,13 +13,15 @@ mean absolute error (mm) of both methods, pooled over the frames.
 from __future__ import annotations
 
 import argparse
-import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, Optional, Sequence
 
 import numpy as np
 
-__all__ = ["STRATA", "strata_errors", "main"]
+from spgeo.evaluation.runner import protocol_parser, run_protocol
+
+__all__ = ["STRATA", "strata_errors", "StrataResult", "run_strata", "build_parser", "run", "main"]
 
 #: (label, lowest point count, highest + 1); "no primitive" is -1
 STRATA = (("no primitive", -1, 0), ("0 points", 0, 1), ("1-2 points", 1, 3),
@@ -66,25 +68,63 @@ def strata_errors(name: str, frontend: str = "classical", root: Optional[Path] =
                   "linear_mm": float(1e3 * v[1] / max(v[2], 1.0))} for lab, v in sums.items()}
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+@dataclass
+class StrataResult:
+    """:func:`strata_errors` of several data sets with one front-end.
+
+    Attributes:
+        frontend: the front-end name.
+        rows: data-set name -> :func:`strata_errors`' dict.
+    """
+
+    frontend: str
+    rows: Dict[str, Dict[str, Dict[str, float]]]
+
+    def table(self) -> str:
+        """Markdown: per data set and stratum the pixel fraction and both MAEs (mm)."""
+        lines = [f"| data set | stratum | pixels | spgeo {self.frontend} MAE mm | linear MAE mm |",
+                 "|---|---|---|---|---|"]
+        for name, rows in self.rows.items():
+            for lab, r in rows.items():
+                lines.append(f"| {name} | {lab} | {100 * r['fraction']:.0f} % | "
+                             f"{r['spgeo_mm']:.1f} | {r['linear_mm']:.1f} |")
+        return "\n".join(lines)
+
+
+def run_strata(datasets: Sequence[str], frontend: str = "classical",
+               root: Optional[Path] = None) -> StrataResult:
+    """:func:`strata_errors` of each data set; raises as it does (an unknown front-end
+    name is a ``ValueError``)."""
+    rows: Dict[str, Dict[str, Dict[str, float]]] = {}
+    for name in datasets:
+        try:
+            rows[name] = strata_errors(name, frontend, root)
+        except KeyError as exc:
+            raise ValueError(str(exc)) from exc
+    return StrataResult(frontend, rows)
+
+
+NAME = "completion_strata"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, __doc__, dataset=False)
     ap.add_argument("--datasets", nargs="+", default=["7scenes", "tum", "icl"])
     ap.add_argument("--frontend", default="classical")
     ap.add_argument("--root", type=Path, default=None)
-    args = ap.parse_args(argv)
-    print(f"| data set | stratum | pixels | spgeo {args.frontend} MAE mm | linear MAE mm |")
-    print("|---|---|---|---|---|")
-    for name in args.datasets:
-        try:
-            rows = strata_errors(name, args.frontend, args.root)
-        except (FileNotFoundError, ValueError, KeyError) as exc:
-            print(f"completion_strata: error: {exc}", file=sys.stderr)
-            return 2
-        for lab, r in rows.items():
-            print(f"| {name} | {lab} | {100 * r['fraction']:.0f} % | {r['spgeo_mm']:.1f} | "
-                  f"{r['linear_mm']:.1f} |")
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_strata` and print its table."""
+    print(run_strata(args.datasets, args.frontend, args.root).table())
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The strata table (module docstring); exit 2 for a missing data set."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ result on VOID-150 is :data:`PAPER_VOID150`.
 """
 from __future__ import annotations
 
+import argparse
 import logging
 import time
 from dataclasses import dataclass
@@ -29,13 +30,14 @@ from spgeo.datasets.void import (VOID_LIST_KINDS, VOID_SPLITS, VOIDDataset, VOID
 from spgeo.images import to_float_image, to_gray
 
 from spgeo.evaluation.metrics import depth_metrics
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
                                                           linear_interpolation_completion)
 
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
     "write_void_depth", "void_metrics", "VOIDResult", "run_void", "keypoint_sparse_depth",
-    "write_synthetic_void", "METHOD_NAMES", "make_method",
+    "write_synthetic_void", "METHOD_NAMES", "make_method", "build_parser", "run", "main",
 ]
 
 log = logging.getLogger(__name__)
@@ -333,23 +335,33 @@ def write_synthetic_void(root: PathLike, splits: Sequence[Union[str, int]] = ("1
 
 
 # ----------------------------------------------------------------- script
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.completion.void VOID_RELEASE [--split 150] [--max-images N]
-    [--methods spgeo linear ip_basic]``: print the protocol table."""
-    import argparse
+NAME = "void"
 
-    ap = argparse.ArgumentParser(description="VOID depth-completion protocol")
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, "VOID depth-completion protocol", dataset=False)
     ap.add_argument("root", help="void_release folder (or void_<split>)")
     ap.add_argument("--split", default="150", choices=VOID_SPLITS)
     ap.add_argument("--subset", default="test", choices=("test", "train"))
     ap.add_argument("--max-images", type=int, default=None)
     ap.add_argument("--methods", nargs="+", default=["spgeo", "linear", "ip_basic"],
                     choices=METHOD_NAMES)
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_void` and print its table."""
     res = run_void(args.root, args.split, args.methods, args.max_images, args.subset)
     print(res.table())
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.completion.void VOID_RELEASE [--split 150] [--max-images N]
+    [--methods spgeo linear ip_basic]``: print the protocol table (exit 2 for a
+    missing or malformed data set)."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,14 +20,17 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 
 from spgeo.frontend.classical import ClassicalSegmenter
 from spgeo.frontend.depth_normals import DepthNormalEstimator
 from spgeo.frontend.manhattan import ManhattanNormals
+
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 
 log = logging.getLogger(__name__)
 
@@ -84,8 +87,35 @@ def _real_frames(step: int, root: Optional[Path] = None):
         yield name, [ds[i] for i in range(len(ds))]
 
 
+@dataclass
+class ManhattanNormalsResult:
+    """Output of :func:`evaluate`.
+
+    Attributes:
+        rows: Markdown table rows, one per data set (or synthetic surface type).
+        ratio: median time of the VP normals / median time of
+            ``ClassicalSegmenter().segment`` on the same images.
+        ms_manhattan, ms_segment: those median times in milliseconds.
+    """
+
+    rows: List[str]
+    ratio: float
+    ms_manhattan: float
+    ms_segment: float
+
+    def table(self) -> str:
+        """The Markdown table and the timing line."""
+        return "\n".join([
+            "| data | coverage [%] | median err VP [deg] | median err fronto-parallel, same "
+            "pixels [deg] | VP err < 15 deg [%] |",
+            "|---|---:|---:|---:|---:|",
+            "\n".join(self.rows),
+            f"time: VP normals {self.ms_manhattan:.1f} ms = {self.ratio:.2f} x "
+            f"ClassicalSegmenter.segment ({self.ms_segment:.1f} ms), median per image"])
+
+
 def evaluate(step: int = 30, width: int = 320, synthetic_seeds: Sequence[int] = (0, 1, 2),
-             root: Optional[Path] = None) -> Dict[str, object]:
+             root: Optional[Path] = None) -> ManhattanNormalsResult:
     """Run the evaluation; returns the table rows and the timing ratio."""
     from spgeo.frame import resize_frame
     from spgeo.frontend.manhattan import SharedSegmenter
@@ -141,27 +171,32 @@ def evaluate(step: int = 30, width: int = 320, synthetic_seeds: Sequence[int] = 
             a.add(est.normals, est.known, ref)
         rows.append(a.row(f"{name} ({len(frames)} frames)"))
     ratio = float(np.median(t_mh) / np.median(t_seg))
-    return {"rows": rows, "ratio": ratio, "ms_manhattan": 1e3 * float(np.median(t_mh)),
-            "ms_segment": 1e3 * float(np.median(t_seg))}
+    return ManhattanNormalsResult(rows, ratio, 1e3 * float(np.median(t_mh)),
+                                  1e3 * float(np.median(t_seg)))
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Angular error and coverage of the vanishing-point normals (synthetic and real frames)."""
-    ap = argparse.ArgumentParser(description=main.__doc__)
+NAME = "manhattan_normals"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, main.__doc__, dataset=False)
     ap.add_argument("--step", type=int, default=30, help="7-Scenes frame step (default 30)")
     ap.add_argument("--width", type=int, default=320, help="working width (default 320)")
     ap.add_argument("--root", default=None,
                     help="shared data folder (default $SPGEO_SHARED_DATA or ../shared/data)")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
-    res = evaluate(args.step, args.width, root=args.root)
-    print("| data | coverage [%] | median err VP [deg] | median err fronto-parallel, same "
-          "pixels [deg] | VP err < 15 deg [%] |")
-    print("|---|---:|---:|---:|---:|")
-    print("\n".join(res["rows"]))
-    print(f"time: VP normals {res['ms_manhattan']:.1f} ms = {res['ratio']:.2f} x "
-          f"ClassicalSegmenter.segment ({res['ms_segment']:.1f} ms), median per image")
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`evaluate` and print its table."""
+    print(evaluate(args.step, args.width, root=args.root).table())
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Angular error and coverage of the vanishing-point normals (synthetic and real frames)."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

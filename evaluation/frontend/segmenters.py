@@ -37,9 +37,11 @@ from scipy import ndimage
 
 from spgeo.frontend.classical import ClassicalSegmenter, ClassicalSegmenterConfig
 
+from spgeo.evaluation.runner import protocol_parser, run_protocol
+
 __all__ = ["BenchView", "boundary_mask", "boundary_recall", "leakage_error",
            "neubert_protzel_error", "segmentation_metrics", "render_views", "default_variants",
-           "run_benchmark", "format_table", "main"]
+           "run_benchmark", "format_table", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -225,9 +227,13 @@ def format_table(rows: Sequence[Dict[str, object]], title: str = "") -> str:
     return "\n".join(lines)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+NAME = "bench_segmenters"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    parser = protocol_parser(None, __doc__.split("\n\n")[0], dataset=False)
+    parser.formatter_class = argparse.ArgumentDefaultsHelpFormatter
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scene seeds")
     parser.add_argument("--views", type=int, default=10, help="views per seed")
     parser.add_argument("--sizes", type=str, nargs="+", default=["320x240", "160x120"],
@@ -239,26 +245,45 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--tolerance", type=float, default=2.0, help="boundary tolerance, px")
     parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best of)")
     parser.add_argument("--supersample", type=int, default=2, help="render anti-aliasing")
-    parser.add_argument("-v", "--verbose", action="store_true")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING)
+    return parser
 
+
+def _chosen_variants(num_segments: int,
+                     names: Optional[Sequence[str]]) -> Dict[str, ClassicalSegmenterConfig]:
+    """:func:`default_variants` (only ``names`` when given); ``ValueError`` for an
+    unknown name."""
+    variants = default_variants(num_segments)
+    if names:
+        unknown = set(names) - set(variants)
+        if unknown:
+            raise ValueError(f"unknown variants {sorted(unknown)}; known: {sorted(variants)}")
+        variants = {k: v for k, v in variants.items() if k in names}
+    return variants
+
+
+def run(args: argparse.Namespace) -> int:
+    """One table per (size, segment count), written as soon as it is measured; an
+    unknown ``--variants`` name exits with the usage message (code 2)."""
     out = sys.stdout
     for size in args.sizes:
         w, h = (int(s) for s in size.lower().split("x"))
         views = render_views(args.seeds, args.views, w, h, args.supersample)
         for n in args.num_segments:
-            variants = default_variants(n)
-            if args.variants:
-                unknown = set(args.variants) - set(variants)
-                if unknown:
-                    parser.error(f"unknown variants {sorted(unknown)}; known: {sorted(variants)}")
-                variants = {k: v for k, v in variants.items() if k in args.variants}
+            try:
+                variants = _chosen_variants(n, args.variants)
+            except ValueError as exc:
+                build_parser().error(str(exc))
             rows = run_benchmark(variants, views, args.tolerance, args.repeats)
             out.write(format_table(rows, f"{w}x{h}, num_segments={n}, {len(views)} views "
                                          f"(seeds {args.seeds})") + "\n\n")
             out.flush()
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The segmenter benchmark (module docstring): print one table per size and
+    segment count."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ SIFT and brute-force matching (shared helpers: :mod:`.colmap_common`).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -36,18 +35,19 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.apps.args import add_dataset_arguments, add_verbose_argument, setup_logging
+from spgeo.apps.args import add_dataset_arguments, add_verbose_argument
 from spgeo.geometry import invert_pose, relative_pose
-from spgeo.jsonio import json_default
 
 from spgeo.evaluation.pose_compare import Estimator, compare_on_dataset, format_comparison
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 
 from .colmap_common import (ColmapOptions, ImageInput, cam_from_world, extract_sift,
                             incremental_mapping, load_images, mapper_options, pose_from_rigid,
                             quiet, sift_matching_options, verification_options, workspace)
 
 __all__ = ["COLMAP_STATUSES", "ColmapConfig", "ColmapResult", "run_colmap_fewview",
-           "colmap_estimator", "main"]
+           "colmap_estimator", "ColmapComparison", "compare_colmap", "build_parser", "run",
+           "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -288,10 +288,35 @@ def run_colmap_fewview(images: Sequence[ImageInput], camera: PinholeCamera,
 def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[str],
                   cam: PinholeCamera, config: ColmapConfig,
                   timings: Dict[str, float]) -> ColmapResult:
+    """SIFT, exhaustive matching, incremental mapping and the two-view pass on the
+    images ``names`` already written to ``image_dir``; ``timings`` gets each stage."""
     import pycolmap
 
     n = len(names)
     pycolmap.set_random_seed(int(config.random_seed))
+    _extract_and_match(db_path, image_dir, names, cam, config, timings)
+    ids, num_kp, verified, colmap_cam = _read_database(db_path, names)
+    result = ColmapResult(status="failed", T_ref_view=[None] * (n - 1),
+                          view_method=[None] * (n - 1), num_images=n, num_keypoints=num_kp,
+                          num_verified_matches=verified)
+    reasons: List[str] = []
+    recs, error = incremental_mapping(db_path, image_dir, sparse_dir, mapper_options(config),
+                                      timings)
+    if error:
+        reasons.append(error)
+    best = _incremental_poses(result, recs, names, reasons)
+    inconsistent = _two_view_pass(result, db_path, colmap_cam, ids, cam, config, reasons,
+                                  timings)
+    _set_status(result, best is not None, inconsistent, reasons, config)
+    return result
+
+
+def _extract_and_match(db_path: Path, image_dir: Path, names: List[str], cam: PinholeCamera,
+                       config: ColmapConfig, timings: Dict[str, float]) -> None:
+    """SIFT features of every image and exhaustive, geometrically verified matching
+    into ``db_path`` (``timings["extract"]``, ``timings["match"]``)."""
+    import pycolmap
+
     max_size = int(config.max_image_size) if config.max_image_size > 0 else 0
     timings["extract"] = extract_sift(db_path, image_dir, names, cam, config.num_threads,
                                       config.max_num_features, max_size)
@@ -302,7 +327,14 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
                               device=pycolmap.Device.cpu)
     timings["match"] = time.perf_counter() - t
 
-    # ---- database bookkeeping
+
+def _read_database(db_path: Path, names: List[str]):
+    """``(image ids, keypoints per image, verified matches of each view with the
+    reference, COLMAP camera)`` from the database; ``RuntimeError`` when an image
+    was not imported."""
+    import pycolmap
+
+    n = len(names)
     with pycolmap.Database.open(db_path) as db:
         db_images = {im.name: im for im in db.read_all_images()}
         missing = [nm for nm in names if nm not in db_images]
@@ -317,17 +349,13 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
             except Exception:
                 verified.append(0)
         colmap_cam = db.read_camera(int(db_images[names[0]].camera_id))
+    return ids, num_kp, verified, colmap_cam
 
-    result = ColmapResult(status="failed", T_ref_view=[None] * (n - 1),
-                          view_method=[None] * (n - 1), num_images=n, num_keypoints=num_kp,
-                          num_verified_matches=verified)
-    reasons: List[str] = []
 
-    # ---- incremental mapping
-    recs, error = incremental_mapping(db_path, image_dir, sparse_dir, mapper_options(config),
-                                      timings)
-    if error:
-        reasons.append(error)
+def _incremental_poses(result: ColmapResult, recs, names: List[str], reasons: List[str]):
+    """Fill ``result`` from the reconstruction of ``recs`` that holds the reference and
+    the most posed images; returns it (None when no reconstruction holds the reference)."""
+    n = len(names)
     best, best_count = None, 0
     for rec in (recs or {}).values():
         reg = {im.name for im in rec.images.values() if im.has_pose}
@@ -345,8 +373,17 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
                 result.view_method[j - 1] = "incremental"
         result.num_points3D = int(best.num_points3D())
         result.mean_reprojection_error = float(best.compute_mean_reprojection_error())
+    return best
 
-    # ---- two-view geometry: fallback for unregistered views, check for the others
+
+def _two_view_pass(result: ColmapResult, db_path: Path, colmap_cam, ids: List[int],
+                   cam: PinholeCamera, config: ColmapConfig, reasons: List[str],
+                   timings: Dict[str, float]) -> List[int]:
+    """Two-view geometry with the reference: the fallback pose of each unregistered
+    view, the check of each incremental one; returns the inconsistent views."""
+    import pycolmap
+
+    n = len(ids)
     result.two_view_disagreement_deg = [float("nan")] * (n - 1)
     need_fallback = config.fallback_two_view and any(T is None for T in result.T_ref_view)
     inconsistent = []
@@ -376,12 +413,19 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
                         reasons.append(f"view {j}: incremental and two-view rotations differ by "
                                        f"{d:.2f} deg (ambiguous geometry)")
         timings["two_view"] = time.perf_counter() - t
+    return inconsistent
+
+
+def _set_status(result: ColmapResult, has_model: bool, inconsistent: List[int],
+                reasons: List[str], config: ColmapConfig) -> None:
+    """``result.status``, ``num_registered`` and ``message`` from the poses found."""
+    n = result.num_images
     for j in range(1, n):
         if result.T_ref_view[j - 1] is None and not config.fallback_two_view:
             reasons.append(f"view {j} not registered by the incremental mapper")
 
     n_posed = sum(T is not None for T in result.T_ref_view)
-    result.num_registered = n_posed + 1 if n_posed else (1 if best is not None else 0)
+    result.num_registered = n_posed + 1 if n_posed else (1 if has_model else 0)
     if n_posed == 0:
         result.status = "failed"
     elif inconsistent:
@@ -389,7 +433,6 @@ def _run_pipeline(db_path: Path, image_dir: Path, sparse_dir: Path, names: List[
     else:
         result.status = "ok" if n_posed == n - 1 else "partial"
     result.message = "; ".join(reasons)
-    return result
 
 
 # ================================================================ data sets
@@ -411,6 +454,52 @@ def colmap_estimator(config: Optional[ColmapConfig] = None,
 
 
 # ====================================================================== CLI
+NAME = "colmap"
+
+
+@dataclass
+class ColmapComparison:
+    """COLMAP (and any other estimators) vs ground truth on one frame set.
+
+    Attributes:
+        comparison: :func:`compare_on_dataset`'s dict.
+        result: COLMAP's :class:`ColmapResult` (None when it did not run).
+    """
+
+    comparison: Dict[str, object]
+    result: Optional[ColmapResult]
+
+    def status_line(self) -> str:
+        """One line: COLMAP's status, images posed, points and time ("" without a result)."""
+        res = self.result
+        if res is None:
+            return ""
+        return (f"COLMAP: status {res.status}, {res.num_registered}/{res.num_images} images posed "
+                f"({', '.join(str(m) for m in res.view_method)}), {res.num_points3D} points, "
+                f"{res.timings.get('total', float('nan')):.1f} s"
+                + (f"; {res.message}" if res.message else ""))
+
+    def table(self) -> str:
+        """:func:`format_comparison` of :attr:`comparison`."""
+        return format_comparison(self.comparison)
+
+    def to_dict(self) -> Dict[str, object]:
+        """The comparison plus ``"colmap_result"`` (:meth:`ColmapResult.summary`)."""
+        payload = dict(self.comparison)
+        if self.result is not None:
+            payload["colmap_result"] = self.result.summary()
+        return payload
+
+
+def compare_colmap(frames: Sequence[object], config: Optional[ColmapConfig] = None,
+                   workdir: Optional[Union[str, os.PathLike]] = None) -> ColmapComparison:
+    """:func:`colmap_estimator` on ``frames`` (reference first, Frames with
+    ground truth) through :func:`compare_on_dataset`."""
+    est = colmap_estimator(config, workdir=workdir)
+    comparison = compare_on_dataset(frames, {"colmap": est})
+    return ColmapComparison(comparison, est.last_result)  # type: ignore[attr-defined]
+
+
 def _parse_frames(values: Optional[List[str]]):
     if not values:
         return None
@@ -422,14 +511,13 @@ def _parse_frames(values: Optional[List[str]]):
         raise SystemExit(f"--frames: expected frame numbers or 'A:B[:S]', got {values}")
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Command line: COLMAP (and any registered estimators) vs ground truth on
-    a reference + supporting frames of a data set; prints a table and optionally
-    writes JSON.  Returns the exit status (0 on success, 1 if COLMAP posed no view)."""
-    parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.references.colmap",
-        description="Relative-pose errors of COLMAP (pycolmap, SIFT, fixed intrinsics) on a "
-                    "reference frame plus supporting frames, against ground truth.")
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    parser = protocol_parser(
+        "python -m spgeo.evaluation.references.colmap",
+        "Relative-pose errors of COLMAP (pycolmap, SIFT, fixed intrinsics) on a "
+        "reference frame plus supporting frames, against ground truth.",
+        dataset=False, verbose=False)
     add_dataset_arguments(parser, frames_nargs="+",
                           frames_help="frame numbers, reference first (e.g. 0 4 8), or "
                                       "'A:B[:S]' (default: all frames of the data set)")
@@ -439,40 +527,36 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--no-fallback", action="store_true",
                         help="do not pose unregistered views by two-view geometry")
     add_verbose_argument(parser)
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
-    from spgeo.datasets import open_dataset
+    return parser
 
-    kind, path = args.dataset
-    selection = _parse_frames(args.frames)
-    try:
-        seq = open_dataset(kind, path, frames=selection, load_depth=False)
-    except (ValueError, FileNotFoundError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+
+def run(args: argparse.Namespace) -> int:
+    """Open the frames, run :func:`compare_colmap`, print the table, write ``--json``;
+    0 on success, 1 if COLMAP posed no view."""
+    args.frames = _parse_frames(args.frames)
+    seq = open_sequence(args)
     frames = list(seq)
     if len(frames) < 2:
-        print("error: need a reference and at least one supporting frame", file=sys.stderr)
-        return 2
+        raise ValueError("need a reference and at least one supporting frame")
     config = ColmapConfig(num_threads=args.threads, fallback_two_view=not args.no_fallback)
-    est = colmap_estimator(config, workdir=args.workdir)
-    comparison = compare_on_dataset(frames, {"colmap": est})
-    res: Optional[ColmapResult] = est.last_result  # type: ignore[attr-defined]
+    out = compare_colmap(frames, config, workdir=args.workdir)
     print(f"{seq.name}: reference {frames[0].name}, views "
           f"{', '.join(f.name for f in frames[1:])}; camera {seq.camera}")
-    if res is not None:
-        print(f"COLMAP: status {res.status}, {res.num_registered}/{res.num_images} images posed "
-              f"({', '.join(str(m) for m in res.view_method)}), {res.num_points3D} points, "
-              f"{res.timings.get('total', float('nan')):.1f} s"
-              + (f"; {res.message}" if res.message else ""))
-    print(format_comparison(comparison))
+    if out.result is not None:
+        print(out.status_line())
+    print(out.table())
     if args.json:
-        payload = dict(comparison)
-        if res is not None:
-            payload["colmap_result"] = res.summary()
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(payload, fh, indent=2, default=json_default)
+        write_json(args.json, out.to_dict())
+    res = out.result
     return 0 if res is not None and res.status != "failed" else 1
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Command line: COLMAP (and any registered estimators) vs ground truth on
+    a reference + supporting frames of a data set; prints a table and optionally
+    writes JSON.  Returns the exit status (0 on success, 1 if COLMAP posed no view,
+    2 for bad input)."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

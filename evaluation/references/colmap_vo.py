@@ -24,7 +24,6 @@ Deterministic: one thread, fixed seeds, CPU SIFT, brute-force matching
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -37,21 +36,20 @@ import numpy as np
 from tqdm import tqdm
 
 from spgeo.camera import PinholeCamera
-from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
-                             setup_logging)
+from spgeo.apps.args import add_verbose_argument, parse_resolution
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
-from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
 from spgeo.evaluation.trajectory import (AteResult, TrajectoryLike, TrajectoryResult, ate_sim3,
                                          default_max_time_diff)
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, incremental_mapping,
                             load_images, mapper_options, quiet, sift_matching_options,
                             verification_options, workspace)
 
 __all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo",
-           "check_resolution", "main"]
+           "check_resolution", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -245,6 +243,13 @@ class ColmapVOResult(TrajectoryResult):
                   f"models {self.num_models} {self.model_sizes}; camera {self.camera}"]
         return self.trajectory.save(path, header=header)
 
+    def table(self) -> str:
+        """One line: frames registered, models, points, time."""
+        return (f"COLMAP reference: {self.num_registered}/{self.n_frames} frames registered, "
+                f"{self.num_models} model(s) {self.model_sizes}, {self.num_points3D} points, "
+                f"{self.timings['total']:.1f} s ({self.fps:.1f} FPS)"
+                + (f"; {self.message}" if self.message else ""))
+
     def summary(self) -> Dict[str, object]:
         """JSON-friendly summary (no poses)."""
         return {"n_frames": self.n_frames, "n_registered": self.num_registered,
@@ -434,51 +439,20 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
 
 
 # ======================================================================= CLI
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.references.colmap_vo``: COLMAP reference trajectory of a
-    data-set range; prints registration and Sim(3) ATE, writes ``trajectory.txt``
-    (+ status) and ``report.json`` to ``--out``.  Returns 0, 1 when nothing was
-    registered, 2 for bad arguments / unreadable data."""
-    parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.references.colmap_vo",
-        description="COLMAP incremental SfM reference on the frames a VO run sees "
-                    "(SIFT, sequential matching, fixed PINHOLE intrinsics).")
-    add_dataset_arguments(parser)
-    parser.add_argument("--resolution", default="160x120",
-                        help="WIDTHxHEIGHT (default 160x120) or 'native'")
-    parser.add_argument("--overlap", type=int, default=10, help="sequential overlap (default 10)")
-    parser.add_argument("--threads", type=int, default=1, help="COLMAP threads (default 1)")
-    parser.add_argument("--out", default=None, help="output folder")
-    parser.add_argument("--workdir", default=None, help="keep COLMAP's files in this folder")
-    add_verbose_argument(parser)
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
-    from spgeo.datasets import open_dataset
+NAME = "colmap_vo"
 
-    kind, path = args.dataset
-    try:
-        resolution = parse_resolution(args.resolution, allow_native=True, min_size=1)
-        config = ColmapVOConfig(resolution=resolution,
-                                overlap=args.overlap, num_threads=args.threads,
-                                show_progress=True)
-        seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
-    except (ValueError, FileNotFoundError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    gt = []
 
-    def frames_with_gt():
-        for f in seq:
-            gt.append(f.T_world_cam)
-            yield f
+def _with_gt(frames: Iterable[Frame], gt: List[Optional[np.ndarray]]) -> Iterable[Frame]:
+    """``frames`` unchanged, appending each one's ``T_world_cam`` to ``gt`` as it passes."""
+    for f in frames:
+        gt.append(f.T_world_cam)
+        yield f
 
-    res = run_colmap_vo(frames_with_gt(), config, workdir=args.workdir)
-    print(f"COLMAP reference: {res.num_registered}/{res.n_frames} frames registered, "
-          f"{res.num_models} model(s) {res.model_sizes}, {res.num_points3D} points, "
-          f"{res.timings['total']:.1f} s ({res.fps:.1f} FPS)"
-          + (f"; {res.message}" if res.message else ""))
-    report: Dict[str, object] = {"dataset": kind, "path": str(path), "frames": args.frames,
-                                 **res.summary()}
+
+def _print_ate(res: ColmapVOResult, gt: List[Optional[np.ndarray]],
+               report: Dict[str, object]) -> None:
+    """Print the per-frame Sim(3) ATE (into ``report["ate"]``) when at least 3 frames
+    have ground truth and 3 are registered."""
     if sum(T is not None for T in gt) >= 3 and res.num_registered >= 3:
         try:
             a = res.ate(gt)
@@ -486,14 +460,54 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             report["ate"] = {"per-frame": a.summary()}
         except ValueError as exc:
             print(f"ATE not available: {exc}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    parser = protocol_parser(
+        "python -m spgeo.evaluation.references.colmap_vo",
+        "COLMAP incremental SfM reference on the frames a VO run sees "
+        "(SIFT, sequential matching, fixed PINHOLE intrinsics).", verbose=False)
+    parser.add_argument("--resolution", default="160x120",
+                        help="WIDTHxHEIGHT (default 160x120) or 'native'")
+    parser.add_argument("--overlap", type=int, default=10, help="sequential overlap (default 10)")
+    parser.add_argument("--threads", type=int, default=1, help="COLMAP threads (default 1)")
+    parser.add_argument("--out", default=None, help="output folder")
+    parser.add_argument("--workdir", default=None, help="keep COLMAP's files in this folder")
+    add_verbose_argument(parser)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_colmap_vo` on ``--dataset`` / ``--frames``, print its line and
+    the ATE, write ``--out``; 0, or 1 when nothing was registered."""
+    kind, path = args.dataset
+    resolution = parse_resolution(args.resolution, allow_native=True, min_size=1)
+    config = ColmapVOConfig(resolution=resolution,
+                            overlap=args.overlap, num_threads=args.threads,
+                            show_progress=True)
+    seq = open_sequence(args)
+    gt: List[Optional[np.ndarray]] = []
+    res = run_colmap_vo(_with_gt(seq, gt), config, workdir=args.workdir)
+    print(res.table())
+    report: Dict[str, object] = {"dataset": kind, "path": str(path), "frames": args.frames,
+                                 **res.summary()}
+    _print_ate(res, gt, report)
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         res.save_tum(out / "trajectory.txt")
-        with open(out / "report.json", "w", encoding="utf-8") as fh:
-            json.dump(report, fh, indent=2, default=json_default)
+        write_json(out / "report.json", report)
         print(f"wrote {out / 'trajectory.txt'}")
     return 0 if res.num_registered else 1
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.references.colmap_vo``: COLMAP reference trajectory of a
+    data-set range; prints registration and Sim(3) ATE, writes ``trajectory.txt``
+    (+ status) and ``report.json`` to ``--out``.  Returns 0, 1 when nothing was
+    registered, 2 for bad arguments / unreadable data."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -51,7 +51,6 @@ Command line::
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -63,21 +62,20 @@ import cv2
 import numpy as np
 
 from spgeo.camera import PinholeCamera
-from spgeo.apps.args import (add_dataset_arguments, add_verbose_argument, parse_resolution,
-                             setup_logging)
+from spgeo.apps.args import add_verbose_argument, parse_resolution
 from spgeo.frame import Frame, resize_frame
 from spgeo.geometry import invert_pose
-from spgeo.jsonio import json_default
 from spgeo.trajectory import FrameStatus, Trajectory
 
 from spgeo.evaluation.trajectory import default_max_time_diff
+from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 
 from .feature_vo_frontend import (FeatureGeometry, Features, FeatureVOConfig,
                                   fractional_velocity, gray_u8)
 from .feature_vo_result import STATUSES, FeatureVOFrame, FeatureVOResult
 
 __all__ = ["FeatureVOConfig", "FeatureVO", "FeatureVOFrame", "FeatureVOResult",
-           "run_feature_vo", "resize_frames", "STATUSES", "main"]
+           "run_feature_vo", "resize_frames", "STATUSES", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -399,20 +397,42 @@ def run_feature_vo(frames: Sequence[Union[Frame, np.ndarray]],
 
 
 # ======================================================================= CLI
+NAME = "feature_vo"
+
+
 def resize_frames(frames: Sequence[Frame], width: int, height: int) -> List[Frame]:
     """:func:`spgeo.frame.resize_frame` of each frame to ``width`` x ``height`` pixels."""
     return [resize_frame(f, (width, height)) for f in frames]
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.references.feature_vo``: run the baseline on a data set,
-    write ``trajectory.txt`` (+ ``trajectory.status.txt``), ``keyframes.txt`` and
-    ``report.json`` to ``--out``, and print the Sim(3) ATE when the data set has
-    ground truth.  Returns 0, or 2 for bad arguments / unreadable data."""
-    parser = argparse.ArgumentParser(
-        prog="python -m spgeo.evaluation.references.feature_vo",
-        description="Feature-based monocular VO baseline (ORB + essential matrix + PnP).")
-    add_dataset_arguments(parser)
+def _ate_report(result: FeatureVOResult, frames: Sequence[Frame],
+                max_time_diff: Optional[float]) -> Optional[Dict[str, object]]:
+    """Print the per-frame and keyframe Sim(3) ATE of ``result`` against the frames'
+    ground truth and return its ``report["ate"]`` entry (None: fewer than 3 poses)."""
+    gt = [(f.timestamp, f.T_world_cam) for f in frames if f.T_world_cam is not None]
+    if len(gt) < 3:
+        print("no ground-truth poses: ATE not computed")
+        return None
+    tol = max_time_diff
+    if tol is None:
+        tol = default_max_time_diff([f.timestamp for f in frames])
+    try:
+        ates = result.ate([g[0] for g in gt], [g[1] for g in gt], max_time_diff=tol)
+        entry = {k: (v.summary() if v is not None else None) for k, v in ates.items()}
+        for v in ates.values():
+            if v is not None:
+                print(v)
+    except ValueError as exc:
+        print(f"ATE not available: {exc}")
+        entry = {"error": str(exc)}
+    return entry
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    parser = protocol_parser(
+        "python -m spgeo.evaluation.references.feature_vo",
+        "Feature-based monocular VO baseline (ORB + essential matrix + PnP).", verbose=False)
     parser.add_argument("--resolution", default=None,
                         help="resize images to WIDTHxHEIGHT first (e.g. 160x120)")
     parser.add_argument("--detector", choices=("orb", "sift"), default="orb")
@@ -422,21 +442,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                              "timestamps)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_verbose_argument(parser)
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
-    from spgeo.datasets import open_dataset
+    return parser
 
+
+def run(args: argparse.Namespace) -> int:
+    """Run the baseline on ``--dataset`` / ``--frames``, write ``--out``, print the ATE."""
     kind, path = args.dataset
-    try:
-        res_wh = parse_resolution(args.resolution, min_size=1) if args.resolution else None
-        seq = open_dataset(kind, path, frames=args.frames, load_depth=False)
-        frames = list(seq)
-    except (ValueError, FileNotFoundError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    res_wh = parse_resolution(args.resolution, min_size=1) if args.resolution else None
+    frames = list(open_sequence(args))
     if len(frames) < 2:
-        print("error: need at least 2 frames", file=sys.stderr)
-        return 2
+        raise ValueError("need at least 2 frames")
     if res_wh is not None:
         frames = resize_frames(frames, *res_wh)
     config = FeatureVOConfig(detector=args.detector, show_progress=not args.no_progress)
@@ -447,30 +462,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     result.save_tum(out / "keyframes.txt", keyframes_only=True)
     report: Dict[str, object] = {"dataset": kind, "path": str(path), "frames": args.frames,
                                  "resolution": args.resolution, **result.summary()}
-    counts = result.status_counts()
-    print(f"feature VO: {len(frames)} frames, {int(result.valid.sum())} posed, "
-          f"{int(result.is_keyframe.sum())} keyframes, {result.n_segments} segment(s), "
-          f"statuses {counts}, {result.fps:.1f} FPS")
-    gt = [(f.timestamp, f.T_world_cam) for f in frames if f.T_world_cam is not None]
-    if len(gt) >= 3:
-        tol = args.max_time_diff
-        if tol is None:
-            tol = default_max_time_diff([f.timestamp for f in frames])
-        try:
-            ates = result.ate([g[0] for g in gt], [g[1] for g in gt], max_time_diff=tol)
-            report["ate"] = {k: (v.summary() if v is not None else None) for k, v in ates.items()}
-            for v in ates.values():
-                if v is not None:
-                    print(v)
-        except ValueError as exc:
-            print(f"ATE not available: {exc}")
-            report["ate"] = {"error": str(exc)}
-    else:
-        print("no ground-truth poses: ATE not computed")
-    with open(out / "report.json", "w", encoding="utf-8") as fh:
-        json.dump(report, fh, indent=2, default=json_default)
+    print(result.table())
+    ate = _ate_report(result, frames, args.max_time_diff)
+    if ate is not None:
+        report["ate"] = ate
+    write_json(out / "report.json", report)
     print(f"wrote {out / 'trajectory.txt'}")
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.references.feature_vo``: run the baseline on a data set,
+    write ``trajectory.txt`` (+ ``trajectory.status.txt``), ``keyframes.txt`` and
+    ``report.json`` to ``--out``, and print the Sim(3) ATE when the data set has
+    ground truth.  Returns 0, or 2 for bad arguments / unreadable data."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -101,6 +101,12 @@ class FeatureVOResult(TrajectoryResult):
         counts = self.trajectory.status_counts()
         return {s: counts[s] for s in STATUSES}
 
+    def table(self) -> str:
+        """One line: frames, posed, keyframes, segments, statuses, speed."""
+        return (f"feature VO: {len(self.timestamps)} frames, {int(self.valid.sum())} posed, "
+                f"{int(self.is_keyframe.sum())} keyframes, {self.n_segments} segment(s), "
+                f"statuses {self.status_counts()}, {self.fps:.1f} FPS")
+
     def save_tum(self, path: Union[str, Path], keyframes_only: bool = False) -> Path:
         """Write the posed frames (or keyframes) as a TUM file and every frame's
         status into ``<stem>.status.txt`` beside it.  Returns ``path``."""

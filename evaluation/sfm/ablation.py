@@ -36,9 +36,10 @@ from spgeo.evaluation.jobs import (EvalTable, Job, add_runner_arguments, provena
                                    runner_config)
 from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.pose_metrics import rotation_error_deg
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.shared_data import shared_data_root
 
-__all__ = ["CASES", "sfm_case_row", "make_jobs", "main"]
+__all__ = ["CASES", "sfm_case_row", "make_jobs", "build_parser", "run", "main"]
 
 #: (case name, data-set kind, folder under the root, frame selection "A:B:S" of 3 frames)
 CASES = (("tum 0-4-8", "tum", "tum_fr1_desk_9", "0:9:4"),
@@ -110,9 +111,12 @@ def make_jobs(root: Path, frontends: Sequence[str], shape_models: Sequence[str],
             for fe in frontends for sm in shape_models]
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "sfm_ablation"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, __doc__, dataset=False)
     ap.add_argument("--root", default=None, help="shared data folder (default: "
                     "$SPGEO_SHARED_DATA or ../shared/data)")
     ap.add_argument("--frontends", nargs="+", default=list(FRONTENDS), choices=FRONTENDS)
@@ -123,17 +127,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     choices=SHAPE_MODELS)
     ap.add_argument("--out", default=None, help="write sfm_ablation.md/.json/.csv here")
     add_runner_arguments(ap)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the jobs of :func:`make_jobs`, print the table, write ``--out``; 1 when a
+    job failed, 2 when no case is found (a bad ``--workers`` or depth model exits
+    with the usage message, code 2)."""
     root = Path(args.root) if args.root else shared_data_root()
     try:
         runner = runner_config(args, desc="sfm_ablation")
     except ValueError as exc:
-        ap.error(str(exc))
+        build_parser().error(str(exc))
     if args.depth_model and "onnx-depth" in args.frontends:
         try:    # a missing or misfit model: one error line, not one error row per job
             build_frontend("onnx-depth", depth_model=args.depth_model)
         except (ValueError, FileNotFoundError) as exc:
-            ap.error(str(exc))
+            build_parser().error(str(exc))
     jobs = make_jobs(root, args.frontends, args.shape_models, args.depth_model)
     if not jobs:
         print(f"sfm_ablation: no case found under {root}", file=sys.stderr)
@@ -153,6 +163,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                        stem="sfm_ablation")
     print(result.markdown())
     return 1 if result.failed else 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The shape ablation (module docstring): print the table, write ``--out``."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

@@ -20,11 +20,13 @@ from typing import Callable, Dict, Optional, Sequence
 from spgeo.datasets import load_bundled_tum, open_dataset
 from spgeo.evaluation.references.colmap import colmap_estimator
 from spgeo.evaluation.pose_compare import compare_on_dataset
+from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 
-__all__ = ["CASES", "spgeo_estimator", "twoview_estimator", "run_case", "main"]
+__all__ = ["CASES", "spgeo_estimator", "twoview_estimator", "run_case", "build_parser", "run",
+           "main"]
 
 log = logging.getLogger(__name__)
 
@@ -106,14 +108,21 @@ def _table(name: str, comp: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+NAME = "sfm_real"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, __doc__, dataset=False)
     ap.add_argument("--shared", default=str(shared_data_root()),
                     help="folder with tum_fr1_desk_9/ and icl_nuim_lr_5/ (default ../shared/data)")
     ap.add_argument("--json", default=None, help="write all results as JSON here")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Each case of :data:`CASES` (the TUM one from the bundled sample when the shared
+    folder lacks it): print its table; write ``--json``."""
     shared = Path(args.shared)
     out = {}
     for name, (kind, sub, _) in CASES.items():
@@ -127,6 +136,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2, default=str))
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Few-view SfM on the real sample frames: print the tables (module docstring)."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":

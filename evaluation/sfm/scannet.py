@@ -20,8 +20,8 @@ baseline; poses with rotation and translation-direction errors (degrees).
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -36,17 +36,17 @@ from spgeo.datasets.scannet import (ScanNetConfig, ScanNetScene, list_scenes,
                                     write_synthetic_scannet)
 from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
-from spgeo.jsonio import json_default
 from spgeo.sfm import SfMConfig, few_view_sfm
 
 from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.pose_metrics import relative_pose_errors
+from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
 
 __all__ = [
     "ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
     "ScanNetProtocolConfig", "ViewSet", "select_view_sets", "ScanNetSfMResult",
     "run_scannet_sfm", "evaluate_depth", "resize_depth_nearest", "write_synthetic_scannet",
-    "main",
+    "build_parser", "run", "main",
 ]
 
 log = logging.getLogger(__name__)
@@ -357,31 +357,9 @@ def run_scannet_sfm(root: PathLike, scenes: Optional[Sequence[str]] = None,
 
     from spgeo.frontend import FrontEndConfig, make_frontend
 
-    root = Path(root).expanduser()
-    if scenes:
-        if not root.is_dir():
-            raise FileNotFoundError(f"ScanNet root folder not found: {root}")
-        scene_dirs = []
-        for s in scenes:
-            p = root / s
-            if not p.is_dir():
-                raise FileNotFoundError(f"ScanNet scene folder not found: {p}")
-            scene_dirs.append(p)
-    else:
-        scene_dirs = list_scenes(root)
+    scene_dirs = _scene_dirs(root, scenes)
     readers = [ScanNetScene(p, scene_config or ScanNetConfig()) for p in scene_dirs]
-
-    all_sets: List[Tuple[ScanNetScene, ViewSet]] = []
-    skipped: List[Dict[str, object]] = []
-    for rd in readers:
-        poses = dict(zip(rd.frame_numbers, rd.ground_truth()))
-        sets, skip = select_view_sets(rd.frame_numbers, poses, config, rd.scene_id)
-        all_sets += [(rd, s) for s in sets]
-        skipped += skip
-    if config.max_samples is not None:
-        all_sets = all_sets[:int(config.max_samples)]
-    log.info("ScanNet protocol: %d view sets, %d references discarded", len(all_sets),
-             len(skipped))
+    all_sets, skipped = _all_view_sets(readers, config)
     if not all_sets:
         raise ValueError(f"no usable view set in {[str(p) for p in scene_dirs]} "
                          f"(stride {config.stride}, offsets {config.offsets}); discarded: "
@@ -398,52 +376,96 @@ def run_scannet_sfm(root: PathLike, scenes: Optional[Sequence[str]] = None,
         const_done: Dict[Tuple[int, int], Dict[str, float]] = {}
         for n in range(1, config.max_views + 1):
             for init in config.inits:
-                row: Dict[str, object] = {
-                    "scene": vs.scene, "ref": vs.ref, "views": list(vs.views[:n]), "n_views": n,
-                    "init": init, "gt_translation": vs.gt_translation[:n],
-                    "gt_rotation_deg": vs.gt_rotation_deg[:n]}
-                t0 = time.perf_counter()
-                try:
-                    res = few_view_sfm(ref.image, [v.image for v in views[:n]], ref.camera, fe,
-                                       dataclasses.replace(config.sfm, init=init),
-                                       ref_depth=ref.depth)
-                except (ValueError, RuntimeError) as exc:
-                    log.warning("SfM failed on %s ref %d (%d views, %s): %s", vs.scene, vs.ref,
-                                n, init, exc)
-                    row.update(status="error", error=str(exc),
-                               seconds=time.perf_counter() - t0)
-                    rows.append(row)
-                    continue
-                row["seconds"] = time.perf_counter() - t0
-                row["status"] = res.status
-                row["view_status"] = list(res.view_status)
-                gt = resize_depth_nearest(ref.depth, res.camera.size)
-                row.update(evaluate_depth(res.depth, gt, config.min_depth, config.max_depth))
-                key = res.camera.size
-                if key not in const_done:
-                    ok = np.isfinite(gt) & (gt > config.min_depth) & (gt < config.max_depth)
-                    const = np.full(gt.shape, float(np.median(gt[ok])) if ok.any() else np.nan)
-                    const_done[key] = evaluate_depth(const, gt, config.min_depth,
-                                                     config.max_depth)
-                for k in _CONST_KEYS:
-                    row["const_" + k] = const_done[key][k]
-                rot, tdir = _pose_errors(res.T_ref_view, vs.T_ref_view_gt[:n])
-                row["rot_err_deg"], row["tdir_err_deg"] = rot, tdir
-                row["rot_err_mean_deg"] = _nanmean(rot)
-                row["tdir_err_mean_deg"] = _nanmean(tdir)
-                rows.append(row)
-                log.debug("%s ref %d n=%d %s: %s iMAE %.2f rot %.2f deg", vs.scene, vs.ref, n,
-                          init, res.status, row["imae_per_km"], row["rot_err_mean_deg"])
+                rows.append(_sfm_row(vs, ref, views, n, init, fe, config, const_done))
     return ScanNetSfMResult(rows, skipped, config)
 
 
-# ================================================================= script
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m spgeo.evaluation.sfm.scannet ROOT [--scenes ...] [--max-views 3]
-    [--stride 200] [--frontend classical] [--max-samples N]``: print the table."""
-    import argparse
+def _scene_dirs(root: PathLike, scenes: Optional[Sequence[str]]) -> List[Path]:
+    """The folders of ``scenes`` under ``root`` (default: every scene there);
+    ``FileNotFoundError`` names a missing one."""
+    root = Path(root).expanduser()
+    if scenes:
+        if not root.is_dir():
+            raise FileNotFoundError(f"ScanNet root folder not found: {root}")
+        scene_dirs = []
+        for s in scenes:
+            p = root / s
+            if not p.is_dir():
+                raise FileNotFoundError(f"ScanNet scene folder not found: {p}")
+            scene_dirs.append(p)
+    else:
+        scene_dirs = list_scenes(root)
+    return scene_dirs
 
-    ap = argparse.ArgumentParser(description="ScanNet few-view SfM protocol (SuperPrimitive)")
+
+def _all_view_sets(readers: Sequence[ScanNetScene], config: ScanNetProtocolConfig
+                   ) -> Tuple[List[Tuple[ScanNetScene, ViewSet]], List[Dict[str, object]]]:
+    """:func:`select_view_sets` of every scene (at most ``config.max_samples``
+    sets) and the discarded references."""
+    all_sets: List[Tuple[ScanNetScene, ViewSet]] = []
+    skipped: List[Dict[str, object]] = []
+    for rd in readers:
+        poses = dict(zip(rd.frame_numbers, rd.ground_truth()))
+        sets, skip = select_view_sets(rd.frame_numbers, poses, config, rd.scene_id)
+        all_sets += [(rd, s) for s in sets]
+        skipped += skip
+    if config.max_samples is not None:
+        all_sets = all_sets[:int(config.max_samples)]
+    log.info("ScanNet protocol: %d view sets, %d references discarded", len(all_sets),
+             len(skipped))
+    return all_sets, skipped
+
+
+def _sfm_row(vs: ViewSet, ref, views, n: int, init: str, fe: PrimitiveFrontEnd,
+             config: ScanNetProtocolConfig,
+             const_done: Dict[Tuple[int, int], Dict[str, float]]) -> Dict[str, object]:
+    """One row of :class:`ScanNetSfMResult`: SfM with the first ``n`` views and
+    initialisation ``init``, scored; ``const_done`` caches the constant-depth
+    baseline per working size."""
+    row: Dict[str, object] = {
+        "scene": vs.scene, "ref": vs.ref, "views": list(vs.views[:n]), "n_views": n,
+        "init": init, "gt_translation": vs.gt_translation[:n],
+        "gt_rotation_deg": vs.gt_rotation_deg[:n]}
+    t0 = time.perf_counter()
+    try:
+        res = few_view_sfm(ref.image, [v.image for v in views[:n]], ref.camera, fe,
+                           dataclasses.replace(config.sfm, init=init),
+                           ref_depth=ref.depth)
+    except (ValueError, RuntimeError) as exc:
+        log.warning("SfM failed on %s ref %d (%d views, %s): %s", vs.scene, vs.ref,
+                    n, init, exc)
+        row.update(status="error", error=str(exc),
+                   seconds=time.perf_counter() - t0)
+        return row
+    row["seconds"] = time.perf_counter() - t0
+    row["status"] = res.status
+    row["view_status"] = list(res.view_status)
+    gt = resize_depth_nearest(ref.depth, res.camera.size)
+    row.update(evaluate_depth(res.depth, gt, config.min_depth, config.max_depth))
+    key = res.camera.size
+    if key not in const_done:
+        ok = np.isfinite(gt) & (gt > config.min_depth) & (gt < config.max_depth)
+        const = np.full(gt.shape, float(np.median(gt[ok])) if ok.any() else np.nan)
+        const_done[key] = evaluate_depth(const, gt, config.min_depth,
+                                         config.max_depth)
+    for k in _CONST_KEYS:
+        row["const_" + k] = const_done[key][k]
+    rot, tdir = _pose_errors(res.T_ref_view, vs.T_ref_view_gt[:n])
+    row["rot_err_deg"], row["tdir_err_deg"] = rot, tdir
+    row["rot_err_mean_deg"] = _nanmean(rot)
+    row["tdir_err_mean_deg"] = _nanmean(tdir)
+    log.debug("%s ref %d n=%d %s: %s iMAE %.2f rot %.2f deg", vs.scene, vs.ref, n,
+              init, res.status, row["imae_per_km"], row["rot_err_mean_deg"])
+    return row
+
+
+# ================================================================= script
+NAME = "scannet"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
+    ap = protocol_parser(None, "ScanNet few-view SfM protocol (SuperPrimitive)", dataset=False)
     ap.add_argument("root", help="folder of exported ScanNet scenes (<scene_id>/color, depth, "
                                  "pose, intrinsic)")
     ap.add_argument("--scenes", nargs="+", default=None, help="scene ids (default: all)")
@@ -457,22 +479,27 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     choices=("identity", "twoview"))
     ap.add_argument("--max-samples", type=int, default=None)
     ap.add_argument("--json", default=None, help="also write rows and summary to this file")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
-    try:
-        cfg = ScanNetProtocolConfig(stride=args.stride, offsets=tuple(args.offsets),
-                                    max_views=args.max_views, frontend=args.frontend,
-                                    working_size=tuple(args.working_size),
-                                    inits=tuple(args.inits), max_samples=args.max_samples)
-        res = run_scannet_sfm(args.root, args.scenes, cfg)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}")
-        return 2
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run :func:`run_scannet_sfm`, print its table, write ``--json``."""
+    cfg = ScanNetProtocolConfig(stride=args.stride, offsets=tuple(args.offsets),
+                                max_views=args.max_views, frontend=args.frontend,
+                                working_size=tuple(args.working_size),
+                                inits=tuple(args.inits), max_samples=args.max_samples)
+    res = run_scannet_sfm(args.root, args.scenes, cfg)
     print(res.table())
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(res.to_dict(), fh, indent=1, default=json_default)
+        write_json(args.json, res.to_dict(), indent=1)
     return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m spgeo.evaluation.sfm.scannet ROOT [--scenes ...] [--max-views 3]
+    [--stride 200] [--frontend classical] [--max-samples N]``: print the table
+    (exit 2 for a missing folder or an unusable configuration)."""
+    return run_protocol(build_parser(), run, argv, NAME)
 
 
 if __name__ == "__main__":  # pragma: no cover
