@@ -204,7 +204,7 @@ def test_decision_quantities_do_not_depend_on_the_selection(pair, request):
     a = track_frame(kf_all, frame, T_f @ D)
     s = track_frame(kf_sel, frame, T_f @ D)
     assert a.ok and s.ok and a.decision_steps == 0 and s.decision_steps > 0
-    assert abs(s.relative_cost - a.relative_cost) < 0.1 * OdometryConfig().kf_max_relative_cost
+    assert abs(s.relative_cost - a.relative_cost) < 0.1 * OdometryConfig().keyframe.max_relative_cost
     assert abs(s.valid_fraction - a.valid_fraction) < 0.01
 
 

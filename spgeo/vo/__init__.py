@@ -1,13 +1,15 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives.
 
 :class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`;
-its map initialisation, :mod:`spgeo.vo.initialisation`), its options (:mod:`spgeo.vo.config`), frame-to-keyframe tracking
-(:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
+its map initialisation, :mod:`spgeo.vo.initialisation`; its keyframe map,
+:mod:`spgeo.vo.map`; its motion model, :mod:`spgeo.vo.motion`), its options
+(:mod:`spgeo.vo.config`), frame-to-keyframe tracking (:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
 (:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
 (:mod:`spgeo.vo.mapping`), the global bundle adjustment after a run
 (:mod:`spgeo.vo.global_ba`) and the results (:mod:`spgeo.vo.result`).
 """
-from .config import PRIMITIVE_MODELS, OdometryConfig, TrackerConfig
+from .config import (PRIMITIVE_MODELS, InitConfig, KeyframeDecisionConfig, OdometryConfig,
+                     ScaleCheckConfig, TrackerConfig)
 from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .mapping import (WindowMapper, apply_primitive_model, kf_brightness_key, kf_pose_key,
                       kf_scale_key, support_pose_key)
@@ -16,7 +18,8 @@ from .rendering import ScaleInit, init_scales_from_render, render_depth, render_
 from .result import STATUSES, FrameResult, FrameStatus, OdometryResult
 from .tracking import Keyframe, TrackingCost, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["Odometry", "OdometryConfig", "TrackerConfig", "PRIMITIVE_MODELS", "FrameResult",
+__all__ = ["Odometry", "OdometryConfig", "TrackerConfig", "KeyframeDecisionConfig",
+           "ScaleCheckConfig", "InitConfig", "PRIMITIVE_MODELS", "FrameResult",
            "FrameStatus", "OdometryResult", "STATUSES", "WindowMapper", "apply_primitive_model",
            "kf_pose_key", "kf_scale_key", "kf_brightness_key", "support_pose_key", "Keyframe",
            "TrackResult", "TrackingCost", "track_frame", "constant_velocity_guess",
