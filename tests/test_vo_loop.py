@@ -22,7 +22,8 @@ def _palindrome(n_unique, step, seed=0):
 
 
 def _run(images, **loop):
-    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03), loop_closure=LoopClosureConfig(**loop))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
+                         loop_closure=LoopClosureConfig(**loop))
     vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     for i, im in enumerate(images):
         vo.track(Frame(im, CAM, float(i)))

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
 from pathlib import Path
 from typing import Dict, Iterable, Iterator, List, Optional, Tuple, Union
@@ -37,8 +36,7 @@ from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
 from ..loop.sim3 import sim3
-from ..primitives import PrimitiveSet
-from ..validation import InputError, check_camera
+from ..validation import check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
 from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
@@ -46,22 +44,16 @@ from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
 from .map import KeyframeMap
-from .mapping import (MapKeyframe, SupportCandidate, WindowMapper, apply_primitive_model,
-                      with_shape_values)
+from .keyframing import KeyframeMaker
+from .mapping import MapKeyframe, SupportCandidate, WindowMapper, with_shape_values
 from .motion import MotionModel
-from .processing import resize_for_vo
-from .rendering import init_scales_from_render, render_primitives
+from .processing import checked_frame
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
-from .scale_check import reverse_scale_check
 from .tracking import Keyframe, TrackResult, track_frame
 
 __all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
-
-#: splat size (pixels) when rendering the window into a new keyframe
-RENDER_SPLAT = 2
-
 
 class Odometry:
     """Streaming monocular VO (module docstring).
@@ -107,7 +99,7 @@ class Odometry:
         self._mapper = WindowMapper(config)
         self._mapper.support_pose = self._map.support_pose   # the smoother writes the map's
         self._retry = FeatureRetry(self.camera, config.feature_retry)
-        self._scale_checks: List[dict] = []
+        self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
         self._refine_report: Optional[dict] = None      # the last refine()'s
@@ -139,7 +131,9 @@ class Odometry:
         """
         t0 = time.perf_counter()
         idx = len(self._frames)
-        frame = self._checked_frame(frame, idx)
+        frame = checked_frame(frame, idx, self.camera, self.input_camera,
+                              bool(self.frontend.uses_depth),
+                              self._frames[-1].timestamp if self._frames else None)
         timings: Dict[str, float] = {}
         if idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
@@ -152,36 +146,6 @@ class Odometry:
         res.segment = self._map.segment
         self._frames.append(res)
         return res
-
-    def _checked_frame(self, frame: Frame, idx: int) -> Frame:
-        """``frame`` at the processing size, or the errors of :meth:`track`."""
-        if not isinstance(frame, Frame):
-            raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
-                            f"{type(frame).__name__}")
-        image = np.asarray(frame.image)
-        if image.ndim not in (2, 3) or tuple(image.shape[:2]) not in (self.camera.shape,
-                                                                       self.input_camera.shape):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image of shape "
-                             f"{image.shape} does not match the input camera's (H, W) "
-                             f"{self.input_camera.shape}")
-        if tuple(image.shape[:2]) != self.camera.shape:
-            frame = resize_for_vo(frame, self.camera, bool(self.frontend.uses_depth), idx)
-            image = frame.image
-        if not np.all(np.isfinite(image)):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image contains "
-                             "NaN or inf")
-        try:
-            stamp = float(frame.timestamp)
-        except (TypeError, ValueError):
-            stamp = math.nan
-        if not math.isfinite(stamp):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp "
-                             f"{frame.timestamp!r} is not a finite number")
-        if self._frames and not stamp > self._frames[-1].timestamp:
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp {stamp!r} "
-                             f"is not after the previous frame's {self._frames[-1].timestamp!r}: "
-                             "timestamps must be strictly increasing")
-        return frame
 
     def result(self) -> OdometryResult:
         """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
@@ -288,7 +252,7 @@ class Odometry:
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
             "sfm": self._initialiser.reports,
-            "scale_checks": self._scale_checks,
+            "scale_checks": self._maker.scale_checks,
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
             "refine": self._refine_report,
@@ -367,26 +331,11 @@ class Odometry:
         self._map.apply_similarity(corr.kf_ids, move, self._motion, lambda W: s_prev)
 
     # ------------------------------------------------------------ stages
-    def _primify(self, frame: Frame) -> PrimitiveSet:
-        depth = frame.depth if self.frontend.uses_depth else None
-        prims = self.frontend.primify(frame.image, self.camera, depth)
-        if len(prims) == 0:
-            raise ValueError("the front-end produced no primitive")
-        return prims
-
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
         """Keyframe 0 of a map segment at ``T_world``."""
-        t = time.perf_counter()
-        prims = self._primify(frame)
-        if not self.frontend.uses_depth:
-            s0 = 0.0 if median_depth is None else float(np.log(median_depth))
-            prims = prims.with_log_scales(np.full(len(prims), s0))
-        prims = apply_primitive_model(prims, self.config.primitive_model)
-        timings["frontend"] = time.perf_counter() - t
+        kf = self._maker.first(frame, T_world, timings, median_depth)
         k = self._map.next_index
-        kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels,
-                            self.config.selection)
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), kf, self._map.segment),
                       new_segment=True)
         self._map.retire_outside_window()
@@ -544,33 +493,16 @@ class Odometry:
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult]):
-        """Make frame ``idx`` (at ``T_world``) a keyframe: primitives with scales
-        rendered from the window (and the reverse scale check), then loop
-        closure and the window update.  None when the render gives no scale."""
-        cfg = self.config
-        t = time.perf_counter()
-        prims = self._primify(frame)
-        depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf)
-                                   for w in self._map.window_kfs()],
-                                  prims.camera, T_world, splat=RENDER_SPLAT,
-                                  tolerance=cfg.render_tolerance)
-        try:
-            init = init_scales_from_render(prims, depth)
-        except ValueError as exc:
-            log.warning("frame %d: no keyframe (%s)", idx, exc)
-            timings["frontend"] = time.perf_counter() - t
-            return None
-        timings["frontend"] = time.perf_counter() - t
-        keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels,
-                                  cfg.selection)
+        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`),
+        then loop closure and the window update.  None when the render gives
+        no scale."""
         k = self._map.next_index
-        prims = self._checked_scales(keyframe, init.primitives, k, idx, timings)
-        prims = apply_primitive_model(prims, cfg.primitive_model)
-        keyframe = keyframe.rebuilt(prims, T_world)
-        self._map.add(MapKeyframe(
-            k, idx, np.asarray(frame.image), keyframe, self._map.segment,
-            prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
-                                   cfg.scale_prior_weight, cfg.render_prior_weight)))
+        made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
+        if made is None:
+            return None
+        keyframe, weights = made
+        self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
+                                  prior_weights=weights))
         self._map.anchors.pop(idx, None)
         closed = self._close_loop(timings)
         self._map_new_keyframe(closed, timings)
@@ -583,24 +515,6 @@ class Odometry:
         self._motion.to_keyframe(T_new)
         return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
                            keyframe_index=k, track=track)
-
-    def _checked_scales(self, keyframe: Keyframe, prims: PrimitiveSet, k: int, idx: int,
-                        timings: Dict[str, float]) -> PrimitiveSet:
-        """``prims`` (the new keyframe ``k``'s, rendered scales) with the reverse
-        scale check's correction (``OdometryConfig.scale_check``; monocular
-        front-ends only), recorded for :meth:`report`."""
-        check_cfg = self.config.scale_check
-        if not check_cfg.enabled or self.frontend.uses_depth:
-            return prims
-        t = time.perf_counter()
-        prev = self._map.latest
-        check = reverse_scale_check(keyframe, prev.image, prev.keyframe.T_world_kf,
-                                    self.config.tracker, check_cfg.min_parallax,
-                                    check_cfg.max_change)
-        prims = prims.with_log_scales(prims.log_scales + check.log_correction)
-        self._scale_checks.append({"keyframe": k, "frame": idx, **dataclasses.asdict(check)})
-        timings["scale_check"] = time.perf_counter() - t
-        return prims
 
     # ------------------------------------------------------------ mapping, loop closure
     def _map_new_keyframe(self, closed: bool, timings: Dict[str, float]) -> None:
