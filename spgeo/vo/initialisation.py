@@ -115,8 +115,8 @@ def init_rejection(sfm: SfMResult, tracked: bool) -> Optional[str]:
     keyframe 1 (its first view) must not be ``"low_parallax"`` / ``"diverged"``
     and its pose must be finite.  When keyframe 1 was not tracked against
     keyframe 0 (large motion or a frame the tracker cannot use) the SfM alone
-    decides, so its status must also be ``"ok"`` (before ``init_max_gap`` the
-    caller also asks its baseline for ``init_min_parallax``).
+    decides, so its status must also be ``"ok"`` (before ``init.max_gap`` the
+    caller also asks its baseline for ``init.min_parallax``).
     """
     if not sfm.T_ref_view or not np.all(np.isfinite(sfm.T_ref_view[0])):
         return "non-finite keyframe-1 pose"
@@ -217,7 +217,7 @@ class Initialiser:
         """A new segment: no buffered frame, no retry gap, no failure note."""
         self.buffer: List[tuple] = []    # (frame index, image) before keyframe 1
         self.retry_gap = 0    # a lost frame may end the wait from this gap on
-        self.wait_until = 0   # past init_max_gap, after a pair without parallax
+        self.wait_until = 0   # past init.max_gap, after a pair without parallax
         self.failure: Optional[str] = None
         self.wait_note: Optional[str] = None
 
@@ -279,7 +279,7 @@ class Initialiser:
         wait = gap < cfg.init.max_gap and not overlap_ending and (
             (tr.ok and (parallax < cfg.init.min_parallax or gap < cfg.init.min_gap))
             or (early and gap < self.retry_gap))
-        # past init_max_gap after a keyframe pair without parallax: retries spaced out,
+        # past init.max_gap after a keyframe pair without parallax: retries spaced out,
         # unless the tracked parallax is reached or keyframe 0's view is ending
         return wait or (gap < self.wait_until and not overlap_ending
                         and not (tr.ok and parallax >= cfg.init.min_parallax))
