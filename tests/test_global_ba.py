@@ -28,7 +28,8 @@ def frames():
 
 def _run(frames):
     """Keyframes every 0.02 median depths, a window of 2: most keyframes retire."""
-    vo = Odometry(CAM, OdometryConfig(window=2, keyframe=KeyframeDecisionConfig(max_translation=0.02)),
+    vo = Odometry(CAM, OdometryConfig(window=2,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02)),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     for f in frames:
         vo.track(f)
@@ -167,7 +168,8 @@ def test_global_ba_config_validates():
 def test_refine_with_planar_primitives(frames):
     """primitive_model="planar": plane variables (N, 3) per keyframe, applied to
     the keyframes (retired ones included)."""
-    vo = Odometry(CAM, OdometryConfig(window=2, keyframe=KeyframeDecisionConfig(max_translation=0.02),
+    vo = Odometry(CAM, OdometryConfig(window=2,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02),
                                       primitive_model="planar"),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     for f in frames[:30]:

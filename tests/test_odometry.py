@@ -47,7 +47,8 @@ def run(frames):
 def run_frequent_kf(frames):
     """As ``run`` with keyframes every 0.1 median depths of translation (3
     keyframes on this sequence, so two mapping updates)."""
-    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)), frontend())
+    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)),
+                  frontend())
     for i, f in enumerate(frames):
         if i == BLANK:
             f = Frame(np.zeros_like(f.image), CAM, f.timestamp, depth=f.depth, name="blank")
@@ -260,7 +261,8 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
             raise RuntimeError("Indeterminant linear system detected (injected)")
 
     # keyframes every 0.1 median depths: a third keyframe maps after the failure
-    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)), frontend())
+    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)),
+                  frontend())
     injected = False
     for i, f in enumerate(frames):
         if not injected and len(vo.keyframes) >= 2:

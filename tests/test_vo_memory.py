@@ -44,7 +44,8 @@ def run():
     While a keyframe is in the window the test keeps its last state."""
     scene = synthetic.SyntheticScene.generate(0)
     poses = synthetic.make_trajectory(60, 0)
-    vo = Odometry(CAM, OdometryConfig(window=WINDOW, keyframe=KeyframeDecisionConfig(max_translation=0.02)),
+    vo = Odometry(CAM, OdometryConfig(window=WINDOW,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02)),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     gc.collect()
     before = weakref.WeakSet(_groups())     # other tests' groups, still alive

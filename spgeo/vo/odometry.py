@@ -43,8 +43,8 @@ from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
-from .map import KeyframeMap
 from .keyframing import KeyframeMaker
+from .map import KeyframeMap
 from .mapping import MapKeyframe, SupportCandidate, WindowMapper, with_shape_values
 from .motion import MotionModel
 from .processing import checked_frame
@@ -54,6 +54,7 @@ from .tracking import Keyframe, TrackResult, track_frame
 __all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
+
 
 class Odometry:
     """Streaming monocular VO (module docstring).

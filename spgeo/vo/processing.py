@@ -5,8 +5,9 @@ input camera resized (:meth:`~spgeo.camera.PinholeCamera.resized`) to
 ``OdometryConfig.resolution`` when set, else to :func:`processing_size` of
 the input size with ``OdometryConfig.target_pixels`` (about that many pixels,
 the input's aspect ratio kept; 4:3 gives 320x240; smaller inputs are kept).  Frames given at the input
-size are resized by :func:`resize_for_vo` inside ``Odometry.track`` (:func:`checked_frame`), so a
-library loop over full-size frames and ``spgeo vo`` process the same pixels.
+size are resized by :func:`resize_for_vo` inside ``Odometry.track`` (which checks
+each frame with :func:`checked_frame`), so a library loop over full-size frames
+and ``spgeo vo`` process the same pixels.
 """
 from __future__ import annotations
 

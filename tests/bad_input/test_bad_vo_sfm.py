@@ -138,7 +138,8 @@ def test_track_rejects_a_bare_array(frames):
 
 @pytest.mark.parametrize("kwargs,fragment", [
     ({"init": InitConfig(min_parallax=float("nan"))}, "init.min_parallax must be >= 0, got nan"),
-    ({"keyframe": KeyframeDecisionConfig(max_rotation_deg=0.0)}, "keyframe.max_rotation_deg must be > 0"),
+    ({"keyframe": KeyframeDecisionConfig(max_rotation_deg=0.0)},
+     "keyframe.max_rotation_deg must be > 0"),
     ({"init": InitConfig(max_gap=0)}, "init.max_gap"),
     ({"window": 1}, "window must be >= 2"),
     ({"init": InitConfig(method="magic")}, "init.method must be one of"),
