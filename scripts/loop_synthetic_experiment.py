@@ -15,7 +15,7 @@ from dataclasses import replace
 from spgeo import synthetic
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.vo import Odometry, OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
 from spgeo.loop import LoopClosureConfig
 from spgeo.evaluation.vo.memory import palindrome
 #logging.basicConfig(level=logging.INFO)
@@ -33,7 +33,7 @@ from spgeo.loop import VerificationConfig
 VC = VerificationConfig(refine=os.environ.get("LOOP_REFINE", "0") == "1")   # LOOP_REFINE=1
 PG = replace(PG, loop_huber=float(os.environ.get("LOOP_HUBER", PG.loop_huber)))   # e.g. LOOP_HUBER=1
 def run(on):
-    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG, verification=VC))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=kft), loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG, verification=VC))
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     t=time.perf_counter()
     for i, j in enumerate(idx):
@@ -53,12 +53,12 @@ if len(sys.argv) <= 5: a=run(False); b=run(True)
 from spgeo.similarity import sim3_parts
 from spgeo.geometry import rotation_angle_deg, invert_pose
 def check(on):
-    cfg = OdometryConfig(kf_max_translation=kft, loop_closure=LoopClosureConfig(enabled=on, verification=VC))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=kft), loop_closure=LoopClosureConfig(enabled=on, verification=VC))
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     for i, j in enumerate(idx):
         vo.track(Frame(views[j], cam, float(i)))
     for lp in vo._loops.closer.loops:
-        gq = poses[idx[vo._kfs[lp.query_id].frame]]; gc = poses[idx[vo._kfs[lp.candidate_id].frame]]
+        gq = poses[idx[vo._map.kfs[lp.query_id].frame]]; gc = poses[idx[vo._map.kfs[lp.candidate_id].frame]]
         G = invert_pose(gc) @ gq
         R, t, s = sim3_parts(lp.S_cand_query)
         cosang = t @ G[:3,3] / (np.linalg.norm(t)*np.linalg.norm(G[:3,3])+1e-12)

@@ -14,7 +14,7 @@ from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose, so3_exp
 from spgeo.graph.keys import pose_key
-from spgeo.vo import GlobalBAConfig, Odometry, OdometryConfig
+from spgeo.vo import GlobalBAConfig, KeyframeDecisionConfig, Odometry, OdometryConfig
 from spgeo.vo.global_ba import _DistanceGauge
 
 CAM = synthetic.default_camera(160, 120)
@@ -30,7 +30,8 @@ def frames():
 
 def _run(frames):
     """Keyframes every 0.02 median depths, a window of 2: most keyframes retire."""
-    vo = Odometry(CAM, OdometryConfig(window=2, kf_max_translation=0.02),
+    vo = Odometry(CAM, OdometryConfig(window=2,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02)),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     for f in frames:
         vo.track(f)
@@ -89,7 +90,7 @@ def test_refine_pulls_perturbed_keyframes_back(frames):
     ate0 = _kf_ate(vo, frames).rmse
     rng = np.random.default_rng(1)
     for k in range(2, vo.n_keyframes):
-        mk = vo._kfs[k]
+        mk = vo._map.kfs[k]
         dT = np.eye(4)
         dT[:3, :3] = so3_exp(rng.normal(size=3) * np.radians(1.0) / np.sqrt(3))
         dT[:3, 3] = rng.normal(size=3) * 0.03 * mk.median_depth / np.sqrt(3)
@@ -169,7 +170,8 @@ def test_global_ba_config_validates():
 def test_refine_with_planar_primitives(frames):
     """primitive_model="planar": plane variables (N, 3) per keyframe, applied to
     the keyframes (retired ones included)."""
-    vo = Odometry(CAM, OdometryConfig(window=2, kf_max_translation=0.02,
+    vo = Odometry(CAM, OdometryConfig(window=2,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02),
                                       primitive_model="planar"),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     for f in frames[:30]:
@@ -196,7 +198,7 @@ def test_run_odometry_refine_reports_time_and_memory(frames, tmp_path):
 
     cfg = VORunConfig(frontend="depth", progress=False, refine=GlobalBAConfig(),
                       odometry=OdometryConfig(resolution=(160, 120), window=2,
-                                              kf_max_translation=0.02))
+                                              keyframe=KeyframeDecisionConfig(max_translation=0.02)))
     run = run_odometry(frames, cfg)
     run.save(tmp_path / "out")
     rep = json.loads((tmp_path / "out" / "report.json").read_text())

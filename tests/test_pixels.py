@@ -9,7 +9,7 @@ from spgeo import synthetic
 from spgeo.frontend import make_frontend
 from spgeo.vo import OdometryConfig
 from spgeo.graph.keys import pose_key, scale_key, support_brightness_key, support_pose_key
-from spgeo.vo.mapping import MapKeyframe
+from spgeo.vo.map import MapKeyframe
 from spgeo.vo.smoother import WindowMapper
 from spgeo.vo.pixels import PixelSelectionConfig, gradient_magnitude, select_pixels
 from spgeo.vo.tracking import (Keyframe, TrackerConfig, TrackingCost, valid_fraction,
@@ -206,7 +206,7 @@ def test_decision_quantities_do_not_depend_on_the_selection(pair, request):
     a = track_frame(kf_all, frame, T_f @ D)
     s = track_frame(kf_sel, frame, T_f @ D)
     assert a.ok and s.ok and a.decision_steps == 0 and s.decision_steps > 0
-    assert abs(s.relative_cost - a.relative_cost) < 0.1 * OdometryConfig().kf_max_relative_cost
+    assert abs(s.relative_cost - a.relative_cost) < 0.1 * OdometryConfig().keyframe.max_relative_cost
     assert abs(s.valid_fraction - a.valid_fraction) < 0.01
 
 

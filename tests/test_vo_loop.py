@@ -8,7 +8,7 @@ from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.loop import LoopClosureConfig, LoopCorrection
 from spgeo.similarity import sim3, sim3_parts
-from spgeo.vo import Odometry, OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
 
 CAM = synthetic.default_camera(160, 120)
 
@@ -23,7 +23,8 @@ def _palindrome(n_unique, step, seed=0):
 
 
 def _run(images, **loop):
-    cfg = OdometryConfig(kf_max_translation=0.03, loop_closure=LoopClosureConfig(**loop))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
+                         loop_closure=LoopClosureConfig(**loop))
     vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     for i, im in enumerate(images):
         vo.track(Frame(im, CAM, float(i)))
@@ -62,8 +63,8 @@ def test_a_correction_moves_keyframes_and_anchored_frames_together(short_run):
     vo = _run(images)
     before = vo.result().poses
     W = sim3(synthetic.camera_rotation(0.3, 0.1, -0.2), np.array([0.5, -0.2, 0.1]), 1.7)
-    ids = list(vo._kf_order)
-    moved = {k: W @ vo._kfs[k].T_world_kf for k in ids}
+    ids = list(vo._map.order)
+    moved = {k: W @ vo._map.kfs[k].T_world_kf for k in ids}
     T_new = {k: sim3(*sim3_parts(moved[k])[:2]) for k in ids}
     depth0 = [np.nanmedian(vo.keyframe(k).primitives.depth_map()) for k in ids]
     vo._apply_loop_correction(LoopCorrection(ids, T_new, {k: 1.7 for k in ids},

@@ -12,7 +12,7 @@ from spgeo.evaluation.vo.memory import growth_per_1000, palindrome
 from spgeo.factors.photometric_group import PhotometricFactorGroup
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.vo import Odometry, OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
 from spgeo.vo.keyframe_store import KeyframeStore
 from spgeo.vo.result import write_keyframe_clouds
 
@@ -44,7 +44,8 @@ def run():
     While a keyframe is in the window the test keeps its last state."""
     scene = synthetic.SyntheticScene.generate(0)
     poses = synthetic.make_trajectory(60, 0)
-    vo = Odometry(CAM, OdometryConfig(window=WINDOW, kf_max_translation=0.02),
+    vo = Odometry(CAM, OdometryConfig(window=WINDOW,
+                                      keyframe=KeyframeDecisionConfig(max_translation=0.02)),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     gc.collect()
     before = weakref.WeakSet(_groups())     # other tests' groups, still alive
@@ -67,7 +68,7 @@ def test_keyframes_outside_the_window_hold_no_image_or_pyramid(run):
     assert len(live) <= WINDOW and vo.n_keyframes >= WINDOW + 3
     retired = [k for k in range(vo.n_keyframes) if k not in live]
     for k in retired:
-        mk = vo._kfs[k]
+        mk = vo._map.kfs[k]
         assert mk.retired and mk.image is None and mk.keyframe is None and mk.map_pixels is None
         assert sum(a.nbytes for a in _arrays(mk)) <= 256      # the 4x4 pose
     # read back: the state it had when it left the window (pose, scales, image, pyramid)
@@ -79,7 +80,7 @@ def test_keyframes_outside_the_window_hold_no_image_or_pyramid(run):
         np.testing.assert_array_equal(back.points, kf.points)
         np.testing.assert_array_equal(back.pyramid.images[0], kf.pyramid.images[0])
         np.testing.assert_array_equal(vo.keyframe_image(k), image)
-        assert back.median_depth == kf.median_depth == vo._kfs[k].median_depth
+        assert back.median_depth == kf.median_depth == vo._map.kfs[k].median_depth
 
 
 def test_processed_frames_hold_small_records_only(run):

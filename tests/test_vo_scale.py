@@ -107,7 +107,7 @@ def test_init_rejection():
                                status=status)
     assert init_rejection(sfm(), tracked=True) is None
     # an untracked keyframe 1 whose SfM is ok initialises (its parallax is checked by the
-    # caller only before init_max_gap)
+    # caller only before init.max_gap)
     assert init_rejection(sfm(), tracked=False) is None
     assert "low_parallax" in init_rejection(sfm(view="low_parallax"), tracked=True)
     assert "status flagged" in init_rejection(sfm(status="flagged"), tracked=False)

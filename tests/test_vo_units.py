@@ -13,9 +13,9 @@ from spgeo import synthetic
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose, rotation_angle_deg
 from spgeo.graph.keys import pose_key, scale_key
-from spgeo.vo import OdometryConfig
+from spgeo.vo import InitConfig, OdometryConfig
 from spgeo.vo.initialisation import FAILED, START, WAIT, Initialiser
-from spgeo.vo.mapping import MapKeyframe, SupportCandidate
+from spgeo.vo.map import MapKeyframe, SupportCandidate
 from spgeo.vo.smoother import WindowMapper
 from spgeo.vo.tracking import Keyframe, track_frame
 
@@ -23,7 +23,7 @@ CAM = synthetic.default_camera(160, 120)
 STEP = 3            # trajectory poses per frame
 N_FRAMES = 12
 #: quick initialisation: keyframe 1 at >= 4 % of keyframe 0's median depth
-INIT = OdometryConfig(init_min_parallax=0.04, init_min_gap=2, init_max_gap=10)
+INIT = OdometryConfig(init=InitConfig(min_parallax=0.04, min_gap=2, max_gap=10))
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def _step(init, frames, kf0, i, image=None, tr=None):
 
 # ------------------------------------------------------------------ Initialiser
 def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, frontend):
-    """Frames below init_min_parallax wait (buffered, a wait note, no SfM);
+    """Frames below init.min_parallax wait (buffered, a wait note, no SfM);
     the first frame past it starts the map: keyframe 1's pose and the
     re-tracked buffered frames are near ground truth, the buffer is emptied."""
     kf0 = _map_keyframe(frames, frontend, 0, 0)
@@ -82,7 +82,7 @@ def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, fro
                                    invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame)
     assert dec.action == START and len(waited) >= 2, (dec.action, waited)
     parallax = np.linalg.norm(dec.T_kf0_frame[:3, 3]) / kf0.keyframe.median_depth
-    assert parallax >= INIT.init_min_parallax
+    assert parallax >= INIT.init.min_parallax
     assert init.buffer == [] and "init" in timings
     assert len(init.reports) == 1 and init.reports[0]["accepted"]
     # keyframe 0 keeps its pose and pixels, with the SfM's shapes
@@ -100,9 +100,9 @@ def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, fro
 
 
 def test_initialiser_rejects_a_pair_without_parallax(frames, frontend):
-    """At init_max_gap a frame without parallax (keyframe 0's own image) is
+    """At init.max_gap a frame without parallax (keyframe 0's own image) is
     solved, rejected (no map) with a note; the next retry waits half a gap."""
-    cfg = dataclasses.replace(INIT, init_max_gap=4)
+    cfg = dataclasses.replace(INIT, init=dataclasses.replace(INIT.init, max_gap=4))
     kf0 = _map_keyframe(frames, frontend, 0, 0, cfg)
     init = Initialiser(cfg, CAM, uses_depth=True)
     still = frames[0].image.copy()
@@ -122,7 +122,7 @@ def test_initialiser_rejects_a_pair_without_parallax(frames, frontend):
 
 
 def test_initialiser_spaces_out_retries_after_a_failed_sfm(frames, frontend):
-    """A frame lost against keyframe 0 before init_max_gap ends the wait; its
+    """A frame lost against keyframe 0 before init.max_gap ends the wait; its
     SfM must be ``ok`` with parallax, else the decision is FAILED and the next
     lost frame waits until the gap has grown by half."""
     kf0 = _map_keyframe(frames, frontend, 0, 0)

@@ -19,7 +19,7 @@ the run):
 * ``synthetic-loop``: a synthetic palindrome (as ``scripts/loop_synthetic_experiment.py``):
   subsampled poses of :func:`spgeo.synthetic.make_trajectory` rendered at the
   size of :data:`SYNTHETIC_LOOP`, played forward and back to the first pose,
-  with the keyframe spacing of that experiment (``odometry.kf_max_translation``,
+  with the keyframe spacing of that experiment (``odometry.keyframe.max_translation``,
   scene units).
 
 ``--frames N`` caps each sequence at ``N`` frames; a palindrome is then made of
@@ -192,7 +192,7 @@ SEQUENCES: Dict[str, LongRunSequence] = {
     "kitti": LongRunSequence(_kitti),
     "synthetic-loop": LongRunSequence(
         _synthetic_loop, loop=True,
-        overrides={"odometry.resolution": SYNTHETIC_LOOP["size"], "odometry.kf_max_translation": 0.03}),
+        overrides={"odometry.resolution": SYNTHETIC_LOOP["size"], "odometry.keyframe.max_translation": 0.03}),
 }
 
 #: ``--variants`` name -> :class:`~spgeo.apps.vo_run.VORunConfig` overrides (dotted names).

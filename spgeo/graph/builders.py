@@ -6,7 +6,7 @@
   variables and photometric factor groups with these functions only):
   :func:`mapping_pixels`, :func:`pair_factor_group`, :func:`add_keyframe_variables`,
   :func:`add_factor_group`, :func:`link_keyframe_pair`.  Each keyframe is a
-  :class:`~spgeo.vo.mapping.MapKeyframe` (live: its ``keyframe`` set), the options an
+  :class:`~spgeo.vo.map.MapKeyframe` (live: its ``keyframe`` set), the options an
   :class:`~spgeo.vo.config.OdometryConfig`.
 * The few-view SfM graph of one pyramid level (:func:`build_level_graph`, shared by
   :func:`spgeo.sfm.few_view_sfm` and the tests of the VO tracker, which minimises the
@@ -36,7 +36,7 @@ from ..primitives import PrimitiveSet
 from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 
 # OdometryConfig, MapKeyframe and SfMConfig in the annotations are the VO's and the SfM's
-# (spgeo.vo.config, spgeo.vo.mapping, spgeo.sfm.config): not imported, as those packages
+# (spgeo.vo.config, spgeo.vo.map, spgeo.sfm.config): not imported, as those packages
 # import this module (no import circle, not even a type-only one: tests/test_layering.py)
 
 __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam_error_line",

@@ -20,9 +20,10 @@ from .feature_retry import FeatureRetryConfig
 from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
-__all__ = ["TrackerConfig", "OdometryConfig", "INIT_METHODS"]
+__all__ = ["TrackerConfig", "KeyframeDecisionConfig", "ScaleCheckConfig", "InitConfig",
+           "OdometryConfig", "INIT_METHODS"]
 
-#: how a monocular map's initialisation SfM starts (``OdometryConfig.init_method``)
+#: how a monocular map's initialisation SfM starts (``InitConfig.method``)
 INIT_METHODS = ("twoview", "tracked")
 
 
@@ -64,7 +65,7 @@ class TrackerConfig:
             different scene or a blank frame near 1).
         decision_width: the tracking decisions (``min_valid_fraction``,
             ``max_relative_cost`` and the keyframe thresholds of
-            :class:`OdometryConfig`) are taken on the *decision pixels*: the
+            :class:`KeyframeDecisionConfig`) are taken on the *decision pixels*: the
             primitive pixels of the finest level on a lattice of stride
             ``round(width / decision_width)`` (default 160: every pixel at
             160x120, every other one at 320x240), whatever pixels the pose was
@@ -105,6 +106,97 @@ class TrackerConfig:
                              "required")
 
 
+@config_repr
+@dataclass(frozen=True)
+class KeyframeDecisionConfig:
+    """When a frame tracked against the latest keyframe becomes a keyframe
+    (``OdometryConfig.keyframe``): when any threshold is crossed, on the
+    tracker's decision pixels.
+
+    Attributes:
+        min_valid_fraction: fewer of the latest keyframe's primitive pixels
+            project into the frame (fraction in [0, 1]; default 0.6).
+        max_translation: the translation from the latest keyframe over its
+            median depth exceeds this (unitless, > 0; default 0.2).
+        max_relative_cost: the tracked frame's relative photometric cost
+            (``TrackResult.relative_cost``) exceeds this (> 0; default 0.2:
+            the tracker declares ``"lost"`` at 0.35, and slow hand-held motion
+            reaches that before the translation threshold).
+        max_rotation_deg: the rotation from the latest keyframe exceeds this
+            (degrees, > 0; default 15).
+    """
+
+    min_valid_fraction: float = 0.6
+    max_translation: float = 0.2
+    max_relative_cost: float = 0.2
+    max_rotation_deg: float = 15.0
+
+
+@config_repr
+@dataclass(frozen=True)
+class ScaleCheckConfig:
+    """The reverse scale check of a new monocular keyframe
+    (``OdometryConfig.scale_check``; :func:`~spgeo.vo.scale_check.reverse_scale_check`).
+
+    Attributes:
+        enabled: monocular front-ends: after a new keyframe's log-scales are
+            rendered from the window, the previous keyframe's image is tracked
+            against it and its log-scales are shifted so that the tracked
+            translation matches the known one (default True; docs/results.md
+            says why).
+        min_parallax: ... only when the two keyframes' translation over the
+            new one's median depth reaches this (unitless, >= 0; default 0.01).
+        max_change: ... by a factor of at most ``1 + max_change`` either way
+            (> 0; default 0.2).
+    """
+
+    enabled: bool = True
+    min_parallax: float = 0.01
+    max_change: float = 0.2
+
+
+@config_repr
+@dataclass(frozen=True)
+class InitConfig:
+    """The initialisation of a map segment (``OdometryConfig.init``;
+    :class:`spgeo.vo.initialisation.Initialiser`).
+
+    Attributes:
+        min_parallax: keyframe 1 is the first frame whose tracked translation
+            over keyframe 0's median depth reaches this (unitless, >= 0;
+            default 0.08) ...
+        max_gap: ... or the frame this many frames after keyframe 0 (default
+            30: 1 s at 30 Hz), or the first frame whose tracking against
+            keyframe 0 fails (large motion; its initialisation is kept only
+            when the SfM's status is ``"ok"`` and its own baseline reaches
+            ``min_parallax``).  A keyframe pair without parallax (the SfM flags
+            keyframe 1's view ``"low_parallax"``) never initialises a map: the
+            frames stay ``init`` / ``lost``, the SfM is retried at gaps growing
+            by half (:attr:`Odometry.init_failure` says why;
+            :func:`spgeo.vo.initialisation.init_rejection`).
+        min_gap: keyframe 1 is at least this many frames after keyframe 0
+            (default 3; ``1 <= min_gap <= max_gap``).
+        method: how a monocular map's initialisation SfM starts (one of
+            :data:`INIT_METHODS`): ``"twoview"`` (default): keyframe 1's pose
+            and keyframe 0's primitive scales from feature-based two-view
+            geometry (:func:`~spgeo.vo.initialisation.twoview_start`), falling
+            back to ``"tracked"`` when that has no estimate; ``"tracked"``:
+            keyframe 1's pose tracked against keyframe 0's unscaled primitives,
+            every primitive at depth 1.  A depth-using front-end always starts
+            from the tracked pose and its metric scales.
+        extra_views: frames between keyframes 0 and 1 (evenly spaced) added as
+            supporting views to the initialisation's SfM (>= 0; default 1):
+            with keyframe 1 alone the monocular structure of keyframe 0 fits
+            that one baseline.  0 is the plain two-view initialisation.
+    """
+
+    min_parallax: float = 0.08
+    max_gap: int = 30
+    min_gap: int = 3
+    method: str = "twoview"
+    extra_views: int = 1
+
+
 #: what each condition name of :data:`_ODOMETRY_CHECKS` requires of a value
 _CONDITIONS = {
     ">= 0": lambda v: v >= 0,
@@ -118,14 +210,14 @@ _CONDITIONS = {
 
 #: ``(field, condition)`` checks of :meth:`OdometryConfig.__post_init__`, in order
 _ODOMETRY_CHECKS = (
-    ("window", ">= 2"), ("map_iterations", ">= 1"), ("init_max_gap", ">= 1"),
+    ("window", ">= 2"), ("map_iterations", ">= 1"), ("init.max_gap", ">= 1"),
     ("max_lost_frames", ">= 1"), ("map_chunk", ">= 1"), ("map_pixel_fraction", "in (0, 1]"),
-    ("pixel_budget", "None or >= 1"), ("init_extra_views", ">= 0"), ("n_support", ">= 0"),
+    ("pixel_budget", "None or >= 1"), ("init.extra_views", ">= 0"), ("n_support", ">= 0"),
     ("scale_prior_weight", "> 0"), ("render_prior_weight", "> 0"),
-    ("kf_min_valid_fraction", "in [0, 1]"), ("kf_max_translation", "> 0"),
-    ("init_min_parallax", ">= 0"), ("kf_max_rotation_deg", "> 0"),
-    ("kf_max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
-    ("kf_scale_check_min_parallax", ">= 0"), ("kf_scale_check_max_change", "> 0"),
+    ("keyframe.min_valid_fraction", "in [0, 1]"), ("keyframe.max_translation", "> 0"),
+    ("init.min_parallax", ">= 0"), ("keyframe.max_rotation_deg", "> 0"),
+    ("keyframe.max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
+    ("scale_check.min_parallax", ">= 0"), ("scale_check.max_change", "> 0"),
     ("keyframe_levels", ">= 1"))
 
 
@@ -147,16 +239,9 @@ class OdometryConfig:
             (default :data:`~spgeo.vo.processing.DEFAULT_TARGET_PIXELS`, that of
             320x240; in [64, 2**26]).
         tracker: :class:`TrackerConfig` of frame-to-keyframe tracking.
-        kf_min_valid_fraction: new keyframe when fewer of the latest
-            keyframe's primitive pixels project into the frame (default 0.6).
-        kf_max_translation: new keyframe when the translation from the latest
-            keyframe over its median depth exceeds this (default 0.2).
-        kf_max_relative_cost: new keyframe when the tracked frame's relative
-            photometric cost (``TrackResult.relative_cost``) exceeds this
-            (default 0.2; the tracker declares ``"lost"`` at 0.35, and slow
-            hand-held motion reaches that before the translation threshold).
-        kf_max_rotation_deg: new keyframe when the rotation from the latest
-            keyframe exceeds this (default 15 degrees).
+        keyframe: :class:`KeyframeDecisionConfig`: when a tracked frame becomes
+            a keyframe (default: fewer than 0.6 valid pixels, translation over
+            median depth 0.2, relative cost 0.2, rotation 15 degrees).
         window: keyframes kept in the smoother (default 5, >= 2); older ones
             are marginalised.
         n_support: supporting non-keyframes linked to each keyframe (paper: 4; default 2,
@@ -203,43 +288,10 @@ class OdometryConfig:
             pixel's nearest are averaged (0: the nearest wins, which biases
             overlapping estimates of one surface towards the camera and makes
             the monocular scale shrink keyframe after keyframe).
-        kf_scale_check: monocular front-ends: after a new keyframe's
-            log-scales are rendered from the window, the previous keyframe's
-            image is tracked against it and its log-scales are shifted so
-            that the tracked translation matches the known one
-            (:func:`~spgeo.vo.scale_check.reverse_scale_check`; default True;
-            docs/results.md says why).
-        kf_scale_check_min_parallax: ... only when the two keyframes'
-            translation over the new one's median depth reaches this
-            (default 0.01).
-        kf_scale_check_max_change: ... by a factor of at most
-            ``1 + kf_scale_check_max_change`` either way (default 0.2, > 0).
-        init_min_parallax: keyframe 1 is the first frame whose tracked
-            translation over keyframe 0's median depth reaches this
-            (default 0.08) ...
-        init_max_gap: ... or the frame this many frames after keyframe 0
-            (default 30: 1 s at 30 Hz), or the first frame whose tracking
-            against keyframe 0 fails (large motion; its initialisation is
-            kept only when the SfM's status is ``"ok"`` and its own baseline
-            reaches ``init_min_parallax``).  A keyframe pair without parallax
-            (the SfM flags keyframe 1's view ``"low_parallax"``) never
-            initialises a map: the frames stay ``init`` / ``lost``, the SfM
-            is retried at gaps growing by half (:attr:`Odometry.init_failure`
-            says why; :func:`spgeo.vo.initialisation.init_rejection`).
-        init_min_gap: keyframe 1 is at least this many frames after keyframe
-            0 (default 3; ``1 <= init_min_gap <= init_max_gap``).
-        init_method: how a monocular map's initialisation SfM starts:
-            ``"twoview"`` (default): keyframe 1's pose and keyframe 0's
-            primitive scales from feature-based two-view geometry
-            (:func:`~spgeo.vo.initialisation.twoview_start`), falling back to
-            ``"tracked"`` when that has no estimate; ``"tracked"``: keyframe 1's
-            pose tracked against keyframe 0's unscaled primitives, every
-            primitive at depth 1.  A depth-using front-end always starts from
-            the tracked pose and its metric scales.
-        init_extra_views: frames between keyframes 0 and 1 (evenly spaced)
-            added as supporting views to the initialisation's SfM (default
-            1): with keyframe 1 alone the monocular structure of keyframe 0
-            fits that one baseline.  0 is the plain two-view initialisation.
+        scale_check: :class:`ScaleCheckConfig`: the reverse scale check of a
+            new monocular keyframe (default on).
+        init: :class:`InitConfig`: when and how a map segment is initialised
+            (keyframe 1's parallax and frame gap, the SfM's start and extra views).
         max_lost_frames: re-initialise after this many consecutive lost frames
             (default 10).
         sfm: :class:`SfMConfig` of the two-view initialisation (its
@@ -257,10 +309,7 @@ class OdometryConfig:
     resolution: Optional[Tuple[int, int]] = None
     target_pixels: int = DEFAULT_TARGET_PIXELS
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    kf_min_valid_fraction: float = 0.6
-    kf_max_translation: float = 0.2
-    kf_max_relative_cost: float = 0.2
-    kf_max_rotation_deg: float = 15.0
+    keyframe: KeyframeDecisionConfig = field(default_factory=KeyframeDecisionConfig)
     window: int = 5
     n_support: int = 2
     keyframe_levels: int = 3
@@ -274,14 +323,8 @@ class OdometryConfig:
     scale_prior_weight: float = 1e-5
     render_prior_weight: float = 1e-2
     render_tolerance: float = 0.2
-    kf_scale_check: bool = True
-    kf_scale_check_min_parallax: float = 0.01
-    kf_scale_check_max_change: float = 0.2
-    init_min_parallax: float = 0.08
-    init_max_gap: int = 30
-    init_min_gap: int = 3
-    init_method: str = "twoview"
-    init_extra_views: int = 1
+    scale_check: ScaleCheckConfig = field(default_factory=ScaleCheckConfig)
+    init: InitConfig = field(default_factory=InitConfig)
     max_lost_frames: int = 10
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
@@ -289,20 +332,22 @@ class OdometryConfig:
 
     def __post_init__(self) -> None:
         self._check_size()
-        if self.init_method not in INIT_METHODS:
-            raise InputError(f"OdometryConfig.init_method must be one of {INIT_METHODS}, "
-                             f"got {self.init_method!r}")
+        if self.init.method not in INIT_METHODS:
+            raise InputError(f"OdometryConfig.init.method must be one of {INIT_METHODS}, "
+                             f"got {self.init.method!r}")
         if self.primitive_model not in PRIMITIVE_MODELS:
             raise InputError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")
         for name, expected in _ODOMETRY_CHECKS:
-            if not _CONDITIONS[expected](getattr(self, name)):    # NaN fails every comparison
-                raise InputError(f"OdometryConfig.{name} must be {expected}, "
-                                 f"got {getattr(self, name)!r}")
+            value = self
+            for part in name.split("."):
+                value = getattr(value, part)
+            if not _CONDITIONS[expected](value):    # NaN fails every comparison
+                raise InputError(f"OdometryConfig.{name} must be {expected}, got {value!r}")
         if not 0 <= self.map_level < self.keyframe_levels:
             raise InputError("OdometryConfig.map_level must be in [0, keyframe_levels)")
-        if not 1 <= self.init_min_gap <= self.init_max_gap:
-            raise InputError("OdometryConfig: 1 <= init_min_gap <= init_max_gap required")
+        if not 1 <= self.init.min_gap <= self.init.max_gap:
+            raise InputError("OdometryConfig: 1 <= init.min_gap <= init.max_gap required")
 
     def _check_size(self) -> None:
         if self.resolution is not None:

@@ -60,7 +60,7 @@ from ..graph.builders import (GAUGE_SIGMA, FactorBatch, add_keyframe_variables,
                               gtsam_error_line, link_keyframe_pair)
 from ..graph.keys import pose_key, scale_key
 from .config import OdometryConfig
-from .mapping import MapKeyframe
+from .map import MapKeyframe
 
 __all__ = ["GlobalBAConfig", "GlobalBAResult", "refine_keyframes", "SCALE_GAUGE_SIGMA"]
 
@@ -258,7 +258,7 @@ def refine_keyframes(keyframes: Sequence[MapKeyframe], store, config: OdometryCo
     (module docstring); segments with fewer than two keyframes are left out.
 
     Args:
-        keyframes: the odometry's :class:`~spgeo.vo.mapping.MapKeyframe` objects
+        keyframes: the odometry's :class:`~spgeo.vo.map.MapKeyframe` objects
             in creation order (live or retired; none is modified).
         store: the :class:`~spgeo.vo.keyframe_store.KeyframeStore` holding the
             retired ones.

@@ -32,7 +32,7 @@ from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
 from ..sfm.init import twoview_initialisation
 from .config import OdometryConfig
-from .mapping import MapKeyframe
+from .map import MapKeyframe
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection",
@@ -49,7 +49,7 @@ def init_views(image: np.ndarray, idx: int, frame0: int, buffer: Sequence[tuple]
         image: keyframe 1's image (frame ``idx``).
         idx, frame0: frame numbers of keyframes 1 and 0.
         buffer: ``(frame number, image)`` of the frames waiting between them.
-        n_extra: ``OdometryConfig.init_extra_views``.
+        n_extra: ``OdometryConfig.init.extra_views``.
         T_kf0_f: keyframe 1's tracked pose in keyframe 0 (4x4), or None when it
             was not tracked.
     Returns:
@@ -116,8 +116,8 @@ def init_rejection(sfm: SfMResult, tracked: bool) -> Optional[str]:
     keyframe 1 (its first view) must not be ``"low_parallax"`` / ``"diverged"``
     and its pose must be finite.  When keyframe 1 was not tracked against
     keyframe 0 (large motion or a frame the tracker cannot use) the SfM alone
-    decides, so its status must also be ``"ok"`` (before ``init_max_gap`` the
-    caller also asks its baseline for ``init_min_parallax``).
+    decides, so its status must also be ``"ok"`` (before ``init.max_gap`` the
+    caller also asks its baseline for ``init.min_parallax``).
     """
     if not sfm.T_ref_view or not np.all(np.isfinite(sfm.T_ref_view[0])):
         return "non-finite keyframe-1 pose"
@@ -218,12 +218,12 @@ class Initialiser:
         """A new segment: no buffered frame, no retry gap, no failure note."""
         self.buffer: List[tuple] = []    # (frame index, image) before keyframe 1
         self.retry_gap = 0    # a lost frame may end the wait from this gap on
-        self.wait_until = 0   # past init_max_gap, after a pair without parallax
+        self.wait_until = 0   # past init.max_gap, after a pair without parallax
         self.failure: Optional[str] = None
         self.wait_note: Optional[str] = None
 
     def _buffer_frame(self, idx: int, image: np.ndarray) -> None:
-        append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init_max_gap)
+        append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
 
     def step(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
              brightness: np.ndarray, segment: int,
@@ -236,11 +236,11 @@ class Initialiser:
         parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
                     if tr.ok else 0.0)
         gap = idx - kf0.frame
-        early = not tr.ok and gap < self.config.init_max_gap
+        early = not tr.ok and gap < self.config.init.max_gap
         if self._waits(tr, T_kf0_f, parallax, gap, early):
             self.wait_note = (
                 f"waiting for keyframe 1: {gap} frames after keyframe 0, " + (
-                    f"parallax {parallax:.3g} < init_min_parallax {self.config.init_min_parallax:g}"
+                    f"parallax {parallax:.3g} < init.min_parallax {self.config.init.min_parallax:g}"
                     if tr.ok else f"frame lost against keyframe 0 ({tr.reason})"))
             self._buffer_frame(idx, image)
             return InitDecision(WAIT, T_kf0_f)
@@ -255,7 +255,7 @@ class Initialiser:
             return InitDecision(FAILED, T_kf0_f)
         if rejected is not None:
             # no baseline between keyframes 0 and 1: no map; wait for motion
-            self.wait_until = max(gap, self.config.init_max_gap) + max(1, gap // 2)
+            self.wait_until = max(gap, self.config.init.max_gap) + max(1, gap // 2)
             self.failure = f"frame {idx}: no map initialised from keyframes 0-1 ({rejected})"
             log.warning("%s; waiting for camera motion", self.failure)
             self._buffer_frame(idx, image)
@@ -273,17 +273,17 @@ class Initialiser:
         # keyframe 1 must still overlap keyframe 0: the overlap criteria of
         # keyframes (valid fraction, rotation) end the wait too
         rot = rotation_angle_deg(T_kf0_f[:3, :3])
-        overlap_ending = tr.ok and (tr.valid_fraction < cfg.kf_min_valid_fraction
-                                    or rot > cfg.kf_max_rotation_deg)
+        overlap_ending = tr.ok and (tr.valid_fraction < cfg.keyframe.min_valid_fraction
+                                    or rot > cfg.keyframe.max_rotation_deg)
         # a frame lost against keyframe 0's unscaled shapes (large motion) ends
         # the wait too (retries spaced out); its SfM must then pass its own checks
-        wait = gap < cfg.init_max_gap and not overlap_ending and (
-            (tr.ok and (parallax < cfg.init_min_parallax or gap < cfg.init_min_gap))
+        wait = gap < cfg.init.max_gap and not overlap_ending and (
+            (tr.ok and (parallax < cfg.init.min_parallax or gap < cfg.init.min_gap))
             or (early and gap < self.retry_gap))
-        # past init_max_gap after a keyframe pair without parallax: retries spaced out,
+        # past init.max_gap after a keyframe pair without parallax: retries spaced out,
         # unless the tracked parallax is reached or keyframe 0's view is ending
         return wait or (gap < self.wait_until and not overlap_ending
-                        and not (tr.ok and parallax >= cfg.init_min_parallax))
+                        and not (tr.ok and parallax >= cfg.init.min_parallax))
 
     def _solve(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
                T_kf0_f: np.ndarray) -> Tuple[SfMResult, int]:
@@ -292,7 +292,7 @@ class Initialiser:
         sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=not self.uses_depth)
         prims0 = kf0.keyframe.primitives
         T_init = T_kf0_f if tr.ok else None
-        if tr.ok and cfg.init_method == "twoview" and not self.uses_depth:
+        if tr.ok and cfg.init.method == "twoview" and not self.uses_depth:
             tv = twoview_start(kf0.image, image, self.camera, prims0)
             if tv is not None:
                 T_init, prims0 = tv
@@ -300,7 +300,7 @@ class Initialiser:
             else:
                 log.info("frame %d: no two-view estimate for keyframe 1; the SfM starts from "
                          "the tracked pose", idx)
-        views, init = init_views(image, idx, kf0.frame, self.buffer, cfg.init_extra_views, T_init)
+        views, init = init_views(image, idx, kf0.frame, self.buffer, cfg.init.extra_views, T_init)
         sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
         return sfm, len(views)
 
@@ -314,7 +314,7 @@ class Initialiser:
             parallax = float(np.linalg.norm(sfm.T_ref_view[0][:3, 3]) / np.median(
                 np.exp(sfm.primitives.scaled_log_depth())))
         failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
-                                                         or parallax < cfg.init_min_parallax))
+                                                         or parallax < cfg.init.min_parallax))
         rejected = None if failed else init_rejection(sfm, tr.ok)
         self.reports.append({
             "status": sfm.status, "frame": idx, "segment": segment, "parallax": parallax,

@@ -2,7 +2,7 @@
 
 A keyframe whose variables the window's smoother marginalised never changes
 again (:class:`spgeo.vo.smoother.WindowMapper`): :class:`spgeo.vo.Odometry`
-*retires* it (:meth:`spgeo.vo.mapping.MapKeyframe.retire`).  Its pose and median
+*retires* it (:meth:`spgeo.vo.map.MapKeyframe.retire`).  Its pose and median
 depth stay in memory (the trajectory needs them); its input image and
 primitives go to a :class:`KeyframeStore` (one pickle file per keyframe, exact
 arrays), and its pyramid, points and pixel caches are dropped.  Whatever needs

@@ -18,7 +18,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..loop import LoopCloser, LoopClosureConfig, LoopCorrection
 from ..similarity import sim3_parts
-from .mapping import MapKeyframe
+from .map import MapKeyframe
 
 __all__ = ["SegmentLoopClosure"]
 

@@ -5,12 +5,15 @@ One thread, one call per frame (:meth:`Odometry.track`).  The states and
 their rules (initialisation, tracking with its retries, relocalisation,
 re-initialisation, keyframe decisions, the trajectory that
 :meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
-are :class:`~spgeo.vo.config.OdometryConfig`'s.  The initialisation is
+are :class:`~spgeo.vo.config.OdometryConfig`'s.  ``Odometry`` drives them over
+its state: the keyframe map (:class:`spgeo.vo.map.KeyframeMap`: keyframes,
+segments, the store of retired keyframes, anchored and supporting frames) and
+the motion model (:class:`spgeo.vo.motion.MotionModel`).  The initialisation is
 :class:`spgeo.vo.initialisation.Initialiser`'s (an owned object that returns an
 :class:`~spgeo.vo.initialisation.InitDecision` which ``Odometry`` applies): a
 keyframe pair without parallax never initialises a map
 (:attr:`Odometry.init_failure`).  Mapping is
-:class:`spgeo.vo.mapping.WindowMapper`'s (fixed-lag smoother over the last
+:class:`spgeo.vo.smoother.WindowMapper`'s (fixed-lag smoother over the last
 ``window`` keyframes and their supporting frames).
 
 Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
@@ -20,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
 from pathlib import Path
 from typing import Dict, Iterable, Iterator, List, Optional, Tuple, Union
@@ -33,31 +35,27 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, rotation_angle_deg
-from ..similarity import moved_frame, sim3
-from ..primitive_models import apply_primitive_model
-from ..primitives import PrimitiveSet
-from ..validation import InputError, check_camera
+from ..similarity import sim3
+from ..validation import check_camera
 from .config import OdometryConfig
 from .feature_retry import FeatureRetry
 from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
-from .processing import resize_for_vo
 from .keyframe import with_shape_values
-from .mapping import MapKeyframe, SupportCandidate
+from .keyframing import KeyframeMaker
+from .map import KeyframeMap
+from .map import MapKeyframe, SupportCandidate
+from .motion import MotionModel
+from .processing import checked_frame
 from .smoother import WindowMapper
-from .rendering import init_scales_from_render, render_primitives
-from .scale_check import reverse_scale_check
 from .result import FrameResult, FrameStatus, OdometryResult, save_run
-from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
+from .tracking import Keyframe, TrackResult, track_frame
 
 __all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
-
-#: splat size (pixels) when rendering the window into a new keyframe
-RENDER_SPLAT = 2
 
 
 class Odometry:
@@ -79,7 +77,7 @@ class Odometry:
     Memory: after a frame is processed only its :class:`FrameResult` (pose,
     status, timings, the small :class:`TrackResult`) and relative pose stay;
     keyframes outside the window are retired
-    (:meth:`spgeo.vo.mapping.MapKeyframe.retire`: pose and median depth in
+    (:meth:`spgeo.vo.map.MapKeyframe.retire`: pose and median depth in
     memory, image and primitives in the store), so memory grows with the
     number of frames only by these small records.
     """
@@ -97,23 +95,14 @@ class Odometry:
         self.config = config
         self.frontend = frontend
         self._frames: List[FrameResult] = []
-        self._kfs: Dict[int, MapKeyframe] = {}
-        self._kf_order: List[int] = []
-        self._live: List[int] = []             # keyframes not retired
-        self._store = store if store is not None else KeyframeStore()
-        # frame -> (kf, T_kf_frame, the keyframe's median depth when it was tracked)
-        self._rel: Dict[int, Tuple[int, np.ndarray, float]] = {}
-        self._candidates: List[SupportCandidate] = []
+        self._map = KeyframeMap(config.window, config.keyframe_levels, config.n_support, store)
+        self._motion = MotionModel()
         self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
-        self._segment = 0
-        self._seg_kfs: List[int] = []          # keyframes of the current segment
-        self._last_good: Optional[np.ndarray] = None
-        self._prev_good: Optional[np.ndarray] = None
-        self._brightness = np.zeros(2)
         self._n_lost = 0
         self._mapper = WindowMapper(config)
+        self._mapper.support_pose = self._map.support_pose   # the smoother writes the map's
         self._retry = FeatureRetry(self.camera, config.feature_retry)
-        self._scale_checks: List[dict] = []
+        self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
         self._refine_report: Optional[dict] = None      # the last refine()'s
@@ -145,78 +134,29 @@ class Odometry:
         """
         t0 = time.perf_counter()
         idx = len(self._frames)
-        if not isinstance(frame, Frame):
-            raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
-                            f"{type(frame).__name__}")
-        image = np.asarray(frame.image)
-        if image.ndim not in (2, 3) or tuple(image.shape[:2]) not in (self.camera.shape,
-                                                                       self.input_camera.shape):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image of shape "
-                             f"{image.shape} does not match the input camera's (H, W) "
-                             f"{self.input_camera.shape}")
-        if tuple(image.shape[:2]) != self.camera.shape:
-            frame = resize_for_vo(frame, self.camera, bool(self.frontend.uses_depth), idx)
-            image = frame.image
-        if not np.all(np.isfinite(image)):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) image contains "
-                             "NaN or inf")
-        try:
-            stamp = float(frame.timestamp)
-        except (TypeError, ValueError):
-            stamp = math.nan
-        if not math.isfinite(stamp):
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp "
-                             f"{frame.timestamp!r} is not a finite number")
-        if self._frames and not stamp > self._frames[-1].timestamp:
-            raise InputError(f"Odometry.track: frame {idx} ({frame.name!r}) timestamp {stamp!r} "
-                             f"is not after the previous frame's {self._frames[-1].timestamp!r}: "
-                             "timestamps must be strictly increasing")
+        frame = checked_frame(frame, idx, self.camera, self.input_camera,
+                              bool(self.frontend.uses_depth),
+                              self._frames[-1].timestamp if self._frames else None)
         timings: Dict[str, float] = {}
         if idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
-        elif len(self._seg_kfs) < 2:
+        elif len(self._map.seg_kfs) < 2:
             res = self._initialise(frame, idx, timings)
         else:
             res = self._track(frame, idx, timings)
         timings["total"] = time.perf_counter() - t0
         res.timings = timings
-        res.segment = self._segment
+        res.segment = self._map.segment
         self._frames.append(res)
         return res
 
     def result(self) -> OdometryResult:
-        """Per-frame trajectory (module docstring, *Trajectory*)."""
-        n = len(self._frames)
-        poses = np.empty((n, 4, 4))
-        is_kf = np.zeros(n, dtype=bool)
-        kf_of_frame = {kf.frame: kf for kf in self._kfs.values()}
-        for i, f in enumerate(self._frames):
-            if i in kf_of_frame:
-                poses[i] = kf_of_frame[i].T_world_kf
-                is_kf[i] = True
-            elif i in self._mapper.support_pose:
-                poses[i] = self._mapper.support_pose[i]
-            elif i in self._rel and self._rel[i][0] in self._kfs:
-                poses[i] = self._frame_pose(*self._rel[i])
-            elif f.status is FrameStatus.LOST and i > 0:
-                poses[i] = poses[i - 1]
-            else:
-                poses[i] = f.T_world_cam
+        """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
+        :meth:`spgeo.vo.map.KeyframeMap.frame_poses`)."""
+        poses, is_kf = self._map.frame_poses(self._frames)
         return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
                               poses, [f.status for f in self._frames], is_kf,
                               np.array([f.segment for f in self._frames], dtype=int))
-
-    def _frame_pose(self, k: int, T_kf_frame: np.ndarray, median_then: float) -> np.ndarray:
-        """``T_world_frame`` of a frame tracked against keyframe ``k``: the
-        keyframe's latest pose composed with the tracked relative pose, whose
-        translation is rescaled by the change of the keyframe's median depth
-        since tracking (mapping refines the keyframe's scales; the tracked
-        translation was measured in the old depth units)."""
-        kf = self._kfs[k]
-        T = np.array(T_kf_frame, dtype=float)
-        if median_then > 0:
-            T[:3, 3] *= kf.median_depth / median_then
-        return kf.T_world_kf @ T
 
     def smoother_estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
@@ -238,20 +178,20 @@ class Odometry:
         Keyframes that left the window are built again from the store at every
         call (new objects, equal to the ones they were): for their poses use
         :meth:`result`, for the window :meth:`window_keyframes`."""
-        return [self.keyframe(k) for k in self._kf_order]
+        return [self.keyframe(k) for k in self._map.order]
 
     @property
     def n_keyframes(self) -> int:
         """Number of keyframes so far (indices ``0 .. n_keyframes - 1``)."""
-        return len(self._kf_order)
+        return len(self._map.order)
 
     def keyframe(self, k: int) -> Keyframe:
         """Keyframe ``k`` (:attr:`keyframes`; one read from the store if retired)."""
-        return self._kfs[k].restore(self._store, self.config.keyframe_levels)[1]
+        return self._map.restore(k)[1]
 
     def keyframe_image(self, k: int) -> np.ndarray:
         """The input image keyframe ``k`` was made from (as given to :meth:`track`)."""
-        return self._kfs[k].input_image(self._store)
+        return self._map.kfs[k].input_image(self._map.store)
 
     def iter_keyframes(self, indices: Optional[Iterable[int]] = None
                        ) -> Iterator[Tuple[int, np.ndarray, Keyframe]]:
@@ -259,14 +199,12 @@ class Odometry:
         in the order given, at their current state: keyframes that left the
         window are read back from the store one at a time (a consumer that
         keeps none holds one in memory)."""
-        levels = self.config.keyframe_levels
-        for k in (self._kf_order if indices is None else indices):
-            yield (k, *self._kfs[k].restore(self._store, levels))
+        return self._map.iter_keyframes(indices)
 
     def window_keyframes(self) -> Dict[int, Keyframe]:
         """Keyframe index -> :class:`Keyframe` of the keyframes not retired (the
         window's: the only ones that can still change), in creation order."""
-        return {k: self._kfs[k].keyframe for k in self._live}
+        return {k: self._map.kfs[k].keyframe for k in self._map.live}
 
     @property
     def frames(self) -> List[FrameResult]:
@@ -278,7 +216,7 @@ class Odometry:
         """Whether the current map segment has its keyframe pair (keyframes 0
         and 1): until then no frame is tracked against a map and, with a
         monocular front-end, keyframe 0 has no depth."""
-        return len(self._seg_kfs) >= 2
+        return len(self._map.seg_kfs) >= 2
 
     @property
     def init_failure(self) -> Optional[str]:
@@ -292,12 +230,7 @@ class Odometry:
         carry depth: all with a depth-using front-end; monocular, those of map
         segments that were initialised (a segment's lone keyframe 0 has only
         its unscaled shapes: its cloud would be a surface at an arbitrary depth)."""
-        if self.frontend.uses_depth:
-            return list(self._kf_order)
-        per_segment: Dict[int, int] = {}
-        for k in self._kf_order:
-            per_segment[self._kfs[k].segment] = per_segment.get(self._kfs[k].segment, 0) + 1
-        return [k for k in self._kf_order if per_segment[self._kfs[k].segment] >= 2]
+        return self._map.keyframes_with_depth(bool(self.frontend.uses_depth))
 
     def report(self) -> dict:
         """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
@@ -308,8 +241,8 @@ class Odometry:
         n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
         maps = [m["seconds"] for m in self._mapper.reports if "seconds" in m]
         return {
-            "n_frames": len(self._frames), "n_keyframes": len(self._kf_order),
-            "n_segments": self._segment + 1,
+            "n_frames": len(self._frames), "n_keyframes": len(self._map.order),
+            "n_segments": self._map.segment + 1,
             "initialised": self.initialised, "init_failure": self.init_failure,
             "status_counts": res.status_counts(),
             "seconds_total": float(np.sum(tot)),
@@ -322,7 +255,7 @@ class Odometry:
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
             "sfm": self._initialiser.reports,
-            "scale_checks": self._scale_checks,
+            "scale_checks": self._maker.scale_checks,
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
             "refine": self._refine_report,
@@ -353,14 +286,14 @@ class Odometry:
         store), and every other frame moves with its keyframe's correction (in
         :meth:`result`: frames tracked against a keyframe through its pose and
         median depth; supporting frames' smoothed poses by the keyframe's
-        similarity correction, :func:`spgeo.loop.sim3.moved_frame`).  Meant
+        similarity correction, :func:`spgeo.similarity.moved_frame`).  Meant
         after the last frame; tracking may go on (the window restarts at the
         next keyframe from the previous keyframe and the new one, as after a
         loop correction).  Its report is :meth:`report`'s ``"refine"``.
         Memory: every keyframe of a segment is held at once while it is
         optimised (:mod:`spgeo.vo.global_ba`), beyond the window's bound.
         Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
-        res = refine_keyframes([self._kfs[k] for k in self._kf_order], self._store,
+        res = refine_keyframes([self._map.kfs[k] for k in self._map.order], self._map.store,
                                self.config, config)
         if res.T_world_kf:
             self._apply_refinement(res)
@@ -368,75 +301,60 @@ class Odometry:
         return res
 
     def _apply_refinement(self, res: GlobalBAResult) -> None:
-        """Move the keyframes of ``res`` and the frames anchored to them
-        (:meth:`refine`); the window restarts at the next keyframe."""
-        levels, W = self.config.keyframe_levels, {}
-        for k, T in res.T_world_kf.items():
-            mk = self._kfs[k]
+        """Move the keyframes of ``res`` (pose and shapes) and what follows them
+        (:meth:`KeyframeMap.apply_similarity`); the window restarts at the next
+        keyframe."""
+        def move(mk: MapKeyframe) -> np.ndarray:
+            T = res.T_world_kf[mk.index]
             T_old, med_old = mk.T_world_kf, mk.median_depth
-            kf = mk.restore(self._store, levels)[1]
-            mk.replace_state(with_shape_values(kf, res.shapes[k], self.config.primitive_model, T),
-                             self._store)
-            W[k] = sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
-        sup = self._mapper.support_pose
-        for f in list(sup):
-            k = self._rel[f][0] if f in self._rel else None
-            if k in W:
-                sup[f] = moved_frame(W[k], sup[f])
-        last = self._seg_kfs[-1] if self._seg_kfs else None
-        if last in W:
-            self._last_good = moved_frame(W[last], self._last_good)
-            if self._prev_good is not None:
-                self._prev_good = moved_frame(W[last], self._prev_good)
-            s = float(np.cbrt(np.linalg.det(W[last][:3, :3])))
-            for c in self._candidates:
-                c.T_kf_frame = c.T_kf_frame.copy()
-                c.T_kf_frame[:3, 3] *= s
+            kf = self._map.restore(mk.index)[1]
+            mk.replace_state(with_shape_values(kf, res.shapes[mk.index],
+                                               self.config.primitive_model, T), self._map.store)
+            return sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
+
+        last = self._map.seg_kfs[-1] if self._map.seg_kfs else None
+        if self._map.apply_similarity(
+                res.T_world_kf, move, self._motion,
+                lambda W: float(np.cbrt(np.linalg.det(W[last][:3, :3])))):
             self._restart_window = True
         if self._loops is not None:
-            self._loops.update_poses({j: self._kfs[j].T_world_kf for j in self._live})
+            self._loops.update_poses(self._map.live_poses())
+
+    def _apply_loop_correction(self, corr) -> None:
+        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`
+        (:meth:`KeyframeMap.apply_similarity`): every keyframe's pose and depths
+        (:meth:`MapKeyframe.correct`), the frames that follow them, the motion
+        model (anchored to the new keyframe) and the supporting-frame candidates
+        of the previous keyframe (translations in its depth units)."""
+        def move(mk: MapKeyframe) -> np.ndarray:
+            mk.correct(corr.T_world_kf[mk.index], corr.scales[mk.index])
+            return corr.W_new_old[mk.index]
+
+        s_prev = corr.scales.get(self._map.seg_kfs[-2], 1.0)
+        self._map.apply_similarity(corr.kf_ids, move, self._motion, lambda W: s_prev)
 
     # ------------------------------------------------------------ stages
-    def _primify(self, frame: Frame) -> PrimitiveSet:
-        depth = frame.depth if self.frontend.uses_depth else None
-        prims = self.frontend.primify(frame.image, self.camera, depth)
-        if len(prims) == 0:
-            raise ValueError("the front-end produced no primitive")
-        return prims
-
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
         """Keyframe 0 of a map segment at ``T_world``."""
-        t = time.perf_counter()
-        prims = self._primify(frame)
-        if not self.frontend.uses_depth:
-            s0 = 0.0 if median_depth is None else float(np.log(median_depth))
-            prims = prims.with_log_scales(np.full(len(prims), s0))
-        prims = apply_primitive_model(prims, self.config.primitive_model)
-        timings["frontend"] = time.perf_counter() - t
-        k = len(self._kf_order)
-        kf = Keyframe.build(frame.image, prims, T_world, self.config.keyframe_levels,
-                            self.config.selection)
-        self._kfs[k] = MapKeyframe(k, idx, np.asarray(frame.image), kf, self._segment)
-        self._kf_order.append(k)
-        self._live.append(k)
-        self._seg_kfs = [k]
-        self._retire_outside_window()
-        self._candidates.clear()
+        kf = self._maker.first(frame, T_world, timings, median_depth)
+        k = self._map.next_index
+        self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), kf, self._map.segment),
+                      new_segment=True)
+        self._map.retire_outside_window()
+        self._map.candidates.clear()
         self._initialiser.reset()
-        self._last_good, self._prev_good = np.array(T_world, dtype=float), None
-        self._brightness = np.zeros(2)
+        self._motion.reset(T_world)
         self._n_lost = 0
         return FrameResult(idx, float(frame.timestamp), np.array(T_world, dtype=float),
                            FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT, keyframe_index=k)
 
     def _track_against(self, kf: Keyframe, image: np.ndarray,
                        retry: Optional[MapKeyframe] = None) -> TrackResult:
-        """Constant-velocity guess, then the last good pose, then (``retry``:
-        ``kf``'s map keyframe) the feature-based PnP pose; the best TrackResult."""
-        guesses = [lambda: constant_velocity_guess(self._last_good, self._prev_good)]
-        if self._prev_good is not None:
-            guesses.append(lambda: self._last_good)
+        """The motion model's guesses (constant velocity, then the last good
+        pose), then (``retry``: ``kf``'s map keyframe) the feature-based PnP
+        pose; the best TrackResult."""
+        guesses = self._motion.guesses()
         if retry is not None and self.config.feature_retry.enabled:
             guesses.append(lambda: self._retry.guess(retry.index, retry.image, kf.primitives,
                                                      kf.T_world_kf, image))
@@ -445,7 +363,7 @@ class Odometry:
             T0 = guess()
             if T0 is None:
                 continue
-            tr2 = track_frame(kf, image, T0, self._brightness, self.config.tracker)
+            tr2 = track_frame(kf, image, T0, self._motion.brightness, self.config.tracker)
             if tr is None or tr2.ok or tr2.photometric_cost < tr.photometric_cost:
                 tr = tr2
             if tr.ok:
@@ -455,24 +373,25 @@ class Odometry:
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it, then
         the :class:`Initialiser`'s decision applied."""
-        kf0 = self._kfs[self._seg_kfs[0]]
+        kf0 = self._map.kfs[self._map.seg_kfs[0]]
         t = time.perf_counter()
         tr = self._track_against(kf0.keyframe, frame.image)
         timings["track"] = time.perf_counter() - t
         if tr.ok:
-            self._accept(tr)
+            self._motion.accept(tr)
         self._n_lost = 0 if tr.ok else self._n_lost + 1
-        dec = self._initialiser.step(frame.image, idx, kf0, tr, self._brightness, self._segment,
-                                     timings)
+        dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
+                                     self._map.segment, timings)
         if dec.action == START:
             return self._start_map(frame, idx, kf0, dec, tr, timings)
+        last_good = self._motion.last_good
         if dec.action == FAILED:
             self._n_lost += 1
-            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(),
+            return FrameResult(idx, float(frame.timestamp), last_good.copy(),
                                FrameStatus.LOST, track=tr)
         if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
-            self._rel[idx] = (kf0.index, dec.T_kf0_frame, kf0.keyframe.median_depth)
-        pose = tr.T_world_frame if tr.ok else self._last_good
+            self._map.anchors[idx] = (kf0.index, dec.T_kf0_frame, kf0.keyframe.median_depth)
+        pose = tr.T_world_frame if tr.ok else last_good
         return FrameResult(idx, float(frame.timestamp), pose.copy(),
                            FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
 
@@ -487,32 +406,31 @@ class Odometry:
             res.T_world_cam = r.T_world_frame
             if r.ok:
                 res.status = FrameStatus.INIT
-                self._rel[r.frame] = (kf0.index, r.T_kf0_frame, kf0.keyframe.median_depth)
-                self._candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
-                                                         r.brightness))
+                self._map.anchors[r.frame] = (kf0.index, r.T_kf0_frame,
+                                              kf0.keyframe.median_depth)
+                self._map.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
+                                                             r.brightness))
             else:
                 res.status = FrameStatus.LOST
-                self._rel.pop(r.frame, None)
-        self._last_good, self._prev_good = dec.T_world_kf1.copy(), dec.T_world_last.copy()
+                self._map.anchors.pop(r.frame, None)
+        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last)
         self._n_lost = 0
         return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
 
-    def _accept(self, tr: TrackResult) -> None:
-        self._prev_good, self._last_good = self._last_good, tr.T_world_frame.copy()
-        self._brightness = np.asarray(tr.brightness, dtype=float).copy()
-
     def _relocalise(self, image: np.ndarray) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:
         """Track against the window's older keyframes, newest first."""
-        for k in reversed(self._seg_kfs[-self.config.window:-1]):
-            kf = self._kfs[k]
-            tr = track_frame(kf.keyframe, image, self._last_good, self._brightness,
+        for k in reversed(self._map.seg_kfs[-self.config.window:-1]):
+            kf = self._map.kfs[k]
+            tr = track_frame(kf.keyframe, image, self._motion.last_good, self._motion.brightness,
                              self.config.tracker)
             if tr.ok:
                 return tr, kf
         return None, None
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        latest = self._kfs[self._seg_kfs[-1]]
+        """A frame of an initialised segment: tracked against the latest keyframe
+        (or relocalised against an older one), then the keyframe decision."""
+        latest = self._map.latest
         ref = latest
         t = time.perf_counter()
         tr = self._track_against(latest.keyframe, frame.image, retry=latest)
@@ -523,135 +441,98 @@ class Odometry:
                 tr, ref, relocalised = tr_old, kf_old, True
         timings["track"] = time.perf_counter() - t
         if not tr.ok:
-            self._n_lost += 1
-            log.info("frame %d lost (%s)", idx, tr.reason)
-            if self._n_lost >= self.config.max_lost_frames:
-                log.warning("frame %d: %d frames lost; re-initialising the map", idx,
-                            self._n_lost)
-                return self._reinitialise(frame, idx, timings)
-            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST,
-                               track=tr)
+            return self._lost(frame, idx, tr, timings)
         was_lost = self._n_lost > 0
         self._n_lost = 0
-        self._accept(tr)
+        self._motion.accept(tr)
         T_ref_f = invert_pose(ref.keyframe.T_world_kf) @ tr.T_world_frame
-        self._rel[idx] = (ref.index, T_ref_f, ref.keyframe.median_depth)
+        self._map.anchors[idx] = (ref.index, T_ref_f, ref.keyframe.median_depth)
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
-        if ref is latest:
-            T_kf_f = T_ref_f
-            rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
-            rot = rotation_angle_deg(T_kf_f[:3, :3])
-            if (tr.valid_fraction < self.config.kf_min_valid_fraction
-                    or rel_t > self.config.kf_max_translation
-                    or tr.relative_cost > self.config.kf_max_relative_cost
-                    or rot > self.config.kf_max_rotation_deg):
-                res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
-                if res is not None:
-                    return res
-            self._add_candidate(SupportCandidate(idx, np.asarray(frame.image), T_kf_f,
-                                           np.asarray(tr.brightness, float)))
-        else:
-            # tracked against an older keyframe: make it a keyframe to re-anchor the map
+        # tracked against an older keyframe: make it a keyframe to re-anchor the map
+        if ref is not latest or self._wants_keyframe(tr, T_ref_f, latest):
             res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
             if res is not None:
                 return res
+        if ref is latest:
+            self._map.add_candidate(SupportCandidate(idx, np.asarray(frame.image), T_ref_f,
+                                                     np.asarray(tr.brightness, float)))
         return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(), status,
                            track=tr)
 
-    def _retire_outside_window(self) -> None:
-        """Retire the keyframes outside the current segment's last ``window``
-        (marginalised by the smoother, or of an earlier segment: final)."""
-        keep = set(self._seg_kfs[-self.config.window:])
-        for k in [k for k in self._live if k not in keep]:
-            self._kfs[k].retire(self._store)
-        self._live = [k for k in self._live if k in keep]
+    def _wants_keyframe(self, tr: TrackResult, T_kf_f: np.ndarray, latest: MapKeyframe) -> bool:
+        """The keyframe decision (``OdometryConfig.keyframe``) of a frame tracked
+        against the latest keyframe at ``T_kf_f``."""
+        dec = self.config.keyframe
+        rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
+        rot = rotation_angle_deg(T_kf_f[:3, :3])
+        return (tr.valid_fraction < dec.min_valid_fraction
+                or rel_t > dec.max_translation
+                or tr.relative_cost > dec.max_relative_cost
+                or rot > dec.max_rotation_deg)
 
-    def _add_candidate(self, cand: SupportCandidate) -> None:
-        self._candidates.append(cand)
-        cap = max(8 * self.config.n_support, 16)
-        if len(self._candidates) > cap:
-            self._candidates = self._candidates[::2]
+    def _lost(self, frame: Frame, idx: int, tr: TrackResult,
+              timings: Dict[str, float]) -> FrameResult:
+        """A frame not tracked: ``LOST`` at the last good pose, or after
+        ``max_lost_frames`` the map re-initialised."""
+        self._n_lost += 1
+        log.info("frame %d lost (%s)", idx, tr.reason)
+        if self._n_lost >= self.config.max_lost_frames:
+            log.warning("frame %d: %d frames lost; re-initialising the map", idx,
+                        self._n_lost)
+            return self._reinitialise(frame, idx, timings)
+        return FrameResult(idx, float(frame.timestamp), self._motion.last_good.copy(),
+                           FrameStatus.LOST, track=tr)
 
     def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         grey = np.asarray(frame.image, dtype=np.float64)
         if float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0):
             # a featureless frame cannot start a map: stay lost, retry on the next frame
-            return FrameResult(idx, float(frame.timestamp), self._last_good.copy(), FrameStatus.LOST)
-        med = self._kfs[self._seg_kfs[-1]].keyframe.median_depth
-        self._segment += 1
+            return FrameResult(idx, float(frame.timestamp), self._motion.last_good.copy(),
+                               FrameStatus.LOST)
+        med = self._map.latest.keyframe.median_depth
+        self._map.segment += 1
         self._mapper.reset()
-        return self._start(frame, idx, self._last_good.copy(), timings, median_depth=med)
+        return self._start(frame, idx, self._motion.last_good.copy(), timings, median_depth=med)
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult]):
-        cfg = self.config
-        t = time.perf_counter()
-        prims = self._primify(frame)
-        window = [self._kfs[k] for k in self._seg_kfs[-cfg.window:]]
-        depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
-                                  prims.camera, T_world, splat=RENDER_SPLAT,
-                                  tolerance=cfg.render_tolerance)
-        try:
-            init = init_scales_from_render(prims, depth)
-        except ValueError as exc:
-            log.warning("frame %d: no keyframe (%s)", idx, exc)
-            timings["frontend"] = time.perf_counter() - t
+        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`),
+        then loop closure and the window update.  None when the render gives
+        no scale."""
+        k = self._map.next_index
+        made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
+        if made is None:
             return None
-        timings["frontend"] = time.perf_counter() - t
-        keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels,
-                                  cfg.selection)
-        k = len(self._kf_order)
-        prims = init.primitives
-        if cfg.kf_scale_check and not self.frontend.uses_depth:
-            t = time.perf_counter()
-            prev = self._kfs[self._seg_kfs[-1]]
-            check = reverse_scale_check(keyframe, prev.image, prev.keyframe.T_world_kf,
-                                        cfg.tracker, cfg.kf_scale_check_min_parallax,
-                                        cfg.kf_scale_check_max_change)
-            prims = prims.with_log_scales(prims.log_scales + check.log_correction)
-            self._scale_checks.append({"keyframe": k, "frame": idx,
-                                       **dataclasses.asdict(check)})
-            timings["scale_check"] = time.perf_counter() - t
-        prims = apply_primitive_model(prims, cfg.primitive_model)
-        keyframe = keyframe.rebuilt(prims, T_world)
-        kf = MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._segment,
-                 prior_weights=np.where(init.fallback & (not self.frontend.uses_depth),
-                                        cfg.scale_prior_weight, cfg.render_prior_weight))
-        self._kfs[k] = kf
-        self._kf_order.append(k)
-        self._live.append(k)
-        self._seg_kfs.append(k)
-        self._rel.pop(idx, None)
+        keyframe, weights = made
+        self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
+                                  prior_weights=weights))
+        self._map.anchors.pop(idx, None)
         closed = self._close_loop(timings)
         self._map_new_keyframe(closed, timings)
-        self._candidates.clear()
-        self._retire_outside_window()
-        T_new = self._kfs[k].keyframe.T_world_kf
+        self._map.candidates.clear()
+        self._map.retire_outside_window()
+        T_new = self._map.kfs[k].keyframe.T_world_kf
         if self._loops is not None:
-            self._loops.update_poses({j: self._kfs[j].T_world_kf for j in self._live})
+            self._loops.update_poses(self._map.live_poses())
         # the smoothed pose of the new keyframe replaces the tracked one
-        # (the same world-frame correction moves the previous pose of the velocity model)
-        if self._prev_good is not None:
-            self._prev_good = T_new @ invert_pose(self._last_good) @ self._prev_good
-        self._last_good = T_new.copy()
-        self._brightness = np.zeros(2)
+        self._motion.to_keyframe(T_new)
         return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
                            keyframe_index=k, track=track)
 
-    # ------------------------------------------------------------ loop closure
+    # ------------------------------------------------------------ mapping, loop closure
     def _map_new_keyframe(self, closed: bool, timings: Dict[str, float]) -> None:
         """Window update with the newest keyframe; after an applied loop
         correction the window restarts from the previous and the new keyframe
         (their corrected poses and scales; older keyframes stay as corrected)."""
         t = time.perf_counter()
         # the mapper reads at most the window and the keyframe leaving it
-        segment_kfs = [self._kfs[j] for j in self._seg_kfs[-(self.config.window + 1):]]
+        segment_kfs = self._map.window_kfs(extra=1)
         if closed or self._restart_window:
             self._restart_window = False
             self._mapper.reset()
             segment_kfs = segment_kfs[-2:]
-        if self._mapper.map_keyframe(segment_kfs, self._candidates, self._segment):
-            self._seg_kfs = self._seg_kfs[-2:]
+        if self._mapper.map_keyframe(segment_kfs, self._map.candidates, self._map.segment):
+            self._map.seg_kfs = self._map.seg_kfs[-2:]
         timings["mapping"] = time.perf_counter() - t
 
     def _close_loop(self, timings: Dict[str, float]) -> bool:
@@ -661,32 +542,8 @@ class Odometry:
         if self._loops is None:
             return False
         t = time.perf_counter()
-        corr = self._loops.add_keyframes(self._segment, [self._kfs[j] for j in self._seg_kfs
-                                                          if not self._kfs[j].retired])
+        corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live())
         if corr is not None:
             self._apply_loop_correction(corr)
         timings["loop"] = time.perf_counter() - t
         return corr is not None
-
-    def _apply_loop_correction(self, corr) -> None:
-        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`: every
-        keyframe's pose and depths (:meth:`MapKeyframe.correct`; frames anchored
-        to a keyframe follow it in :meth:`result` through its pose and median
-        depth), the supporting frames' smoothed poses, the motion model's last
-        two good poses (anchored to the new keyframe) and the supporting-frame
-        candidates of the previous keyframe (translations in its depth units)."""
-        for k in corr.kf_ids:
-            self._kfs[k].correct(corr.T_world_kf[k], corr.scales[k])
-        sup = self._mapper.support_pose
-        for f in list(sup):
-            k = self._rel[f][0] if f in self._rel else None
-            if k in corr.W_new_old:
-                sup[f] = corr.frame_pose(k, sup[f])
-        new = self._seg_kfs[-1]
-        self._last_good = corr.frame_pose(new, self._last_good)
-        if self._prev_good is not None:
-            self._prev_good = corr.frame_pose(new, self._prev_good)
-        s_prev = corr.scales.get(self._seg_kfs[-2], 1.0)
-        for c in self._candidates:
-            c.T_kf_frame = c.T_kf_frame.copy()
-            c.T_kf_frame[:3, 3] *= s_prev

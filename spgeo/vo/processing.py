@@ -5,12 +5,14 @@ input camera resized (:meth:`~spgeo.camera.PinholeCamera.resized`) to
 ``OdometryConfig.resolution`` when set, else to :func:`processing_size` of
 the input size with ``OdometryConfig.target_pixels`` (about that many pixels,
 the input's aspect ratio kept; 4:3 gives 320x240; smaller inputs are kept).  Frames given at the input
-size are resized by :func:`resize_for_vo` inside ``Odometry.track``, so a
-library loop over full-size frames and ``spgeo vo`` process the same pixels.
+size are resized by :func:`resize_for_vo` inside ``Odometry.track`` (which checks
+each frame with :func:`checked_frame`), so a library loop over full-size frames
+and ``spgeo vo`` process the same pixels.
 """
 from __future__ import annotations
 
-from typing import Tuple
+import math
+from typing import Optional, Tuple
 
 import numpy as np
 
@@ -18,7 +20,8 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from ..validation import MAX_IMAGE_SIDE, InputError
 
-__all__ = ["DEFAULT_TARGET_PIXELS", "SIZE_MULTIPLE", "processing_size", "resize_for_vo"]
+__all__ = ["DEFAULT_TARGET_PIXELS", "SIZE_MULTIPLE", "processing_size", "resize_for_vo",
+           "checked_frame"]
 
 #: Default processing area in pixels (``OdometryConfig.target_pixels``): that of 320x240.
 DEFAULT_TARGET_PIXELS = 320 * 240
@@ -78,3 +81,44 @@ def resize_for_vo(frame: Frame, camera: PinholeCamera, use_depth: bool, index: i
         if (depth.shape[1], depth.shape[0]) != tuple(size):
             depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
     return Frame(image, camera, float(frame.timestamp), depth, None, frame.name)
+
+
+def checked_frame(frame: Frame, index: int, camera: PinholeCamera, input_camera: PinholeCamera,
+                  use_depth: bool, previous_timestamp: Optional[float]) -> Frame:
+    """``frame`` (frame number ``index`` of a VO run) at the processing
+    ``camera``'s size: given at ``input_camera``'s size it is resized by
+    :func:`resize_for_vo`, given at the processing size it is kept.
+
+    Raises:
+        TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
+        InputError: (a ``ValueError``) the image's (H, W) is neither camera's,
+            it holds NaN / inf, or the timestamp is not finite or not strictly
+            after ``previous_timestamp`` (None for the first frame).
+    """
+    if not isinstance(frame, Frame):
+        raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
+                        f"{type(frame).__name__}")
+    image = np.asarray(frame.image)
+    if image.ndim not in (2, 3) or tuple(image.shape[:2]) not in (camera.shape,
+                                                                   input_camera.shape):
+        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) image of shape "
+                         f"{image.shape} does not match the input camera's (H, W) "
+                         f"{input_camera.shape}")
+    if tuple(image.shape[:2]) != camera.shape:
+        frame = resize_for_vo(frame, camera, use_depth, index)
+        image = frame.image
+    if not np.all(np.isfinite(image)):
+        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) image contains "
+                         "NaN or inf")
+    try:
+        stamp = float(frame.timestamp)
+    except (TypeError, ValueError):
+        stamp = math.nan
+    if not math.isfinite(stamp):
+        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) timestamp "
+                         f"{frame.timestamp!r} is not a finite number")
+    if previous_timestamp is not None and not stamp > previous_timestamp:
+        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) timestamp {stamp!r} "
+                         f"is not after the previous frame's {previous_timestamp!r}: "
+                         "timestamps must be strictly increasing")
+    return frame

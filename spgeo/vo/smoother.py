@@ -61,7 +61,7 @@ from ..graph.builders import (GAUGE_SIGMA, FactorBatch, add_factor_group, add_ke
 from ..graph.keys import pose_key, scale_key, support_brightness_key, support_pose_key
 from .config import OdometryConfig
 from .keyframe import Keyframe, with_shape_values
-from .mapping import MapKeyframe, SupportCandidate
+from .map import MapKeyframe, SupportCandidate
 
 __all__ = ["WindowMapper", "MAP_RELATIVE_TOL", "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
 

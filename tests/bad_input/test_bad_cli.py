@@ -257,7 +257,7 @@ def test_vo_repeated_frame_is_flagged_not_a_map(images, tmp_path, capsys):
     (seq / "camera.json").write_text((folder / "camera.json").read_text())
     out = tmp_path / "o"
     rc, _, err = run(capsys, ["vo", "--dataset", "folder", seq, "--out", out, "--no-progress",
-                              "--resolution", "64x48", "--set", "init_max_gap=4"])
+                              "--resolution", "64x48", "--set", "init.max_gap=4"])
     assert rc == 3 and "no map was initialised" in err
     rep = json.loads((out / "report.json").read_text())
     assert rep["run"]["status"] == "no_map" and "low_parallax" in rep["run"]["init_failure"]

@@ -19,12 +19,12 @@ from spgeo.sfm import SfMConfig, few_view_sfm
 from spgeo.graph.builders import gtsam_error_line
 from spgeo.sfm.init import triangulate_depths
 from spgeo.validation import InputError
-from spgeo.vo import Odometry, OdometryConfig
+from spgeo.vo import InitConfig, KeyframeDecisionConfig, Odometry, OdometryConfig, ScaleCheckConfig
 from spgeo.vo.initialisation import append_bounded
 
 W, H = 80, 60
 CAM = synthetic.default_camera(W, H)
-QUICK = dict(init_max_gap=4, init_min_gap=1)      # SfM attempts after a few frames
+QUICK = dict(init=InitConfig(max_gap=4, min_gap=1))      # SfM attempts after a few frames
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_repeated_frame_never_initialises(frames):
 
 
 def test_repeated_frame_default_config_one_attempt(frames):
-    """Default config, 35 copies: keyframe 1 is tried at init_max_gap (30), refused, and not
+    """Default config, 35 copies: keyframe 1 is tried at init.max_gap (30), refused, and not
     retried before gap 45; frames never 'ok'."""
     vo = run_vo([frames[0].image] * 35, OdometryConfig())
     rep = vo.report()
@@ -137,13 +137,14 @@ def test_track_rejects_a_bare_array(frames):
 
 
 @pytest.mark.parametrize("kwargs,fragment", [
-    ({"init_min_parallax": float("nan")}, "init_min_parallax must be >= 0, got nan"),
-    ({"kf_max_rotation_deg": 0.0}, "kf_max_rotation_deg must be > 0"),
-    ({"init_max_gap": 0}, "init_max_gap"),
+    ({"init": InitConfig(min_parallax=float("nan"))}, "init.min_parallax must be >= 0, got nan"),
+    ({"keyframe": KeyframeDecisionConfig(max_rotation_deg=0.0)},
+     "keyframe.max_rotation_deg must be > 0"),
+    ({"init": InitConfig(max_gap=0)}, "init.max_gap"),
     ({"window": 1}, "window must be >= 2"),
-    ({"init_method": "magic"}, "init_method must be one of"),
-    ({"kf_scale_check_max_change": 0.0}, "kf_scale_check_max_change must be > 0"),
-    ({"kf_scale_check_min_parallax": -1.0}, "kf_scale_check_min_parallax must be >= 0"),
+    ({"init": InitConfig(method="magic")}, "init.method must be one of"),
+    ({"scale_check": ScaleCheckConfig(max_change=0.0)}, "scale_check.max_change must be > 0"),
+    ({"scale_check": ScaleCheckConfig(min_parallax=-1.0)}, "scale_check.min_parallax must be >= 0"),
 ], ids=["nan_parallax", "zero_rotation", "max_gap_0", "window_1",
         "init_method", "scale_check_change_0", "scale_check_parallax_neg"])
 def test_odometry_config_rejects(kwargs, fragment):
