@@ -67,8 +67,8 @@ def test_a_correction_moves_keyframes_and_anchored_frames_together(short_run):
     moved = {k: W @ vo._map.kfs[k].T_world_kf for k in ids}
     T_new = {k: sim3(*sim3_parts(moved[k])[:2]) for k in ids}
     depth0 = [np.nanmedian(vo.keyframe(k).primitives.depth_map()) for k in ids]
-    vo._apply_loop_correction(LoopCorrection(ids, T_new, {k: 1.7 for k in ids},
-                                             {k: W for k in ids}, None))
+    vo._map.apply_loop_correction(LoopCorrection(ids, T_new, {k: 1.7 for k in ids},
+                                                  {k: W for k in ids}, None), vo._motion)
     after = vo.result().poses
     for i, f in enumerate(vo.frames):
         if str(f.status) in ("lost", "init"):

@@ -17,7 +17,9 @@ from typing import Callable, Dict, Iterable, Iterator, List, Optional, Sequence,
 
 import numpy as np
 
-from ..similarity import moved_frame
+from ..geometry import invert_pose
+from ..similarity import moved_frame, sim3
+from .keyframe import with_shape_values
 from .keyframe_store import KeyframeStore
 from .motion import MotionModel
 from .result import FrameResult, FrameStatus
@@ -281,6 +283,57 @@ class KeyframeMap:
         return poses, is_kf
 
     # ------------------------------------------------------------ corrections
+    def adopt_retracked(self, kf0: MapKeyframe, retracked: Sequence,
+                        frames: Sequence[FrameResult]) -> None:
+        """An initialisation's re-tracked frames (``retracked``:
+        :class:`~spgeo.vo.initialisation.RetrackedFrame`, against the solved keyframe
+        0 ``kf0``) written into their :class:`FrameResult` in ``frames`` (pose
+        and status ``INIT`` / ``LOST``); the ones tracked become anchored to
+        ``kf0`` and supporting-frame candidates, the others lose their anchor."""
+        for r in retracked:
+            res = frames[r.frame]
+            res.T_world_cam = r.T_world_frame
+            if r.ok:
+                res.status = FrameStatus.INIT
+                self.anchors[r.frame] = (kf0.index, r.T_kf0_frame, kf0.keyframe.median_depth)
+                self.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
+                                                        r.brightness))
+            else:
+                res.status = FrameStatus.LOST
+                self.anchors.pop(r.frame, None)
+
+    def apply_refinement(self, res, primitive_model: str, motion: MotionModel) -> bool:
+        """Move the keyframes of a :class:`~spgeo.vo.global_ba.GlobalBAResult`
+        ``res`` to its poses and shapes (``primitive_model``'s parameters; retired
+        ones rewritten in the store) and what follows them
+        (:meth:`apply_similarity`: each keyframe's similarity is its new pose
+        with the change of its median depth, after its old pose).  Returns
+        whether the segment's newest keyframe moved."""
+        def move(mk: MapKeyframe) -> np.ndarray:
+            T = res.T_world_kf[mk.index]
+            T_old, med_old = mk.T_world_kf, mk.median_depth
+            kf = self.restore(mk.index)[1]
+            mk.replace_state(with_shape_values(kf, res.shapes[mk.index], primitive_model, T),
+                             self.store)
+            return sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
+
+        last = self.seg_kfs[-1] if self.seg_kfs else None
+        return self.apply_similarity(res.T_world_kf, move, motion,
+                                     lambda W: float(np.cbrt(np.linalg.det(W[last][:3, :3]))))
+
+    def apply_loop_correction(self, corr, motion: MotionModel) -> None:
+        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`
+        (:meth:`apply_similarity`): every keyframe's pose and depths
+        (:meth:`MapKeyframe.correct`), the frames that follow them, ``motion``
+        (anchored to the new keyframe) and the supporting-frame candidates of the
+        previous keyframe (translations in its depth units)."""
+        def move(mk: MapKeyframe) -> np.ndarray:
+            mk.correct(corr.T_world_kf[mk.index], corr.scales[mk.index])
+            return corr.W_new_old[mk.index]
+
+        s_prev = corr.scales.get(self.seg_kfs[-2], 1.0)
+        self.apply_similarity(corr.kf_ids, move, motion, lambda W: s_prev)
+
     def apply_similarity(self, kf_ids: Iterable[int],
                          move_keyframe: Callable[[MapKeyframe], np.ndarray],
                          motion: MotionModel,

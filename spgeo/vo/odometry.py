@@ -8,7 +8,8 @@ re-initialisation, keyframe decisions, the trajectory that
 are :class:`~spgeo.vo.config.OdometryConfig`'s.  ``Odometry`` drives them over
 its state: the keyframe map (:class:`spgeo.vo.map.KeyframeMap`: keyframes,
 segments, the store of retired keyframes, anchored and supporting frames) and
-the motion model (:class:`spgeo.vo.motion.MotionModel`).  The initialisation is
+the frame tracker (:class:`spgeo.vo.frame_tracker.FrameTracker`: the motion
+model's guesses, the retries, relocalisation, the keyframe decision).  The initialisation is
 :class:`spgeo.vo.initialisation.Initialiser`'s (an owned object that returns an
 :class:`~spgeo.vo.initialisation.InitDecision` which ``Odometry`` applies): a
 keyframe pair without parallax never initialises a map
@@ -34,24 +35,21 @@ import gtsam
 from ..camera import PinholeCamera
 from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
-from ..geometry import invert_pose, rotation_angle_deg
-from ..similarity import sim3
+from ..geometry import invert_pose
 from ..validation import check_camera
 from .config import OdometryConfig
-from .feature_retry import FeatureRetry
 from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
-from .keyframe import with_shape_values
+from .frame_tracker import FrameTracker
 from .keyframing import KeyframeMaker
-from .map import KeyframeMap
-from .map import MapKeyframe, SupportCandidate
-from .motion import MotionModel
+from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .processing import checked_frame
 from .smoother import WindowMapper
-from .result import FrameResult, FrameStatus, OdometryResult, save_run
-from .tracking import Keyframe, TrackResult, track_frame
+from .result import (FrameResult, FrameStatus, OdometryResult, frame_records, save_run,
+                     timing_statistics)
+from .tracking import Keyframe, TrackResult
 
 __all__ = ["Odometry"]
 
@@ -96,12 +94,12 @@ class Odometry:
         self.frontend = frontend
         self._frames: List[FrameResult] = []
         self._map = KeyframeMap(config.window, config.keyframe_levels, config.n_support, store)
-        self._motion = MotionModel()
+        self._tracker = FrameTracker(self.camera, config)
+        self._motion = self._tracker.motion
         self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
         self._n_lost = 0
         self._mapper = WindowMapper(config)
         self._mapper.support_pose = self._map.support_pose   # the smoother writes the map's
-        self._retry = FeatureRetry(self.camera, config.feature_retry)
         self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
@@ -236,21 +234,13 @@ class Odometry:
         """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
         initialisation reports (``initialised``: :attr:`initialised`;
         ``init_failure``: :attr:`init_failure`), configuration."""
-        res = self.result()
-        tot = [f.timings.get("total", 0.0) for f in self._frames]
-        n_track = [f.timings["track"] for f in self._frames if "track" in f.timings]
         maps = [m["seconds"] for m in self._mapper.reports if "seconds" in m]
         return {
             "n_frames": len(self._frames), "n_keyframes": len(self._map.order),
             "n_segments": self._map.segment + 1,
             "initialised": self.initialised, "init_failure": self.init_failure,
-            "status_counts": res.status_counts(),
-            "seconds_total": float(np.sum(tot)),
-            "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
-            "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in self._frames))
-                                  for k in ("track", "frontend", "scale_check", "mapping",
-                                            "init", "loop")},
-            "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
+            "status_counts": self.result().status_counts(),
+            **timing_statistics(self._frames),
             "mapping_seconds_per_keyframe": float(np.mean(maps)) if maps else None,
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
@@ -259,9 +249,7 @@ class Odometry:
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
             "refine": self._refine_report,
-            "frames": [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
-                        "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
-                       for f in self._frames],
+            "frames": frame_records(self._frames),
         }
 
     def save(self, directory: Union[str, Path], clouds: bool = True,
@@ -295,43 +283,13 @@ class Odometry:
         Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
         res = refine_keyframes([self._map.kfs[k] for k in self._map.order], self._map.store,
                                self.config, config)
-        if res.T_world_kf:
-            self._apply_refinement(res)
+        if res.T_world_kf:   # the window restarts at the next keyframe
+            if self._map.apply_refinement(res, self.config.primitive_model, self._motion):
+                self._restart_window = True
+            if self._loops is not None:
+                self._loops.update_poses(self._map.live_poses())
         self._refine_report = res.report()
         return res
-
-    def _apply_refinement(self, res: GlobalBAResult) -> None:
-        """Move the keyframes of ``res`` (pose and shapes) and what follows them
-        (:meth:`KeyframeMap.apply_similarity`); the window restarts at the next
-        keyframe."""
-        def move(mk: MapKeyframe) -> np.ndarray:
-            T = res.T_world_kf[mk.index]
-            T_old, med_old = mk.T_world_kf, mk.median_depth
-            kf = self._map.restore(mk.index)[1]
-            mk.replace_state(with_shape_values(kf, res.shapes[mk.index],
-                                               self.config.primitive_model, T), self._map.store)
-            return sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
-
-        last = self._map.seg_kfs[-1] if self._map.seg_kfs else None
-        if self._map.apply_similarity(
-                res.T_world_kf, move, self._motion,
-                lambda W: float(np.cbrt(np.linalg.det(W[last][:3, :3])))):
-            self._restart_window = True
-        if self._loops is not None:
-            self._loops.update_poses(self._map.live_poses())
-
-    def _apply_loop_correction(self, corr) -> None:
-        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`
-        (:meth:`KeyframeMap.apply_similarity`): every keyframe's pose and depths
-        (:meth:`MapKeyframe.correct`), the frames that follow them, the motion
-        model (anchored to the new keyframe) and the supporting-frame candidates
-        of the previous keyframe (translations in its depth units)."""
-        def move(mk: MapKeyframe) -> np.ndarray:
-            mk.correct(corr.T_world_kf[mk.index], corr.scales[mk.index])
-            return corr.W_new_old[mk.index]
-
-        s_prev = corr.scales.get(self._map.seg_kfs[-2], 1.0)
-        self._map.apply_similarity(corr.kf_ids, move, self._motion, lambda W: s_prev)
 
     # ------------------------------------------------------------ stages
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
@@ -349,33 +307,12 @@ class Odometry:
         return FrameResult(idx, float(frame.timestamp), np.array(T_world, dtype=float),
                            FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT, keyframe_index=k)
 
-    def _track_against(self, kf: Keyframe, image: np.ndarray,
-                       retry: Optional[MapKeyframe] = None) -> TrackResult:
-        """The motion model's guesses (constant velocity, then the last good
-        pose), then (``retry``: ``kf``'s map keyframe) the feature-based PnP
-        pose; the best TrackResult."""
-        guesses = self._motion.guesses()
-        if retry is not None and self.config.feature_retry.enabled:
-            guesses.append(lambda: self._retry.guess(retry.index, retry.image, kf.primitives,
-                                                     kf.T_world_kf, image))
-        tr = None
-        for guess in guesses:
-            T0 = guess()
-            if T0 is None:
-                continue
-            tr2 = track_frame(kf, image, T0, self._motion.brightness, self.config.tracker)
-            if tr is None or tr2.ok or tr2.photometric_cost < tr.photometric_cost:
-                tr = tr2
-            if tr.ok:
-                break
-        return tr
-
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it, then
         the :class:`Initialiser`'s decision applied."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         t = time.perf_counter()
-        tr = self._track_against(kf0.keyframe, frame.image)
+        tr = self._tracker.track(kf0.keyframe, frame.image)
         timings["track"] = time.perf_counter() - t
         if tr.ok:
             self._motion.accept(tr)
@@ -401,31 +338,10 @@ class Odometry:
         re-tracked frames' results their poses and statuses (:meth:`track`), and
         this frame becomes keyframe 1."""
         kf0.keyframe = dec.keyframe0
-        for r in dec.retracked:
-            res = self._frames[r.frame]
-            res.T_world_cam = r.T_world_frame
-            if r.ok:
-                res.status = FrameStatus.INIT
-                self._map.anchors[r.frame] = (kf0.index, r.T_kf0_frame,
-                                              kf0.keyframe.median_depth)
-                self._map.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
-                                                             r.brightness))
-            else:
-                res.status = FrameStatus.LOST
-                self._map.anchors.pop(r.frame, None)
+        self._map.adopt_retracked(kf0, dec.retracked, self._frames)
         self._motion.set_poses(dec.T_world_kf1, dec.T_world_last)
         self._n_lost = 0
         return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
-
-    def _relocalise(self, image: np.ndarray) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:
-        """Track against the window's older keyframes, newest first."""
-        for k in reversed(self._map.seg_kfs[-self.config.window:-1]):
-            kf = self._map.kfs[k]
-            tr = track_frame(kf.keyframe, image, self._motion.last_good, self._motion.brightness,
-                             self.config.tracker)
-            if tr.ok:
-                return tr, kf
-        return None, None
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of an initialised segment: tracked against the latest keyframe
@@ -433,10 +349,11 @@ class Odometry:
         latest = self._map.latest
         ref = latest
         t = time.perf_counter()
-        tr = self._track_against(latest.keyframe, frame.image, retry=latest)
+        tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
         relocalised = False
         if not tr.ok:
-            tr_old, kf_old = self._relocalise(frame.image)
+            older = [self._map.kfs[k] for k in reversed(self._map.seg_kfs[-self.config.window:-1])]
+            tr_old, kf_old = self._tracker.relocalise(older, frame.image)
             if tr_old is not None:
                 tr, ref, relocalised = tr_old, kf_old, True
         timings["track"] = time.perf_counter() - t
@@ -449,7 +366,7 @@ class Odometry:
         self._map.anchors[idx] = (ref.index, T_ref_f, ref.keyframe.median_depth)
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
         # tracked against an older keyframe: make it a keyframe to re-anchor the map
-        if ref is not latest or self._wants_keyframe(tr, T_ref_f, latest):
+        if ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest):
             res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
             if res is not None:
                 return res
@@ -458,17 +375,6 @@ class Odometry:
                                                      np.asarray(tr.brightness, float)))
         return FrameResult(idx, float(frame.timestamp), tr.T_world_frame.copy(), status,
                            track=tr)
-
-    def _wants_keyframe(self, tr: TrackResult, T_kf_f: np.ndarray, latest: MapKeyframe) -> bool:
-        """The keyframe decision (``OdometryConfig.keyframe``) of a frame tracked
-        against the latest keyframe at ``T_kf_f``."""
-        dec = self.config.keyframe
-        rel_t = float(np.linalg.norm(T_kf_f[:3, 3])) / max(latest.keyframe.median_depth, 1e-9)
-        rot = rotation_angle_deg(T_kf_f[:3, :3])
-        return (tr.valid_fraction < dec.min_valid_fraction
-                or rel_t > dec.max_translation
-                or tr.relative_cost > dec.max_relative_cost
-                or rot > dec.max_rotation_deg)
 
     def _lost(self, frame: Frame, idx: int, tr: TrackResult,
               timings: Dict[str, float]) -> FrameResult:
@@ -544,6 +450,6 @@ class Odometry:
         t = time.perf_counter()
         corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live())
         if corr is not None:
-            self._apply_loop_correction(corr)
+            self._map.apply_loop_correction(corr, self._motion)
         timings["loop"] = time.perf_counter() - t
         return corr is not None

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Tuple, Union
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -18,8 +18,11 @@ from ..jsonio import json_default
 from ..trajectory import STATUSES, FrameStatus, Trajectory
 from .tracking import Keyframe, TrackResult
 
-__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "save_run",
-           "write_keyframe_clouds"]
+__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "timing_statistics",
+           "frame_records", "save_run", "write_keyframe_clouds"]
+
+#: the per-frame stages whose seconds :func:`timing_statistics` adds up
+STAGES = ("track", "frontend", "scale_check", "mapping", "init", "loop")
 
 #: The per-run result of :meth:`spgeo.vo.Odometry.result` (alias of
 #: :class:`~spgeo.trajectory.Trajectory`: ``statuses``, ``segments``,
@@ -61,6 +64,30 @@ class FrameResult:
 
     def __post_init__(self) -> None:
         self.status = FrameStatus(self.status)
+
+
+def timing_statistics(frames: Sequence[FrameResult]) -> Dict[str, object]:
+    """Run-time statistics of ``frames`` (JSON-ready): ``seconds_total`` (the sum of
+    each frame's ``timings["total"]``), ``fps`` (frames per second of it),
+    ``seconds_per_stage`` (the sum of each of :data:`STAGES`) and ``tracking_fps``
+    (tracked frames per second of tracking time)."""
+    tot = [f.timings.get("total", 0.0) for f in frames]
+    n_track = [f.timings["track"] for f in frames if "track" in f.timings]
+    return {
+        "seconds_total": float(np.sum(tot)),
+        "fps": float(len(tot) / max(np.sum(tot), 1e-9)),
+        "seconds_per_stage": {k: float(sum(f.timings.get(k, 0.0) for f in frames))
+                              for k in STAGES},
+        "tracking_fps": float(len(n_track) / max(np.sum(n_track), 1e-9)),
+    }
+
+
+def frame_records(frames: Sequence[FrameResult]) -> List[dict]:
+    """One JSON-ready record per frame: index, timestamp, status, keyframe index,
+    segment and the stage seconds."""
+    return [{"index": f.index, "timestamp": f.timestamp, "status": f.status,
+             "keyframe": f.keyframe_index, "segment": f.segment, "timings": f.timings}
+            for f in frames]
 
 
 def save_run(directory: Union[str, Path], result: Trajectory, report: dict,
