@@ -176,6 +176,21 @@ def test_bad_model_path_exits_2_naming_it(tmp_path, capsys):
     assert "Traceback" not in err and not out.exists()
 
 
+def test_a_run_without_a_map_keeps_vo_units(tmp_path, caplog):
+    """Two frames never initialise a monocular map: no estimate, the reason in the report."""
+    from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, synthetic_sequence
+
+    frames = synthetic_sequence(SyntheticVOConfig(n_frames=2, size=(64, 48), rotation=None))
+    run = run_odometry(frames, VORunConfig(progress=False))
+    with pytest.raises(ValueError, match="no keyframe carries depth"):
+        run_metric_scale(run.odometry, FrameOracle(frames, 1.0))
+    run.metric_scale_failure = "no keyframe carries depth"
+    run.save(tmp_path / "out")
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["metric_scale"]["estimated"] is False
+    assert "no keyframe carries depth" in report["metric_scale"]["reason"]
+
+
 def test_config_refuses_an_empty_model():
     with pytest.raises(ValueError, match="metric_scale"):
         VORunConfig(metric_scale="  ")

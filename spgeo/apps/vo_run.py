@@ -416,9 +416,11 @@ def run_metric_scale(odometry: Odometry, model: MetricDepthEstimator,
     ``model.predict_metric`` on its keyframes with depth (images at the
     primitives' size, :func:`spgeo.io.fusion.odometry_views`), with ``model``
     ``name`` and the seconds it took.  Raises ``ValueError`` when no keyframe
-    allows it (no map, no overlap)."""
+    allows it (no keyframe with depth: no map; no overlap)."""
     from ..io.fusion import odometry_views
 
+    if not odometry.keyframes_with_depth():
+        raise ValueError("no metric scale: no keyframe carries depth (no map was initialised)")
     t0 = time.perf_counter()
     pairs = ((image, depth) for image, depth, _, _ in odometry_views(odometry))
     est = estimate_metric_scale(pairs, model.predict_metric)
