@@ -23,6 +23,8 @@ from ..configs import config_to_dict
 from ..frame import Frame
 from ..trajectory import Trajectory
 from ..vo import Odometry, OdometryResult
+from ..vo.metric_scale import MetricScale, ScaledOdometry
+from ..vo.result import write_keyframe_clouds
 
 __all__ = ["VORun", "SkippedFrame", "ATE_LABELS"]
 
@@ -86,6 +88,14 @@ class VORun:
             (a reader's ``intrinsics``: ``source`` ``"file"`` | ``"given"`` |
             ``"guessed"``, ``fx fy cx cy width height distortion detail``);
             ``report.json``'s ``intrinsics`` when set (:func:`run_dataset` sets it).
+        metric_scale: the estimated OUTPUT scale (metres per VO unit,
+            ``VORunConfig.metric_scale``): when set, every output of the run
+            (:meth:`result`, :meth:`trajectory`, :meth:`ate`, :meth:`save`'s
+            trajectories and clouds, :meth:`fuse`, the exports) is the map
+            under ``x -> scale x`` about the world origin
+            (:attr:`output_odometry`); ``odometry`` itself stays in VO units.
+        metric_scale_failure: why a requested metric scale could not be
+            estimated (the outputs are then in VO units).
     """
 
     odometry: Odometry
@@ -100,6 +110,27 @@ class VORun:
     skipped: List[SkippedFrame] = field(default_factory=list)
     memory: Dict[str, object] = field(default_factory=dict)
     intrinsics: Optional[Dict[str, object]] = None
+    metric_scale: Optional[MetricScale] = None
+    metric_scale_failure: Optional[str] = None
+
+    @property
+    def output_odometry(self) -> Union[Odometry, ScaledOdometry]:
+        """What the outputs read: :attr:`odometry`, or with :attr:`metric_scale`
+        its :class:`~spgeo.vo.metric_scale.ScaledOdometry` (metres)."""
+        if self.metric_scale is None:
+            return self.odometry
+        return ScaledOdometry(self.odometry, self.metric_scale.scale)
+
+    def metric_scale_report(self) -> Optional[Dict[str, object]]:
+        """``report.json``'s ``"metric_scale"``: :meth:`MetricScale.to_dict`, or
+        ``{"estimated": False, "model", "reason"}`` when it failed; None when
+        not asked for."""
+        if self.metric_scale is not None:
+            return self.metric_scale.to_dict()
+        if self.metric_scale_failure is None:
+            return None
+        return {"estimated": False, "model": getattr(self.config, "metric_scale", None),
+                "reason": self.metric_scale_failure}
 
     @property
     def keyframe_images(self) -> "Mapping[int, np.ndarray]":
@@ -152,8 +183,9 @@ class VORun:
         return any(T is not None for T in self.gt_poses)
 
     def result(self) -> OdometryResult:
-        """The VO trajectory (:meth:`Odometry.result`)."""
-        return self.odometry.result()
+        """The VO trajectory (:meth:`Odometry.result`; in metres with
+        :attr:`metric_scale`)."""
+        return self.output_odometry.result()
 
     def status_counts(self) -> Dict[str, int]:
         """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``,
@@ -216,6 +248,7 @@ class VORun:
         skipped = f", {len(self.skipped)} skipped (unreadable)" if self.skipped else ""
         lines = [f"{self.n_frames} frames, {n_lost} lost{skipped}, {int(res.is_keyframe.sum())} "
                  f"keyframes, {self.fps:.1f} FPS (front-end {self.frontend_name}, {w}x{h})"]
+        lines.extend(self._metric_lines())
         if ate is None:
             ate = self.ate()
         if ate is None:
@@ -231,6 +264,19 @@ class VORun:
                              f"{a.rmse_percent_of_length:.2f}% of {a.trajectory_length:.3f} m "
                              f"({a.n_associated} poses, scale {a.scale:.4g})")
         return lines
+
+    def _metric_lines(self) -> List[str]:
+        """The summary line of a requested metric scale (none without one)."""
+        m = self.metric_scale
+        if m is not None:
+            lo, hi = m.interval
+            return [f"metric scale (estimated, outputs in metres): {m.scale:.4g} m per VO unit, "
+                    f"spread x{m.spread:.3g} (16-84%: {lo:.4g}-{hi:.4g}) over {m.n_keyframes} "
+                    f"keyframes, {m.seconds or 0.0:.2f} s ({m.model})"]
+        if self.metric_scale_failure is not None:
+            return [f"metric scale: not estimated, outputs in VO units "
+                    f"({self.metric_scale_failure})"]
+        return []
 
     @property
     def frontend_name(self) -> str:
@@ -259,8 +305,10 @@ class VORun:
         :attr:`status` (``ok``, ``no_map``, ``interrupted``), the odometry's
         ``init_failure`` and :attr:`memory` (peak and per-100-frame RSS, MiB).
         ``ate``: a result of :meth:`ate` to reuse; ``title``:
-        the plots' title (default the folder's name).  Returns the paths
-        (``"clouds"``: a list).
+        the plots' title (default the folder's name).  With a requested metric
+        scale the report's ``"metric_scale"`` is :meth:`metric_scale_report` and
+        the trajectories and clouds are in metres (:attr:`output_odometry`).
+        Returns the paths (``"clouds"``: a list).
         """
         out = Path(directory)
         w, h = self.processing_size
@@ -280,10 +328,16 @@ class VORun:
         if with_ate:
             ate = self.ate() if ate is None else ate
             extra["ate"] = self.ate_report(ate) if ate is not None else None
+        metric = self.metric_scale_report()
+        if metric is not None:
+            extra["metric_scale"] = metric
         traj = self.trajectory()
         extra["status_counts"] = traj.status_counts()     # skipped frames included
-        paths: Dict[str, object] = dict(self.odometry.save(out, extra_report=extra,
+        paths: Dict[str, object] = dict(self.odometry.save(out, clouds=False, extra_report=extra,
                                                            trajectory=traj))
+        view = self.output_odometry
+        paths["clouds"] = write_keyframe_clouds(
+            out / "clouds", view.iter_keyframes(view.keyframes_with_depth()))
         if with_ate and ate is not None and ate.get("per-frame") is not None:
             paths.update(self._write_plots(out, ate["per-frame"], title or out.name or str(out)))
         return paths
@@ -309,8 +363,8 @@ class VORun:
         from ..io.colmap_export import export_odometry
 
         images = None if frames is None else ((str(f.name), f.image) for f in frames)
-        return export_odometry(directory, self.odometry, self.names, self.keyframe_images,
-                               images, stride, max_points)
+        return export_odometry(directory, self.output_odometry, self.names,
+                               self.keyframe_images, images, stride, max_points)
 
 
     def export_nerfstudio(self, directory: Union[str, Path],
@@ -322,18 +376,19 @@ class VORun:
         from ..io.nerfstudio_export import export_odometry_nerfstudio
 
         images = None if frames is None else ((str(f.name), f.image) for f in frames)
-        return export_odometry_nerfstudio(directory, self.odometry, self.names,
+        return export_odometry_nerfstudio(directory, self.output_odometry, self.names,
                                           self.keyframe_images, images)
 
     def fuse(self, config=None):
         """TSDF fusion of the keyframes' depth maps at their final poses
         (:func:`spgeo.io.fusion.fuse_odometry`; ``config`` a
         :class:`~spgeo.io.fusion.FusionConfig`, default its defaults): a
-        :class:`~spgeo.io.fusion.FusionResult` in the VO's world and unit.
-        Raises ``ValueError`` when no keyframe carries depth."""
+        :class:`~spgeo.io.fusion.FusionResult` in the VO's world and unit (metres
+        with :attr:`metric_scale`).  Raises ``ValueError`` when no keyframe
+        carries depth."""
         from ..io.fusion import FusionConfig, fuse_odometry
 
-        return fuse_odometry(self.odometry, FusionConfig() if config is None else config)
+        return fuse_odometry(self.output_odometry, FusionConfig() if config is None else config)
 
 
 class _KeyframeImages(Mapping):

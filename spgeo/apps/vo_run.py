@@ -50,17 +50,18 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..frame import Frame
-from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, PrimitiveFrontEnd, build_frontend,
-                        check_model_options)
+from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
+                        PrimitiveFrontEnd, build_frontend, check_model_options)
 from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
 from ..vo.global_ba import GlobalBAConfig
+from ..vo.metric_scale import MetricScale, estimate_metric_scale
 from ..validation import FrameReadError
 from .memory import RssCheckpoints
 from .vo_outcome import SkippedFrame, VORun
 
 __all__ = ["VORunConfig", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
-           "blas_threads"]
+           "blas_threads", "load_metric_model", "run_metric_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +120,19 @@ class VORunConfig:
             :func:`spgeo.configs.apply_overrides`).  Its seconds and costs are
             ``report.json``'s ``"refine"``, the peak RSS before it
             ``run.memory.peak_rss_mb_before_refine``.
+        metric_scale: a metric-depth network (registry name, built-in or
+            registered with ``spgeo models register NAME PATH --preset
+            fastdepth``, or an ``.onnx`` path read with the ``fastdepth``
+            preset; :func:`spgeo.frontend.metric_depth_from_cache`) whose depth
+            gives the run's OUTPUT scale after the last frame
+            (:func:`spgeo.vo.metric_scale.estimate_metric_scale` over the
+            keyframes with depth): the run's trajectory, clouds, mesh and
+            exports are then in metres (:attr:`VORun.metric_scale
+            <spgeo.apps.vo_outcome.VORun>`, ``report.json``'s ``"metric_scale"``),
+            the VO itself never sees it.  The model is loaded before the first
+            frame: ``FileNotFoundError`` / ``ValueError`` naming it when it is
+            missing, breaks its preset's contract or is not metric.  Default
+            None: outputs in the VO's unit.
     """
 
     strict: bool = False
@@ -131,6 +145,7 @@ class VORunConfig:
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
     refine: Optional[GlobalBAConfig] = None
+    metric_scale: Optional[str] = None
 
     def __post_init__(self) -> None:
         if self.frontend not in FRONTENDS:
@@ -144,6 +159,10 @@ class VORunConfig:
         if self.refine is not None and not isinstance(self.refine, GlobalBAConfig):
             raise ValueError("VORunConfig.refine must be a GlobalBAConfig (refine with it) or "
                              f"None (no refinement), got {self.refine!r}")
+        if self.metric_scale is not None and not (isinstance(self.metric_scale, str)
+                                                  and self.metric_scale.strip()):
+            raise ValueError("VORunConfig.metric_scale must be None or a model name / .onnx "
+                             f"path, got {self.metric_scale!r}")
 
 
 def make_vo_frontend(config: VORunConfig = VORunConfig(),
@@ -262,6 +281,7 @@ class _Loop:
     memory: RssCheckpoints = field(default_factory=lambda: RssCheckpoints(RSS_EVERY))
     counts: Counter = field(default_factory=Counter)
     skipped: List[SkippedFrame] = field(default_factory=list)
+    metric_model: Optional[MetricDepthEstimator] = None
 
     def _open(self, camera: PinholeCamera) -> None:
         """The processing size, front-end and :class:`Odometry` from the first frame's camera."""
@@ -309,7 +329,7 @@ def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
         n_frames = len(frames)  # type: ignore[arg-type]
     from tqdm import tqdm
 
-    loop = _Loop(config, frontend, on_frame)
+    loop = _Loop(config, frontend, on_frame, metric_model=load_metric_model(config.metric_scale))
     interrupted = False
     t0 = time.perf_counter()
     bar = tqdm(total=n_frames, disable=not config.progress, desc="vo", unit="frame",
@@ -351,6 +371,7 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
         log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
                  ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)
+    metric, metric_failure = _metric_outcome(loop)
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost, %d skipped", n, wall,
              n / max(wall, 1e-9), loop.vo.n_keyframes, loop.counts["lost"], len(loop.skipped))
     return VORun(loop.vo, loop.gt, np.array(loop.stamps, dtype=np.float64), loop.names, wall,
@@ -358,7 +379,52 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
                  resolution=loop.cam.size, skipped=loop.skipped,
                  memory={**loop.memory.report(),
                          **({} if memory_before is None
-                            else {"peak_rss_mb_before_refine": memory_before})})
+                            else {"peak_rss_mb_before_refine": memory_before})},
+                 metric_scale=metric, metric_scale_failure=metric_failure)
+
+
+def _metric_outcome(loop: _Loop) -> Tuple[Optional[MetricScale], Optional[str]]:
+    """``(MetricScale, None)`` of a finished loop with a metric model, ``(None,
+    reason)`` when no keyframe allows it (logged: the outputs stay in VO
+    units), ``(None, None)`` without a model."""
+    if loop.metric_model is None:
+        return None, None
+    try:
+        return run_metric_scale(loop.vo, loop.metric_model, loop.config.metric_scale), None
+    except ValueError as exc:
+        log.warning("outputs left in VO units: %s", exc)
+        return None, str(exc)
+
+
+def load_metric_model(name: Optional[str]) -> Optional[MetricDepthEstimator]:
+    """The metric-depth network of ``VORunConfig.metric_scale`` (None for None):
+    :func:`spgeo.frontend.metric_depth_from_cache`, its ``FileNotFoundError`` /
+    ``ValueError`` (missing, broken contract, not metric) re-raised naming the option."""
+    if name is None:
+        return None
+    from ..frontend import metric_depth_from_cache
+
+    try:
+        return metric_depth_from_cache(name)
+    except (FileNotFoundError, ValueError) as exc:
+        raise type(exc)(f"metric scale model {name!r}: {exc}") from None
+
+
+def run_metric_scale(odometry: Odometry, model: MetricDepthEstimator,
+                     name: Optional[str] = None) -> MetricScale:
+    """The :class:`~spgeo.vo.metric_scale.MetricScale` of a finished run from
+    ``model.predict_metric`` on its keyframes with depth (images at the
+    primitives' size, :func:`spgeo.io.fusion.odometry_views`), with ``model``
+    ``name`` and the seconds it took.  Raises ``ValueError`` when no keyframe
+    allows it (no keyframe with depth: no map; no overlap)."""
+    from ..io.fusion import odometry_views
+
+    if not odometry.keyframes_with_depth():
+        raise ValueError("no metric scale: no keyframe carries depth (no map was initialised)")
+    t0 = time.perf_counter()
+    pairs = ((image, depth) for image, depth, _, _ in odometry_views(odometry))
+    est = estimate_metric_scale(pairs, model.predict_metric)
+    return replace(est, model=name, seconds=time.perf_counter() - t0)
 
 
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,

@@ -8,7 +8,7 @@
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
              [--mesh] [--export-colmap DIR] [--export-nerfstudio DIR] [--all-frames]
-             [--refine]
+             [--refine] [--metric-scale NAME|PATH]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -26,6 +26,10 @@ depth maps (:func:`spgeo.io.fusion.fuse_odometry`) into OUT/mesh.ply and
 OUT/cloud.ply (and the rerun recording's ``world/mesh``); ``--export-colmap`` /
 ``--export-nerfstudio`` write the keyframes (or, with ``--all-frames``, every
 frame not lost) as a COLMAP model / a nerfstudio ``transforms.json`` data set.
+``--metric-scale`` estimates one output scale from a metric-depth network
+(``VORunConfig.metric_scale``, :mod:`spgeo.vo.metric_scale`) and writes every
+output in metres; a missing or non-metric model is an input error (exit code 2)
+before the first frame.
 """
 from __future__ import annotations
 
@@ -86,6 +90,8 @@ def _run_config(args: argparse.Namespace):
         explicit["normal_model"] = args.normal_model
     if args.depth_model is not None:
         explicit["depth_model"] = args.depth_model
+    if args.metric_scale is not None:
+        explicit["metric_scale"] = args.metric_scale
     if explicit:
         cfg = apply_overrides(cfg, explicit)
     cfg = resolve_config(cfg, sets=args.set, route="odometry")
@@ -238,6 +244,13 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--refine", action="store_true",
                    help="after the last frame, a global photometric bundle adjustment of all "
                         "keyframes (seconds and costs under \"refine\" in report.json)")
+    p.add_argument("--metric-scale", default=None, metavar="NAME|PATH",
+                   help="write the outputs in metres: one global scale estimated after the "
+                        "run from a metric-depth network against the keyframes' depths "
+                        "(median over keyframes of the per-keyframe median ratio; an output "
+                        "scale, never used by the VO); a model name (`spgeo models register "
+                        "NAME PATH --preset fastdepth`) or an .onnx path (fastdepth preset). "
+                        "Estimate and spread under \"metric_scale\" in report.json")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_rerun_argument(p, "the frames, keyframe clouds and trajectories live")
@@ -253,7 +266,8 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                         "the keyframes")
     p.add_argument("--mesh", action="store_true",
                    help="fuse the keyframes' depth maps at their final poses (TSDF) into "
-                        "OUT/mesh.ply and OUT/cloud.ply (VO world and units)")
+                        "OUT/mesh.ply and OUT/cloud.ply (VO world and units; metres with "
+                        "--metric-scale)")
     add_config_arguments(p, "VORunConfig / OdometryConfig")
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")
