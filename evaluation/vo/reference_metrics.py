@@ -13,10 +13,11 @@ degree level (issue 30); COLMAP's offline reconstruction of the same frames
   ``R_align`` (the chordal L2 mean of ``R_B,i R_A,i^T``, projected onto SO(3)), then
   per frame the angle between ``R_align R_A,i`` and ``R_B,i``: median / max, degrees.
 * :func:`window_scale`: over sliding windows (default :data:`DEFAULT_WINDOW` = 50
-  frames), the Sim(3) scale (Umeyama, :func:`spgeo.similarity.umeyama`) of A's camera
-  centres onto B's; reported relative to the same fit over all frames as
-  ``ratio = s_all / s_window`` (A's size over B's in the window, 1 where A's scale is
-  the whole run's), with its min / max and the spread max / min.
+  frames), the Sim(3) scale (Umeyama, :func:`spgeo.similarity.umeyama`) that takes A's
+  camera centres onto B's; reported relative to the same fit over all frames as
+  ``ratio = s_window / s_all`` (1 where the window needs the whole run's scale; > 1
+  where A's window is small against B's, i.e. A's scale shrank there), with its
+  min / max and the spread max / min.
 * :func:`compare_to_reference`: all three plus the position ATE
   (:func:`~spgeo.evaluation.trajectory.ate_sim3`, Sim(3)) in one
   :class:`ReferenceComparison`.
@@ -246,8 +247,9 @@ class WindowScale:
         min, max: of ``ratios`` (NaN without windows); spread: ``max / min``.
         timestamps: (n_windows,) A's timestamp of each window's first frame.
         scales: (n_windows,) each window's Umeyama scale (B units per A unit).
-        ratios: (n_windows,) ``global_scale / scales``: A's size over B's in the
-            window relative to the whole run (1 = the run's own scale).
+        ratios: (n_windows,) ``scales / global_scale``: the scale A's window needs
+            onto B relative to the whole run's (1 = the run's own scale; > 1: A is
+            smaller than B there than on the whole).
     """
 
     window: int
@@ -308,7 +310,7 @@ def window_scale(est, ref, window: int = DEFAULT_WINDOW, stride: int = 1,
         scales.append(s)
     scales_a = np.asarray(scales, dtype=np.float64)
     g = float("nan") if s_all is None else float(s_all)
-    ratios = g / scales_a
+    ratios = scales_a / g
     lo, hi = (float(ratios.min()), float(ratios.max())) if len(ratios) else (math.nan, math.nan)
     return WindowScale(window, len(scales_a), degenerate, g, lo, hi, hi / lo,
                        pairs.timestamps[np.asarray(starts, dtype=int)], scales_a, ratios)
