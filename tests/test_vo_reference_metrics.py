@@ -126,22 +126,31 @@ def test_missing_frames_are_skipped_and_association_is_by_timestamp():
 
 @pytest.mark.slow
 def test_vo_compare_colmap_reference_columns_on_7scenes(shared_data, tmp_path):
+    """vo_compare with colmap on 100 frames of the shared clip: every row has its rotation
+    columns against the ground truth, spgeo's row those against COLMAP (the same numbers
+    as the metrics on the rows' trajectories), results.json the summaries.  (On these
+    first 100 frames COLMAP's rotations are themselves ~13 deg per 30 frames off the
+    ground truth while its positions fit: a reference must be checked too, which is why
+    the colmap row shows its own error against the ground truth.)"""
     pytest.importorskip("pycolmap")
+    import json
+
     from spgeo.datasets import open_dataset
     from spgeo.evaluation.vo.compare import compare_vo, format_markdown_table, write_results
 
-    seq = open_dataset("7scenes", shared_data / "7scenes_redkitchen_dev", frames="0:40",
+    seq = open_dataset("7scenes", shared_data / "7scenes_redkitchen_dev", frames="0:100",
                        load_depth=False)
-    rows = compare_vo(seq, ("spgeo-classical", "colmap"), resolution=(160, 120))
+    rows = compare_vo(seq, ("spgeo-classical", "colmap"))     # 320x240, as spgeo vo
     spg, col = rows
-    assert col.error is None and col.n_tracked >= 30
-    assert math.isfinite(spg.rot_vs_colmap_deg) and spg.rot_vs_colmap_deg < 5
-    assert math.isfinite(spg.orient_vs_colmap_max_deg)
-    assert 0.5 < spg.window_scale_vs_colmap_min <= spg.window_scale_vs_colmap_max < 2
-    assert math.isfinite(col.rot_vs_gt_deg) and math.isnan(col.rot_vs_colmap_deg)
+    assert col.error is None and col.n_tracked >= 90
+    rr = relative_rotation_error((spg.timestamps, spg.poses), (col.timestamps, col.poses))
+    assert spg.rot_vs_colmap_deg == pytest.approx(rr.mean_deg) and rr.n >= 60
+    o = orientation_error((spg.timestamps, spg.poses), (col.timestamps, col.poses))
+    assert spg.orient_vs_colmap_max_deg == pytest.approx(o.max_deg)
+    assert 0.5 < spg.window_scale_vs_colmap_min <= 1 <= spg.window_scale_vs_colmap_max < 2
+    assert 0 < spg.rot_vs_gt_deg < 3 and math.isfinite(col.rot_vs_gt_deg)
+    assert math.isnan(col.rot_vs_colmap_deg) and "colmap" not in col.reference
     table = format_markdown_table(rows)
     assert "vs COLMAP" in table and "vs ground truth" in table
-    written = write_results(rows, tmp_path)
-    import json
-    payload = json.loads(written["results.json"].read_text())
+    payload = json.loads(write_results(rows, tmp_path)["results.json"].read_text())
     assert payload["rows"][0]["reference"]["colmap"]["relative_rotation"]["gap_frames"] == 30
