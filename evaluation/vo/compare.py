@@ -425,27 +425,40 @@ def _add_reference_metrics(rows: Sequence[VOCompareRow], gt: Tuple[np.ndarray, n
                            tol: float, cfg: VOCompareConfig) -> None:
     """Fill the reference columns of ``rows`` (:class:`VOCompareRow`): against the
     ground truth ``gt`` = ``(timestamps, camera-to-world poses)`` for every row with
-    a trajectory, against the ``colmap`` row (when it has >= 3 poses) for the others."""
+    a trajectory, against the ``colmap`` row (when it has >= 3 poses) for the others.
+    A comparison that raises (e.g. a pose that is not a rigid transform) is logged and
+    recorded as ``reference["error"]``; the row keeps NaN there."""
     colmap = next((r for r in rows if r.method == "colmap" and r.n_tracked >= 3), None)
     for r in rows:
         if len(r.timestamps) == 0:
             continue
-        c = compare_to_reference((r.timestamps, r.poses), gt, "ground truth",
-                                 cfg.rotation_gap, cfg.scale_window, tol, with_ate=False)
-        r.reference["ground truth"] = c.summary()
-        r.rot_vs_gt_deg = c.relative_rotation.mean_deg
-        r.orient_vs_gt_median_deg = c.orientation.median_deg
-        r.orient_vs_gt_max_deg = c.orientation.max_deg
-        if colmap is None or r is colmap:
-            continue
-        c = compare_to_reference((r.timestamps, r.poses), (colmap.timestamps, colmap.poses),
-                                 "colmap", cfg.rotation_gap, cfg.scale_window, tol)
-        r.reference["colmap"] = c.summary()
-        r.rot_vs_colmap_deg = c.relative_rotation.mean_deg
-        r.orient_vs_colmap_median_deg = c.orientation.median_deg
-        r.orient_vs_colmap_max_deg = c.orientation.max_deg
-        r.window_scale_vs_colmap_min = c.window_scale.min
-        r.window_scale_vs_colmap_max = c.window_scale.max
+        try:
+            _fill_reference(r, gt, None if r is colmap else colmap, tol, cfg)
+        except ValueError as exc:
+            logger.warning("compare_vo: %s: reference metrics not available: %s", r.method, exc)
+            r.reference["error"] = str(exc)
+
+
+def _fill_reference(r: VOCompareRow, gt: Tuple[np.ndarray, np.ndarray],
+                    colmap: Optional[VOCompareRow], tol: float, cfg: VOCompareConfig) -> None:
+    """The reference columns of one row: against ``gt``, and against ``colmap``'s
+    trajectory unless None (:func:`_add_reference_metrics`)."""
+    c = compare_to_reference((r.timestamps, r.poses), gt, "ground truth",
+                             cfg.rotation_gap, cfg.scale_window, tol, with_ate=False)
+    r.reference["ground truth"] = c.summary()
+    r.rot_vs_gt_deg = c.relative_rotation.mean_deg
+    r.orient_vs_gt_median_deg = c.orientation.median_deg
+    r.orient_vs_gt_max_deg = c.orientation.max_deg
+    if colmap is None:
+        return
+    c = compare_to_reference((r.timestamps, r.poses), (colmap.timestamps, colmap.poses),
+                             "colmap", cfg.rotation_gap, cfg.scale_window, tol)
+    r.reference["colmap"] = c.summary()
+    r.rot_vs_colmap_deg = c.relative_rotation.mean_deg
+    r.orient_vs_colmap_median_deg = c.orientation.median_deg
+    r.orient_vs_colmap_max_deg = c.orientation.max_deg
+    r.window_scale_vs_colmap_min = c.window_scale.min
+    r.window_scale_vs_colmap_max = c.window_scale.max
 
 
 # ================================================================== output

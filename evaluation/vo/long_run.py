@@ -490,14 +490,17 @@ def with_reference(row: Dict[str, Any], out: Path,
                    refs: Mapping[str, ColmapReference]) -> Dict[str, Any]:
     """``row`` with :func:`reference_columns` of its run (``out/<sequence>.<variant>/
     trajectory.txt``) when its sequence has a reference in ``refs`` and the run wrote
-    a trajectory; else ``row`` itself."""
+    a trajectory (``reference: {"error": ...}`` when they raised); else ``row`` itself."""
     from spgeo.trajectory import Trajectory
 
     path = Path(out) / f"{row['sequence']}.{row['variant']}" / "trajectory.txt"
     ref = refs.get(row["sequence"])
     if ref is None or row.get("error") or not path.is_file():
         return row
-    return {**row, **reference_columns(Trajectory.load(path), ref)}
+    try:
+        return {**row, **reference_columns(Trajectory.load(path), ref)}
+    except ValueError as exc:       # e.g. a pose that is not a rigid transform
+        return {**row, "reference": {"error": str(exc)}}
 
 
 def colmap_row(sequence: str, cap: Optional[int], ref: ColmapReference) -> Dict[str, Any]:
@@ -522,11 +525,12 @@ def colmap_references(sequences: Sequence[str], cap: Optional[int],
     rows: List[Dict[str, Any]] = []
     for s in sequences:
         try:
-            refs[s] = colmap_reference(s, cap, out)
+            ref = colmap_reference(s, cap, out)
+            rows.append(colmap_row(s, cap, ref))
         except Exception as exc:  # an evaluation reports, it does not die
             rows.append({**_base_row(s, "colmap", cap), "error": f"{type(exc).__name__}: {exc}"})
             continue
-        rows.append(colmap_row(s, cap, refs[s]))
+        refs[s] = ref
     return refs, rows
 
 
