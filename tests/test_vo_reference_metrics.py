@@ -154,3 +154,20 @@ def test_vo_compare_colmap_reference_columns_on_7scenes(shared_data, tmp_path):
     assert "vs COLMAP" in table and "vs ground truth" in table
     payload = json.loads(write_results(rows, tmp_path)["results.json"].read_text())
     assert payload["rows"][0]["reference"]["colmap"]["relative_rotation"]["gap_frames"] == 30
+
+
+def test_edge_errors_judge_loop_edges_against_the_reference():
+    from spgeo.evaluation.vo.reference_metrics import edge_errors
+    from spgeo.similarity import sim3
+
+    ts, B = _trajectory(120)
+    exact = np.linalg.inv(B[5]) @ B[100]
+    turned = exact.copy()
+    turned[:3, :3] = exact[:3, :3] @ Rotation.from_rotvec([0, 0, np.radians(2.0)]).as_matrix()
+    scaled = sim3(exact[:3, :3], 3.0 * exact[:3, 3], 3.0)     # a Sim(3) edge, scale ignored
+    e = edge_errors([(5, 100, exact), (5.02, 100, turned), (5, 100, scaled), (5, 500, exact)],
+                    (ts, B))
+    assert e.n == 3 and e.n_skipped == 1
+    np.testing.assert_allclose(e.rotation_deg, [0, 2, 0], atol=1e-6)
+    np.testing.assert_allclose(e.translation_direction_deg, [0, 0, 0], atol=1e-4)
+    assert e.max_deg == pytest.approx(2.0)

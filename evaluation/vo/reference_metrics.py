@@ -18,7 +18,10 @@ degree level (issue 30); COLMAP's offline reconstruction of the same frames
   ``ratio = s_window / s_all`` (1 where the window needs the whole run's scale; > 1
   where A's window is small against B's, i.e. A's scale shrank there), with its
   min / max and the spread max / min.
-* :func:`compare_to_reference`: all three plus the position ATE
+* :func:`edge_errors`: measured relative poses between two frames (loop edges,
+  ``T_i_j = inv(T_world_i) T_world_j``, rigid or Sim(3)) against the reference's
+  relative pose of the same two frames: rotation angle and translation direction, degrees.
+* :func:`compare_to_reference`: the first three plus the position ATE
   (:func:`~spgeo.evaluation.trajectory.ate_sim3`, Sim(3)) in one
   :class:`ReferenceComparison`.
 
@@ -44,12 +47,13 @@ from spgeo.similarity import sim3_parts, umeyama
 from spgeo.trajectory import Trajectory
 from spgeo.twoview.geometry import orthonormalise
 
-from spgeo.evaluation.pose_metrics import rotation_error_deg
+from spgeo.evaluation.pose_metrics import relative_pose_errors, rotation_error_deg
 from spgeo.evaluation.trajectory import AteResult, ate_sim3, default_max_time_diff
 
 __all__ = ["DEFAULT_GAP", "DEFAULT_WINDOW", "AssociatedPoses", "associate_poses",
            "RelativeRotationError", "relative_rotation_error", "OrientationError",
-           "orientation_error", "WindowScale", "window_scale", "ReferenceComparison",
+           "orientation_error", "WindowScale", "window_scale", "EdgeErrors", "edge_errors",
+           "ReferenceComparison",
            "compare_to_reference"]
 
 #: Frame gap of :func:`relative_rotation_error` (frames).
@@ -316,6 +320,67 @@ def window_scale(est, ref, window: int = DEFAULT_WINDOW, stride: int = 1,
                        pairs.timestamps[np.asarray(starts, dtype=int)], scales_a, ratios)
 
 
+# ------------------------------------------------------------------ edges (loop closures)
+@dataclass
+class EdgeErrors:
+    """:func:`edge_errors`: measured relative poses against the reference's.
+
+    Attributes:
+        n: edges evaluated (both frames posed in the reference); n_skipped: the others.
+        mean_deg, median_deg, max_deg: of ``rotation_deg`` (NaN when n = 0).
+        edges: (n, 2) the evaluated edges' timestamps ``(t_i, t_j)``.
+        rotation_deg: (n,) angle between measured and reference relative rotation.
+        translation_direction_deg: (n,) angle between the translation directions (NaN
+            where either translation is zero).
+    """
+
+    n: int
+    n_skipped: int
+    mean_deg: float
+    median_deg: float
+    max_deg: float
+    edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    rotation_deg: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    translation_direction_deg: np.ndarray = field(default_factory=lambda: np.zeros(0),
+                                                  repr=False)
+
+
+def edge_errors(edges, ref, max_time_diff: Optional[float] = None) -> EdgeErrors:
+    """Measured relative poses (e.g. loop edges) against the reference ``ref`` (B).
+
+    Args:
+        edges: ``(t_i, t_j, T_i_j)`` triples: two frames' timestamps and the measured
+            pose of frame j in frame i's camera (``inv(T_world_i) T_world_j``), a 4x4
+            rigid transform or similarity (its scale is dropped; translation compared
+            by direction only).
+        ref: B (module docstring); each timestamp takes its nearest B pose within
+            ``max_time_diff`` (default
+            :func:`~spgeo.evaluation.trajectory.default_max_time_diff` of B's).
+    Edges with a frame that B does not pose are skipped (``n_skipped``).
+    """
+    ts_b, poses_b = _arrays(ref, "ref")
+    tol = default_max_time_diff(ts_b) if max_time_diff is None else float(max_time_diff)
+    done, rot, tdir = [], [], []
+    for t_i, t_j, T in edges:
+        both = associate_poses((np.array([t_i, t_j], float), np.tile(np.eye(4), (2, 1, 1))),
+                               (ts_b, poses_b), tol)
+        if not both.valid.all():
+            continue
+        R, t, _ = sim3_parts(np.asarray(T, dtype=np.float64))
+        T_est = np.eye(4)
+        T_est[:3, :3], T_est[:3, 3] = R, t
+        T_ref = np.linalg.inv(both.poses_b[0]) @ both.poses_b[1]
+        e = relative_pose_errors(T_est, T_ref)
+        done.append((t_i, t_j))
+        rot.append(e["rotation_error_deg"])
+        tdir.append(e["translation_direction_error_deg"])
+    rot_a = np.asarray(rot, dtype=np.float64)
+    mean, median, mx = _stats(rot_a)
+    return EdgeErrors(len(rot_a), len(edges) - len(rot_a), mean, median, mx,
+                      np.asarray(done, dtype=np.float64).reshape(-1, 2), rot_a,
+                      np.asarray(tdir, dtype=np.float64))
+
+
 # ------------------------------------------------------------------ all of them
 @dataclass
 class ReferenceComparison:
@@ -369,17 +434,14 @@ def compare_to_reference(est, ref, reference: str = "reference", gap: int = DEFA
     ATE (:func:`~spgeo.evaluation.trajectory.ate_sim3`, frames without a pose dropped)
     of A (``est``) against B (``ref``, named ``reference``), each with the same
     association tolerance (:func:`associate_poses`)."""
-    tol = max_time_diff
-    if tol is None:
-        tol = default_max_time_diff(_arrays(est, "est")[0])
-    out = ReferenceComparison(reference, relative_rotation_error(est, ref, gap, tol),
-                              orientation_error(est, ref, tol), window_scale(est, ref, window,
-                                                                             max_time_diff=tol))
+    a, b = _arrays(est, "est"), _arrays(ref, "ref")
+    tol = default_max_time_diff(a[0]) if max_time_diff is None else max_time_diff
+    out = ReferenceComparison(reference, relative_rotation_error(a, b, gap, tol),
+                              orientation_error(a, b, tol),
+                              window_scale(a, b, window, max_time_diff=tol))
     if with_ate:
-        ts_a, poses_a = _arrays(est, "est")
         try:
-            out.ate = ate_sim3((ts_a, poses_a), _arrays(ref, "ref"), max_time_diff=tol,
-                               warn_dropped=False)
+            out.ate = ate_sim3(a, b, max_time_diff=tol, warn_dropped=False)
         except ValueError as exc:
             out.ate_error = str(exc)
     return out
