@@ -59,3 +59,30 @@ def test_synthetic_loop_smoke(tmp_path, capsys):
     header = "| " + " | ".join(h for h, _, _ in TABLE) + " |"
     assert header in md and header in printed
     assert md.count("| synthetic-loop |") == 2
+
+
+@pytest.mark.slow
+def test_colmap_reference_columns_and_cache(tmp_path, capsys):
+    """``--reference colmap`` on a short synthetic loop: COLMAP runs once on the distinct
+    frames (cached in DIR/colmap/, reused by a rerun), the run's row gains the rotation
+    and orientation columns against COLMAP, and a ``colmap`` row its own against the
+    ground truth."""
+    pytest.importorskip("pycolmap")
+    argv = ["--out", str(tmp_path), "--sequences", "synthetic-loop", "--frames", "40",
+            "--variants", "default", "--timeout", "300", "--reference", "colmap"]
+    assert main(argv) == 0
+    rows = {r["variant"]: r for r in json.loads((tmp_path / "long_run.json").read_text())["rows"]}
+    assert list(rows) == ["default", "colmap"]
+    run, col = rows["default"], rows["colmap"]
+    assert col["error"] is None and col["tracked"] >= 30 and col["status"] == "reference"
+    assert 0 <= col["ate_m"] < 0.05 and 0 <= col["rot_vs_gt_deg"] < 1
+    assert 0 <= run["rot_vs_colmap_deg"] < 2 and 0 <= run["orient_vs_colmap_max_deg"] < 3
+    assert run["reference"]["colmap"]["relative_rotation"]["gap_frames"] == 30
+    assert len(list((tmp_path / "colmap").iterdir())) == 1
+    md = (tmp_path / "long_run.md").read_text()
+    assert "rot/30 vs COLMAP deg" in md and "| synthetic-loop | colmap |" in md
+    capsys.readouterr()
+    assert main(argv[:6] + ["--variants", "loops", "--colmap"]) == 0     # the cache is reused
+    rows = json.loads((tmp_path / "long_run.json").read_text())["rows"]
+    assert rows[-1]["status"] == "reference (cached)"
+    assert rows[-1]["rot_vs_gt_deg"] == pytest.approx(col["rot_vs_gt_deg"])

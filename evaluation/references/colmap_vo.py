@@ -48,7 +48,7 @@ from .colmap_common import (ColmapOptions, cam_from_world, extract_sift, increme
                             load_images, mapper_options, quiet, sift_matching_options,
                             verification_options, workspace)
 
-__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo",
+__all__ = ["ColmapVOConfig", "ColmapVOResult", "COLMAP_VO_STATUSES", "run_colmap_vo", "with_ground_truth",
            "check_resolution", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
@@ -442,7 +442,7 @@ def run_colmap_vo(frames: Iterable[ImageOrFrame], config: Optional[ColmapVOConfi
 NAME = "colmap_vo"
 
 
-def _with_gt(frames: Iterable[Frame], gt: List[Optional[np.ndarray]]) -> Iterable[Frame]:
+def with_ground_truth(frames: Iterable[Frame], gt: List[Optional[np.ndarray]]) -> Iterable[Frame]:
     """``frames`` unchanged, appending each one's ``T_world_cam`` to ``gt`` as it passes."""
     for f in frames:
         gt.append(f.T_world_cam)
@@ -488,7 +488,7 @@ def run(args: argparse.Namespace) -> int:
                             show_progress=True)
     seq = open_sequence(args)
     gt: List[Optional[np.ndarray]] = []
-    res = run_colmap_vo(_with_gt(seq, gt), config, workdir=args.workdir)
+    res = run_colmap_vo(with_ground_truth(seq, gt), config, workdir=args.workdir)
     print(res.table())
     report: Dict[str, object] = {"dataset": kind, "path": str(path), "frames": args.frames,
                                  **res.summary()}

@@ -27,10 +27,20 @@ keyframes, FPS (frames / wall seconds of the method) and wall seconds.  The
 ATE is over the posed frames only: read it together with the tracked
 fraction.
 
+Rotations and local scale are judged against references
+(:mod:`spgeo.evaluation.vo.reference_metrics`; 7-Scenes' ground truth cannot judge
+rotations at the degree level, issue 30): every row gets its relative rotation error
+over :attr:`VOCompareConfig.rotation_gap` frames (default 30) and its orientation
+after the best constant rotation against the ground truth; when ``colmap`` is among
+the methods, every other row also gets them against COLMAP's reconstruction of the
+same frames, with its scale relative to COLMAP's over sliding windows of
+:attr:`VOCompareConfig.scale_window` frames (default 50).  A second table shows them.
+
 Command line::
 
     python -m spgeo.evaluation.vo.compare --dataset 7scenes PATH --frames 0:300 \
         [--resolution WxH|auto|native] [--methods feature colmap ...] [--out DIR]
+        [--rotation-gap 30] [--scale-window 50]
 
 prints a markdown table and, with ``--out``, writes ``<method>.txt`` (TUM,
 camera-to-world, posed frames), ``<method>.status.txt``,
@@ -64,9 +74,12 @@ from spgeo.evaluation.trajectory import (AteResult, ate_per_frame_and_keyframes,
                                          default_max_time_diff, path_length, status_path_for,
                                          write_status, write_tum)
 from spgeo.evaluation.runner import open_sequence, protocol_argv, protocol_parser, run_protocol
+from spgeo.evaluation.vo.reference_metrics import (DEFAULT_GAP, DEFAULT_WINDOW,
+                                                   compare_to_reference)
 
 __all__ = ["METHODS", "METHOD_LABELS", "ORACLE_METHODS", "DEFAULT_RESOLUTION", "VOCompareConfig",
            "AUTO_RESOLUTION", "compare_size", "VOCompareRow", "prepare_frames", "compare_vo", "format_markdown_table",
+           "format_reference_table",
            "write_results", "build_parser", "run", "main"]
 
 logger = logging.getLogger(__name__)
@@ -122,6 +135,11 @@ class VOCompareConfig:
         odometry: ``spgeo.odometry.OdometryConfig`` of the spgeo methods; None
             (default) = its defaults.
         progress: tqdm bars, default False.
+        rotation_gap: frame gap of the relative rotation error against the
+            references (default 30,
+            :func:`~spgeo.evaluation.vo.reference_metrics.relative_rotation_error`).
+        scale_window: frames per window of the scale against COLMAP (default 50,
+            :func:`~spgeo.evaluation.vo.reference_metrics.window_scale`).
     """
 
     resolution: Union[None, str, Tuple[int, int]] = DEFAULT_RESOLUTION
@@ -130,6 +148,8 @@ class VOCompareConfig:
     colmap: ColmapVOConfig = field(default_factory=ColmapVOConfig)
     odometry: Optional[object] = None
     progress: bool = False
+    rotation_gap: int = DEFAULT_GAP
+    scale_window: int = DEFAULT_WINDOW
 
     def __post_init__(self) -> None:
         if isinstance(self.resolution, str):
@@ -138,6 +158,8 @@ class VOCompareConfig:
             self.resolution = check_resolution(self.resolution, "VOCompareConfig.resolution")
         if self.max_time_diff is not None and not float(self.max_time_diff) > 0:
             raise ValueError("VOCompareConfig.max_time_diff must be > 0")
+        if int(self.rotation_gap) < 1 or int(self.scale_window) < 3:
+            raise ValueError("VOCompareConfig: rotation_gap must be >= 1, scale_window >= 3")
 
 
 @dataclass
@@ -159,6 +181,17 @@ class VOCompareRow:
         fps: ``n_frames / wall_s``; wall_s: seconds the method ran.
         error: why the method or its ATE failed (None when fine).
         info: method-specific extras (status counts, COLMAP model sizes...).
+        rot_vs_gt_deg: mean relative rotation error over the configured frame gap
+            against the ground truth, degrees; orient_vs_gt_median_deg /
+            orient_vs_gt_max_deg: orientation after the best constant rotation.
+        rot_vs_colmap_deg, orient_vs_colmap_median_deg, orient_vs_colmap_max_deg:
+            the same against the ``colmap`` row (NaN for that row itself and when
+            COLMAP did not run).
+        window_scale_vs_colmap_min, window_scale_vs_colmap_max: the Sim(3) scale
+            taking this method onto COLMAP over sliding windows, relative to the
+            whole run's (:func:`~spgeo.evaluation.vo.reference_metrics.window_scale`).
+        reference: reference name (``"ground truth"``, ``"colmap"``) -> the
+            :meth:`~spgeo.evaluation.vo.reference_metrics.ReferenceComparison.summary`.
         timestamps, poses, is_keyframe, status: the trajectory (camera-to-world,
             NaN where no pose), not part of :meth:`to_dict`.
     """
@@ -181,6 +214,15 @@ class VOCompareRow:
     wall_s: float = float("nan")
     error: Optional[str] = None
     info: Dict[str, object] = field(default_factory=dict)
+    rot_vs_gt_deg: float = float("nan")
+    orient_vs_gt_median_deg: float = float("nan")
+    orient_vs_gt_max_deg: float = float("nan")
+    rot_vs_colmap_deg: float = float("nan")
+    orient_vs_colmap_median_deg: float = float("nan")
+    orient_vs_colmap_max_deg: float = float("nan")
+    window_scale_vs_colmap_min: float = float("nan")
+    window_scale_vs_colmap_max: float = float("nan")
+    reference: Dict[str, Dict[str, object]] = field(default_factory=dict)
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
     is_keyframe: Optional[np.ndarray] = field(default=None, repr=False)
@@ -195,6 +237,7 @@ class VOCompareRow:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
              if f.name not in ("timestamps", "poses", "is_keyframe", "status")}
         d["info"] = dict(self.info)
+        d["reference"] = dict(self.reference)
         d["tracked_fraction"] = self.tracked_fraction
         return d
 
@@ -372,8 +415,50 @@ def compare_vo(frames: Iterable[Frame], methods: Sequence[str] = METHODS,
         cfg = dataclasses.replace(cfg, resolution=tuple(frames[0].camera.size))
     stamps, gt_ts, gt_poses, gt_length = _ground_truth(frames)
     tol = cfg.max_time_diff if cfg.max_time_diff is not None else default_max_time_diff(stamps)
-    return [_method_row(method, frames, cfg, gt_ts, gt_poses, gt_length, tol)
+    rows = [_method_row(method, frames, cfg, gt_ts, gt_poses, gt_length, tol)
             for method in methods]
+    _add_reference_metrics(rows, (gt_ts, gt_poses), tol, cfg)
+    return rows
+
+
+def _add_reference_metrics(rows: Sequence[VOCompareRow], gt: Tuple[np.ndarray, np.ndarray],
+                           tol: float, cfg: VOCompareConfig) -> None:
+    """Fill the reference columns of ``rows`` (:class:`VOCompareRow`): against the
+    ground truth ``gt`` = ``(timestamps, camera-to-world poses)`` for every row with
+    a trajectory, against the ``colmap`` row (when it has >= 3 poses) for the others.
+    A comparison that raises (e.g. a pose that is not a rigid transform) is logged and
+    recorded as ``reference["error"]``; the row keeps NaN there."""
+    colmap = next((r for r in rows if r.method == "colmap" and r.n_tracked >= 3), None)
+    for r in rows:
+        if len(r.timestamps) == 0:
+            continue
+        try:
+            _fill_reference(r, gt, None if r is colmap else colmap, tol, cfg)
+        except ValueError as exc:
+            logger.warning("compare_vo: %s: reference metrics not available: %s", r.method, exc)
+            r.reference["error"] = str(exc)
+
+
+def _fill_reference(r: VOCompareRow, gt: Tuple[np.ndarray, np.ndarray],
+                    colmap: Optional[VOCompareRow], tol: float, cfg: VOCompareConfig) -> None:
+    """The reference columns of one row: against ``gt``, and against ``colmap``'s
+    trajectory unless None (:func:`_add_reference_metrics`)."""
+    c = compare_to_reference((r.timestamps, r.poses), gt, "ground truth",
+                             cfg.rotation_gap, cfg.scale_window, tol, with_ate=False)
+    r.reference["ground truth"] = c.summary()
+    r.rot_vs_gt_deg = c.relative_rotation.mean_deg
+    r.orient_vs_gt_median_deg = c.orientation.median_deg
+    r.orient_vs_gt_max_deg = c.orientation.max_deg
+    if colmap is None:
+        return
+    c = compare_to_reference((r.timestamps, r.poses), (colmap.timestamps, colmap.poses),
+                             "colmap", cfg.rotation_gap, cfg.scale_window, tol)
+    r.reference["colmap"] = c.summary()
+    r.rot_vs_colmap_deg = c.relative_rotation.mean_deg
+    r.orient_vs_colmap_median_deg = c.orientation.median_deg
+    r.orient_vs_colmap_max_deg = c.orientation.max_deg
+    r.window_scale_vs_colmap_min = c.window_scale.min
+    r.window_scale_vs_colmap_max = c.window_scale.max
 
 
 # ================================================================== output
@@ -411,6 +496,43 @@ def format_markdown_table(rows: Sequence[VOCompareRow], title: Optional[str] = N
         if r.error:
             note += f"; error: {r.error}"
         lines.append(note)
+    if any(r.reference for r in rows):
+        lines += ["", format_reference_table(rows)]
+    return "\n".join(lines)
+
+
+def _pair(a: float, b: float, digits: int, sep: str = " / ") -> str:
+    return "-" if not math.isfinite(float(a)) else f"{_f(a, digits)}{sep}{_f(b, digits)}"
+
+
+def format_reference_table(rows: Sequence[VOCompareRow]) -> str:
+    """Markdown table of the rows' rotation / orientation / window-scale columns
+    against the ground truth and COLMAP (:func:`_add_reference_metrics`), with a legend."""
+    ref = next((r.reference["ground truth"] for r in rows if "ground truth" in r.reference), {})
+    gap = ref.get("relative_rotation", {}).get("gap_frames", DEFAULT_GAP)
+    window = ref.get("window_scale", {}).get("window_frames", DEFAULT_WINDOW)
+    lines = [f"| method | rot. err / {gap} frames vs ground truth [deg] "
+             "| orientation vs ground truth, median / max [deg] "
+             f"| rot. err / {gap} frames vs COLMAP [deg] "
+             "| orientation vs COLMAP, median / max [deg] "
+             f"| window scale onto COLMAP, {window}-frame windows, min - max (spread) |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lo, hi = r.window_scale_vs_colmap_min, r.window_scale_vs_colmap_max
+        scale = "-" if not math.isfinite(lo) else f"{lo:.3f} - {hi:.3f} ({hi / lo:.3f})"
+        lines.append(f"| {r.method} | {_f(r.rot_vs_gt_deg, 2)} | "
+                     f"{_pair(r.orient_vs_gt_median_deg, r.orient_vs_gt_max_deg, 2)} | "
+                     f"{_f(r.rot_vs_colmap_deg, 2)} | "
+                     f"{_pair(r.orient_vs_colmap_median_deg, r.orient_vs_colmap_max_deg, 2)} | "
+                     f"{scale} |")
+    lines += ["", f"Rot. err: mean angle of (R_i^T R_i+{gap})^-1 (R_ref,i^T R_ref,i+{gap}) over "
+              "the frames posed in both. Orientation: per-frame angle after the best constant "
+              "rotation (chordal mean). Window scale: the Sim(3) (Umeyama) scale taking the "
+              f"method's camera centres onto COLMAP's in every {window}-frame window, over the "
+              "same fit on all frames (1 = the run's own scale; the spread max / min is "
+              "the local scale drift). 7-Scenes' ground truth cannot judge rotations at the "
+              "degree level (issue 30): rotations and scale are judged against COLMAP's "
+              "reconstruction of the same frames, positions against the ground truth."]
     return "\n".join(lines)
 
 
@@ -469,6 +591,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-time-diff", type=float, default=None,
                         help="ATE association tolerance (default 0.1 for frame-number "
                              "timestamps, else 0.02 s)")
+    parser.add_argument("--rotation-gap", type=int, default=DEFAULT_GAP,
+                        help="frame gap of the relative rotation error against the ground "
+                             "truth and COLMAP (default %(default)s)")
+    parser.add_argument("--scale-window", type=int, default=DEFAULT_WINDOW,
+                        help="frames per window of the scale against COLMAP "
+                             "(default %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
 
@@ -482,7 +610,8 @@ def run(args: argparse.Namespace) -> int:
     load_depth = any(m in ORACLE_METHODS for m in args.methods)
     seq = open_sequence(args, load_depth=load_depth)
     config = VOCompareConfig(resolution=resolution, max_time_diff=args.max_time_diff,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, rotation_gap=args.rotation_gap,
+                             scale_window=args.scale_window)
     rows = compare_vo(seq, args.methods, resolution, config)
     size = compare_size(resolution, seq.camera.size)
     res_txt = "native" if size is None else f"{size[0]}x{size[1]}"

@@ -3,7 +3,7 @@
 One fresh process per (sequence, variant) run.
 
     spgeo eval vo_long_run --out DIR [--sequences 7scenes,7scenes-palindrome,kitti,synthetic-loop]
-        [--variants default,loops] [--frames N] [--timeout SECONDS]
+        [--variants default,loops] [--frames N] [--timeout SECONDS] [--reference colmap]
 
 Sequences (:data:`SEQUENCES`; all with ground truth, timestamps = position in
 the run):
@@ -53,6 +53,20 @@ written as ``DIR/long_run.md`` and ``DIR/long_run.json`` (rows and
 provenance), each atomically and after every run, so an interrupted benchmark
 keeps what it did.  Exit status 2 for an unknown sequence or variant, 1 when
 a run failed, else 0.
+
+``--reference colmap`` judges rotations and local scale against COLMAP's
+reconstruction of the same frames (issue 30; 7-Scenes' ground truth cannot judge
+rotations at the degree level): COLMAP
+(:func:`~spgeo.evaluation.references.colmap_vo.run_colmap_vo`, in this process,
+at the VO's processing size) runs once on each sequence's distinct frames, cached
+in ``DIR/colmap/<data>-<frames>/`` (``trajectory.txt`` + status, ``gt.txt``,
+``reference.json``) and reused on a rerun; a palindrome takes the poses of its
+frames.  Every run's row gains, against COLMAP, the relative rotation error over
+30 frames, the orientation after the best constant rotation (median / max) and
+the Sim(3) scale onto COLMAP over 50-frame windows (min / max, relative to the
+whole run's), and against the ground truth its relative rotation error over 30
+frames (:mod:`spgeo.evaluation.vo.reference_metrics`); one ``colmap`` row per
+sequence gives COLMAP's own ATE and rotation error against the ground truth.
 """
 from __future__ import annotations
 
@@ -72,13 +86,16 @@ import numpy as np
 
 from spgeo.evaluation.jobs import (THREAD_ENV, EvalTable, Job, RunnerConfig, provenance,
                                    run_jobs, write_atomic)
-from spgeo.evaluation.runner import protocol_argv, protocol_parser, run_protocol
+from spgeo.evaluation.runner import protocol_argv, protocol_parser, run_protocol, write_json
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.evaluation.vo.memory import palindrome
+from spgeo.evaluation.vo.reference_metrics import compare_to_reference
 
 __all__ = ["LongRunSequence", "SEQUENCES", "VARIANTS", "TABLE", "Reordered", "run_config",
            "run_one", "run_metrics", "end_pose_error", "scale_drift", "run_subprocess",
-           "make_jobs", "markdown", "write_outputs", "build_parser", "run", "main"]
+           "make_jobs", "markdown", "write_outputs", "build_parser", "run", "main",
+           "REFERENCES", "REFERENCE_TABLE", "ColmapReference", "colmap_reference",
+           "reference_columns", "with_reference", "colmap_row", "colmap_references"]
 
 #: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
 SEVENSCENES_FRAMES = 300
@@ -372,6 +389,151 @@ def make_jobs(sequences: Sequence[str], variants: Sequence[str], cap: Optional[i
                 meta=_base_row(s, v, cap)) for s in sequences for v in variants]
 
 
+# ------------------------------------------------------------------ the COLMAP reference
+#: ``--reference`` values.
+REFERENCES = ("colmap",)
+
+
+@dataclass
+class ColmapReference:
+    """COLMAP's reconstruction of a sequence's frames, as played (:func:`colmap_reference`).
+
+    Attributes:
+        trajectory: per played frame (timestamp = position in the run, as the runs')
+            COLMAP's camera-to-world pose (arbitrary world and scale; NaN / ``lost``
+            where COLMAP did not register the frame).
+        gt: ``(timestamps, poses)``: the ground truth on the same frames (NaN where none).
+        info: ``reference.json`` (registration, models, seconds, resolution, cached).
+    """
+
+    trajectory: Any
+    gt: Tuple[np.ndarray, np.ndarray]
+    info: Dict[str, Any]
+
+
+def _run_colmap(sequence: str, frames: Reordered, positions: List[int],
+                folder: Path) -> Dict[str, Any]:
+    """COLMAP on the distinct ``positions`` of ``frames`` at the processing size of
+    ``sequence``'s VO runs, written to ``folder`` (``trajectory.txt`` + status,
+    ``gt.npy``: (n, 4, 4) ground truth, NaN where none; ``reference.json`` last)."""
+    from spgeo.evaluation.references.colmap_vo import (ColmapVOConfig, run_colmap_vo,
+                                                      with_ground_truth)
+
+    distinct = Reordered(frames.base, positions, frames.poses, depth=False)
+    odometry = run_config(sequence, "default").odometry
+    size = tuple(odometry.processing_size_for(tuple(distinct[0].camera.size)))
+    gt: List[Optional[np.ndarray]] = []
+    res = run_colmap_vo(with_ground_truth(distinct, gt), ColmapVOConfig(resolution=size))
+    folder.mkdir(parents=True, exist_ok=True)
+    res.save_tum(folder / "trajectory.txt")
+    np.save(folder / "gt.npy", np.stack([np.full((4, 4), np.nan) if T is None else T
+                                         for T in gt]))
+    info = {"frames": len(positions), "resolution": list(size), **res.summary()}
+    write_json(folder / "reference.json", info, indent=1)
+    return info
+
+
+def colmap_reference(sequence: str, cap: Optional[int], out: Path) -> ColmapReference:
+    """COLMAP's reconstruction of ``sequence``'s frames (at most ``cap``) as played:
+    run once on the distinct frames and cached in ``out/colmap/<data>-<frames>/``
+    (reused when its ``reference.json`` is there: 7-Scenes and its palindrome share
+    it when they play the same frames); a palindrome takes its frames' poses."""
+    from spgeo.trajectory import Trajectory
+
+    seq = SEQUENCES[sequence]
+    frames = seq.frames(cap, depth=False)
+    positions = sorted(set(frames.order))
+    folder = Path(out) / "colmap" / f"{seq.open.__name__.strip('_')}-{len(positions)}"
+    if (folder / "reference.json").is_file():
+        info = {**json.loads((folder / "reference.json").read_text(encoding="utf-8")),
+                "cached": True}
+    else:
+        info = {**_run_colmap(sequence, frames, positions, folder), "cached": False}
+    traj = Trajectory.load(folder / "trajectory.txt")
+    index = [positions.index(j) for j in frames.order]
+    stamps = np.arange(len(index), dtype=np.float64)
+    played = Trajectory(stamps, traj.poses[index], [traj.status[k] for k in index])
+    return ColmapReference(played, (stamps, np.load(folder / "gt.npy")[index]), info)
+
+
+#: ``(header, row key, decimals)`` of the reference columns (``--reference colmap``).
+REFERENCE_TABLE: Tuple[Tuple[str, str, int], ...] = (
+    ("rot/30 vs GT deg", "rot_vs_gt_deg", 2), ("rot/30 vs COLMAP deg", "rot_vs_colmap_deg", 2),
+    ("orient. vs COLMAP med deg", "orient_vs_colmap_median_deg", 2),
+    ("orient. vs COLMAP max deg", "orient_vs_colmap_max_deg", 2),
+    ("win. scale vs COLMAP min", "window_scale_vs_colmap_min", 3),
+    ("win. scale vs COLMAP max", "window_scale_vs_colmap_max", 3))
+
+
+def _finite(x: float) -> Optional[float]:
+    return float(x) if np.isfinite(x) else None
+
+
+def reference_columns(traj, ref: ColmapReference) -> Dict[str, Any]:
+    """The reference fields of a row whose run has trajectory ``traj``
+    (:class:`~spgeo.trajectory.Trajectory`, timestamps = played positions): against
+    the ground truth and against COLMAP (:data:`REFERENCE_TABLE`; ``reference``:
+    both :meth:`~spgeo.evaluation.vo.reference_metrics.ReferenceComparison.summary`)."""
+    vs_gt = compare_to_reference(traj, ref.gt, "ground truth", with_ate=False)
+    vs_col = compare_to_reference(traj, ref.trajectory, "colmap", with_ate=False)
+    o, w = vs_col.orientation, vs_col.window_scale
+    return {"rot_vs_gt_deg": _finite(vs_gt.relative_rotation.mean_deg),
+            "rot_vs_colmap_deg": _finite(vs_col.relative_rotation.mean_deg),
+            "orient_vs_colmap_median_deg": _finite(o.median_deg),
+            "orient_vs_colmap_max_deg": _finite(o.max_deg),
+            "window_scale_vs_colmap_min": _finite(w.min),
+            "window_scale_vs_colmap_max": _finite(w.max),
+            "reference": {"ground truth": vs_gt.summary(), "colmap": vs_col.summary()}}
+
+
+def with_reference(row: Dict[str, Any], out: Path,
+                   refs: Mapping[str, ColmapReference]) -> Dict[str, Any]:
+    """``row`` with :func:`reference_columns` of its run (``out/<sequence>.<variant>/
+    trajectory.txt``) when its sequence has a reference in ``refs`` and the run wrote
+    a trajectory (``reference: {"error": ...}`` when they raised); else ``row`` itself."""
+    from spgeo.trajectory import Trajectory
+
+    path = Path(out) / f"{row['sequence']}.{row['variant']}" / "trajectory.txt"
+    ref = refs.get(row["sequence"])
+    if ref is None or row.get("error") or not path.is_file():
+        return row
+    try:
+        return {**row, **reference_columns(Trajectory.load(path), ref)}
+    except ValueError as exc:       # e.g. a pose that is not a rigid transform
+        return {**row, "reference": {"error": str(exc)}}
+
+
+def colmap_row(sequence: str, cap: Optional[int], ref: ColmapReference) -> Dict[str, Any]:
+    """The ``colmap`` row of a sequence: COLMAP's registration, Sim(3) ATE and
+    rotation error over 30 frames against the ground truth."""
+    c = compare_to_reference(ref.trajectory, ref.gt, "ground truth")
+    n, tracked = len(ref.trajectory), int(ref.trajectory.tracked.sum())
+    return {**_base_row(sequence, "colmap", cap), "frames": n, "tracked": tracked,
+            "lost": n - tracked, "ate_m": None if c.ate is None else c.ate.rmse,
+            "ate_pct": None if c.ate is None else c.ate.rmse_percent_of_length,
+            "rot_vs_gt_deg": _finite(c.relative_rotation.mean_deg),
+            "run_s": (ref.info.get("timings_s") or {}).get("total"),
+            "status": "reference (cached)" if ref.info.get("cached") else "reference",
+            "reference": {"ground truth": c.summary(), "colmap": ref.info}, "error": None}
+
+
+def colmap_references(sequences: Sequence[str], cap: Optional[int],
+                      out: Path) -> Tuple[Dict[str, ColmapReference], List[Dict[str, Any]]]:
+    """:func:`colmap_reference` of each sequence and its :func:`colmap_row`; a
+    sequence whose COLMAP run raised gets a row with ``error`` and no reference."""
+    refs: Dict[str, ColmapReference] = {}
+    rows: List[Dict[str, Any]] = []
+    for s in sequences:
+        try:
+            ref = colmap_reference(s, cap, out)
+            rows.append(colmap_row(s, cap, ref))
+        except Exception as exc:  # an evaluation reports, it does not die
+            rows.append({**_base_row(s, "colmap", cap), "error": f"{type(exc).__name__}: {exc}"})
+            continue
+        refs[s] = ref
+    return refs, rows
+
+
 # ------------------------------------------------------------------ the table
 #: ``(header, row key, decimals)`` of the Markdown table.
 TABLE: Tuple[Tuple[str, str, int], ...] = (
@@ -393,9 +555,21 @@ _NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres, frames flagged lost exclud
          "run.memory of the run's own process.")
 
 
+_REFERENCE_NOTE = ("Against COLMAP (--reference colmap; COLMAP's reconstruction of the same "
+                   "frames, rows 'colmap' give its own ATE and rotation error against the ground "
+                   "truth): rot/30 = mean relative rotation error over 30 frames; orient. = "
+                   "per-frame orientation after the best constant rotation; win. scale = Sim(3) "
+                   "scale taking the run onto COLMAP over 50-frame windows, relative to the whole "
+                   "run's (1 = none; max / min = the local scale drift).")
+
+
 def markdown(rows: Sequence[Mapping[str, Any]], prov: Optional[Mapping[str, Any]] = None) -> str:
-    """The rows as a Markdown table with the note and, given ``prov``, a provenance line."""
-    lines = [EvalTable(list(rows), TABLE).markdown(rows_only=True), "", _NOTE]
+    """The rows as a Markdown table with the note and, given ``prov``, a provenance line;
+    the :data:`REFERENCE_TABLE` columns (before status / error) when a row has them."""
+    columns, note = TABLE, _NOTE
+    if any("rot_vs_gt_deg" in r for r in rows):
+        columns, note = TABLE[:-2] + REFERENCE_TABLE + TABLE[-2:], _NOTE + " " + _REFERENCE_NOTE
+    lines = [EvalTable(list(rows), columns).markdown(rows_only=True), "", note]
     if prov:
         lines += ["", f"Provenance: commit {prov.get('commit')}"
                       f"{' (uncommitted changes)' if prov.get('dirty') else ''}, "
@@ -443,6 +617,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--frames", type=int, default=None,
                     help="cap of frames per sequence (smoke runs; a palindrome keeps its return)")
     ap.add_argument("--timeout", type=float, default=None, help="seconds per run")
+    ap.add_argument("--reference", choices=REFERENCES, default=None,
+                    help="judge rotations and local scale against COLMAP's reconstruction of "
+                         "the same frames (run once per sequence, cached in --out/colmap/)")
+    ap.add_argument("--colmap", dest="reference", action="store_const", const="colmap",
+                    help="same as --reference colmap")
     return ap
 
 
@@ -456,16 +635,20 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames must be >= 5, got {args.frames}")
     out = Path(args.out)
     prov = provenance({"sequences": sequences, "variants": variants, "frames": args.frames,
-                       "timeout": args.timeout, "variant_overrides": VARIANTS})
+                       "timeout": args.timeout, "variant_overrides": VARIANTS,
+                       "reference": args.reference})
     prov["argv_protocol"] = getattr(args, "argv_protocol", [])
+    refs, ref_rows = ({}, []) if args.reference is None else colmap_references(
+        sequences, args.frames, out)
     done: Dict[int, Dict[str, Any]] = {}
 
     def on_row(i: int, row: Dict[str, Any]) -> None:
-        done[i] = row
-        write_outputs([done[k] for k in sorted(done)], out, prov)
+        done[i] = with_reference(row, out, refs)
+        write_outputs([done[k] for k in sorted(done)] + ref_rows, out, prov)
 
     rows = run_jobs(make_jobs(sequences, variants, args.frames, out, args.timeout),
                     RunnerConfig(progress=False, desc="vo_long_run"), on_row)
+    rows = [with_reference(r, out, refs) for r in rows] + ref_rows
     write_outputs(rows, out, prov)
     print(markdown(rows, prov))
     for r in rows:
