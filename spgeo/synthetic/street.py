@@ -1,19 +1,21 @@
 """A synthetic street for forward driving at a low frame rate (a KITTI-like
 failure case of monocular initialisation, issue 30 "Driving").
 
-The street is a long :class:`~spgeo.synthetic.scene.SyntheticScene` room
-(default 80 m wide, 220 m long, 14 m high) whose floor (the road) and ceiling
-(the sky) are painted a flat, textureless grey: the only texture is on the side
-walls (facades, 40 m from the centre line), on boxes along the kerbs (parked
-cars, 6-8 m from the centre line) and on the far end wall (about 100-150 m
-ahead).  So most of the image is either far away or textureless, and the median
-depth of the textured pixels is tens of metres while the camera moves about 1 m
-per frame: ``|t| / median depth`` stays small for many frames although the near
-structure shows a parallax of several degrees.
+A road runs through a :class:`~spgeo.synthetic.scene.SyntheticScene` yard
+(:data:`STREET_SIZE`: 300 x 300 m, 60 m high) whose floor (the road) and ceiling
+(the sky) are painted a flat, textureless grey: the only texture is on the
+walls of the yard (far structure, 50-250 m away, up to 20 degrees above the
+horizon) and on sparse boxes along both kerbs (parked cars, 4-5 m from the
+centre line, one every 14-35 m).  So the near ground is textureless and the
+median depth is tens of metres while the camera moves about 1 m per frame:
+``|t| / median depth`` stays below 0.08 for several frames, and tracking
+against keyframe 0's unscaled primitives loses those frames
+(``tests/test_vo_drive.py``).
 
-World frame as in :mod:`spgeo.synthetic` (metres, z up); the car drives along
-+y on the centre line (x = 0) with the camera 1.65 m above the road.  The
-camera (:func:`street_camera`) has KITTI's proportions: fx / width = 0.58 (an
+World frame as in :mod:`spgeo.synthetic` (metres, z up); the road starts 100 m
+south of the yard's centre heading north (+y) and curves to the right
+(:func:`street_drive`), the camera 1.65 m above it.  The camera
+(:func:`street_camera`) has KITTI's proportions: fx / width = 0.58 (an
 81-degree horizontal field of view) and width / height = 3.3.
 """
 from __future__ import annotations
@@ -53,8 +55,8 @@ def _road(turn_deg: float, length: float = 210.0, ds: float = 0.05
 
 
 def _kerb_boxes(turn_deg: float, rng: np.random.Generator) -> List[BoxSpec]:
-    """Parked cars along both kerbs of :func:`_road`: one box every 6-19 m on
-    each side, 6-8 m to the side of the centre line, aligned with it (metres)."""
+    """Parked cars along both kerbs of :func:`_road`: one box every 14-35 m on
+    each side, 4-5 m to the side of the centre line, aligned with it (metres)."""
     arc, line, yaw = _road(turn_deg)
     boxes = []
     for side in (-1.0, 1.0):
