@@ -36,11 +36,13 @@ from .poses import (camera_rotation, default_camera, look_at, make_forward_traje
                     make_trajectory, make_view_set, orbit_views)
 from .scene import SyntheticScene
 from .sequence import render_frames, write_tum_sequence
+from .street import STREET_SIZE, street_camera, street_drive, street_scene
 
 __all__ = [
     "TextureConfig", "SceneConfig", "TrajectoryConfig", "ForwardTrajectoryConfig",
     "forward_scene_config", "make_forward_trajectory", "SurfaceKind", "Surface",
     "BoxSpec", "CylinderSpec", "SphereSpec", "PanelSpec", "RenderedView", "SyntheticScene",
     "default_camera", "look_at", "camera_rotation", "make_trajectory", "orbit_views",
-    "make_view_set", "render_frames", "write_tum_sequence",
+    "make_view_set", "render_frames", "write_tum_sequence", "STREET_SIZE", "street_scene",
+    "street_camera", "street_drive",
 ]

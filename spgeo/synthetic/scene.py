@@ -19,7 +19,7 @@ from ..geometry import check_pose
 from .config import SceneConfig
 from .mesh import tessellate
 from .objects import ObjectSpec, RenderedView, Surface, SurfaceKind, sample_objects
-from .texture import make_texture
+from .texture import FlatTexture, make_texture
 
 __all__ = ["SyntheticScene"]
 
@@ -76,6 +76,13 @@ class SyntheticScene:
         without overlapping each other (bounding circles in plan).
         """
         return cls(config, seed, sample_objects(np.random.default_rng([int(seed), 0]), config))
+
+    def paint_flat(self, surface_ids, grey: float) -> None:
+        """Give the surfaces ``surface_ids`` (ints) the constant albedo ``grey``
+        (in [0, 1], all channels): textureless surfaces such as a road or a
+        sky.  Shading still applies."""
+        for s in surface_ids:
+            self._textures[int(s)] = FlatTexture(grey)
 
     # ---------------------------------------------------------------- queries
     def surface_object(self, surface_ids: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 
 from .config import TextureConfig
 
-__all__ = ["SolidTexture", "make_texture"]
+__all__ = ["SolidTexture", "FlatTexture", "make_texture"]
 
 
 _PATTERN_STRIPES, _PATTERN_CHECKER, _PATTERN_BLOBS = "stripes", "checker", "blobs"
@@ -73,6 +73,22 @@ class SolidTexture:
         """(N, 3) float32 albedo in [0, 1] at world points (N, 3)."""
         p = np.ascontiguousarray(np.asarray(points, np.float32).reshape(-1, 3).T)
         return self.evaluate_rows(p).T
+
+
+class FlatTexture:
+    """A constant albedo ``grey`` (in [0, 1], every channel): a textureless
+    surface (:meth:`spgeo.synthetic.scene.SyntheticScene.paint_flat`)."""
+
+    def __init__(self, grey: float) -> None:
+        self.grey = np.float32(np.clip(grey, 0.0, 1.0))
+
+    def evaluate_rows(self, p: np.ndarray) -> np.ndarray:
+        """(3, N) float32 albedo of world points given as rows (3, N)."""
+        return np.full((3, p.shape[1]), self.grey, np.float32)
+
+    def evaluate(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) float32 albedo at world points (N, 3)."""
+        return np.full((np.asarray(points).reshape(-1, 3).shape[0], 3), self.grey, np.float32)
 
 
 def _random_unit(rng: np.random.Generator, n: int) -> np.ndarray:

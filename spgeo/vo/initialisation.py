@@ -36,7 +36,7 @@ from .map import MapKeyframe
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
 __all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection",
-           "append_bounded", "twoview_start"]
+           "append_bounded", "twoview_start", "sfm_parallax_deg"]
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +128,29 @@ def init_rejection(sfm: SfMResult, tracked: bool) -> Optional[str]:
     if not tracked and sfm.status != "ok":
         return f"keyframe 1 not tracked and SfM status {sfm.status}"
     return None
+
+
+def sfm_parallax_deg(sfm: SfMResult, percentile: float) -> float:
+    """The ``percentile``-th percentile (in [0, 100]) of the triangulation
+    angles (degrees) of the SfM's reference primitives between the reference
+    camera and the SfM's first view (keyframe 1), over the pixels of the
+    constrained primitives: for each pixel's point ``X`` (reference camera
+    frame, at its solved depth), the angle between the rays from the two camera centres, ``X`` and
+    ``X - c`` with ``c = T_ref_view[0][:3, 3]``.  Scale-free; 0 for a pure
+    rotation; NaN without a finite pose or a constrained primitive."""
+    T = np.asarray(sfm.T_ref_view[0], dtype=float) if sfm.T_ref_view else None
+    prims = sfm.primitives
+    keep = np.ones(len(prims), bool)
+    keep[np.asarray(sfm.unconstrained, dtype=np.int64)] = False
+    if T is None or not np.all(np.isfinite(T)) or not keep.any():
+        return float("nan")
+    cam = prims.camera
+    uv = np.stack([prims.pixels % cam.width, prims.pixels // cam.width], -1).astype(float)
+    X = cam.unproject(uv, np.exp(prims.scaled_log_depth()))[keep[prims.primitive_ids]]
+    Y = X - T[:3, 3]
+    cos = np.sum(X * Y, axis=1) / (np.linalg.norm(X, axis=1) * np.linalg.norm(Y, axis=1))
+    angles = np.degrees(np.arccos(np.clip(cos[np.isfinite(cos)], -1.0, 1.0)))
+    return float(np.percentile(angles, percentile)) if angles.size else float("nan")
 
 
 def append_bounded(buffer: list, item, cap: int) -> None:
@@ -313,17 +336,24 @@ class Initialiser:
         if not tr.ok and finite:  # the SfM's own baseline over its median depth
             parallax = float(np.linalg.norm(sfm.T_ref_view[0][:3, 3]) / np.median(
                 np.exp(sfm.primitives.scaled_log_depth())))
-        failed = sfm.status == "diverged" or (early and (sfm.status != "ok"
-                                                         or parallax < cfg.init.min_parallax))
+        angle = (sfm_parallax_deg(sfm, cfg.init.parallax_percentile)
+                 if finite and not tr.ok and cfg.init.min_parallax_deg is not None else None)
+        enough = parallax >= cfg.init.min_parallax or (
+            angle is not None and angle >= cfg.init.min_parallax_deg)
+        failed = sfm.status == "diverged" or (early and (sfm.status != "ok" or not enough))
         rejected = None if failed else init_rejection(sfm, tr.ok)
         self.reports.append({
             "status": sfm.status, "frame": idx, "segment": segment, "parallax": parallax,
             "sfm_parallax": (sfm.report.get("parallax") or [None])[0], "n_views": n_views,
             "accepted": not (failed or not finite or rejected), "rejected": rejected,
+            **({} if angle is None else {"parallax_deg": angle}),
             **{k: sfm.report.get(k) for k in ("n_primitives", "final_cost", "seconds_total")}})
         if failed or not finite:
             log.warning("two-view initialisation failed at frame %d (SfM status %s, parallax "
                         "%.3g); retrying later", idx, sfm.status, parallax)
+            if angle is not None:
+                log.info("frame %d: triangulation angle %.3g deg (init.min_parallax_deg %g)",
+                         idx, angle, cfg.init.min_parallax_deg)
             return True, rejected
         return False, rejected
 
