@@ -202,6 +202,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "refine": {"refine": True},
     "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
     "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
+    "landmarks": {"odometry.landmarks.enabled": True},
 }
 
 
