@@ -28,6 +28,7 @@ the landmark ties the present keyframe to the map it was built in.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -59,6 +60,13 @@ class LandmarkConfig:
             landmark's projection with the tracked pose (default 15).
         pixel_sigma: sigma of a projection factor, pixels (default 1.0).
         huber_px: Huber threshold of a projection factor, pixels (default 2.0).
+        max_factors: the most landmarks of a keyframe given factors in the window
+            (the longest-known first; default 1000).
+        marginalise: when a landmark leaves the window: with its ``"first"``
+            live observer (default: the marginal is over poses only; a landmark
+            seen again re-enters with a prior and the new observation) or its
+            ``"last"`` (its information stays in the window's marginal, which
+            becomes dense over the live landmarks: ~2x the mapping time).
         prior_sigma: sigma of the prior of a remembered landmark re-entering the
             window, as a fraction of the observing keyframe's median depth (0.02).
         memory_keyframes: keyframes a landmark is kept without being seen (100).
@@ -73,6 +81,8 @@ class LandmarkConfig:
     search_px: float = 15.0
     pixel_sigma: float = 1.0
     huber_px: float = 2.0
+    max_factors: int = 1000
+    marginalise: str = "first"
     prior_sigma: float = 0.02
     memory_keyframes: int = 100
     max_landmarks: int = 20000
@@ -80,7 +90,8 @@ class LandmarkConfig:
     def __post_init__(self) -> None:
         if (self.match_keyframes < 1 or not self.pixel_sigma > 0 or not self.huber_px > 0
                 or not self.prior_sigma > 0 or self.memory_keyframes < 1
-                or self.max_landmarks < 1 or not self.max_reprojection_px > 0):
+                or self.max_landmarks < 1 or self.max_factors < 1
+                or self.marginalise not in ("last", "first") or not self.max_reprojection_px > 0):
             raise ValueError(f"LandmarkConfig: invalid values {self}")
 
 
@@ -177,6 +188,7 @@ class LandmarkMap:
         and the last ``match_keyframes`` of ``live`` (keyframe indices of the
         window, older than ``k``), triangulate new landmarks; then forget the
         features of keyframes not in ``live`` and landmarks out of memory."""
+        t0 = time.perf_counter()
         pts, desc = opencv_features(to_gray_uint8(image), self.config.features)
         T = np.asarray(T_world_kf, dtype=np.float64)
         feats = _KeyframeFeatures(pts, desc, np.full(len(pts), -1, np.int64), T)
@@ -189,7 +201,8 @@ class LandmarkMap:
         self._forget(k, set(live) | {k})
         self.stats.append({"keyframe": k, "features": len(pts), "reobserved": n_old,
                            "linked": n_link, "created": len(self.created),
-                           "landmarks": len(self.landmarks)})
+                           "landmarks": len(self.landmarks),
+                           "seconds": time.perf_counter() - t0})
 
     def _observe(self, lm: Landmark, k: int, feats: _KeyframeFeatures, i: int) -> None:
         lm.observations[k] = feats.pixels[i].copy()
@@ -292,7 +305,9 @@ class LandmarkMap:
         """Counts (JSON-ready): landmarks kept, and the per-keyframe statistics' totals."""
         tot = {key: int(sum(s[key] for s in self.stats))
                for key in ("reobserved", "linked", "created")}
-        return {"landmarks": len(self.landmarks), **tot, "keyframes": len(self.stats)}
+        secs = [s["seconds"] for s in self.stats]
+        return {"landmarks": len(self.landmarks), **tot, "keyframes": len(self.stats),
+                "seconds_per_keyframe": float(np.mean(secs)) if secs else None}
 
 
 def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in: set,
@@ -321,16 +336,21 @@ def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in
         gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / cfg.pixel_sigma),
         gtsam.noiseModel.Isotropic.Sigma(2, cfg.pixel_sigma))
     created = set(lmap.created)
+    first = cfg.marginalise == "first"
     n = 0
-    for lm in lmap.observed_in(k):
+    seen = sorted(lmap.observed_in(k), key=lambda lm: (lm.first_seen, lm.id))
+    for lm in seen[:cfg.max_factors]:
         key = landmark_key(lm.id)
         if lm.id in lms_in:
-            obs = {k: lm.observations[k]} if lm.id not in created else lm.observations
-            batch.stamps.insert((key, float(k)))
+            obs = {k: lm.observations[k]}
+            if not first:
+                batch.stamps.insert((key, float(k)))
         else:
-            obs = lm.observations
-            batch.insert(key, gtsam.Point3(*lm.point), k)
-            if lm.id not in created:    # remembered: anchored where the old map put it
+            old = lm.id not in created
+            obs = {k: lm.observations[k]} if (first and old) else lm.observations
+            t = min([j for j in obs if j in poses_in] + [k]) if first else k
+            batch.insert(key, gtsam.Point3(*lm.point), t)
+            if old:    # remembered: anchored where the old map put it
                 sigma = cfg.prior_sigma * float(median_depth)
                 batch.graph.add(gtsam.PriorFactorPoint3(
                     key, gtsam.Point3(*lm.point), gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
