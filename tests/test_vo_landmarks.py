@@ -97,3 +97,45 @@ def test_projection_factors_vanish_at_truth_and_remembered_landmarks_get_a_prior
 def test_landmarks_are_off_by_default():
     assert OdometryConfig().landmarks.enabled is False
     assert len(dataclasses.fields(OdometryConfig)) <= 25
+
+
+def _palindrome_gap(n_unique, seed, landmarks):
+    """End gap of the VO on a synthetic palindrome (frames 0..n-1..0 of a
+    subsampled trajectory): distance of the last camera centre from the first
+    over the largest distance of any centre from the first (0: back at the start)."""
+    from spgeo.frame import Frame
+    from spgeo.frontend import FrontEndConfig, make_frontend
+    from spgeo.vo import KeyframeDecisionConfig, Odometry
+
+    scene = synthetic.SyntheticScene.generate(seed)
+    poses = synthetic.make_trajectory(n_unique * 3, seed)[::3]
+    order = list(range(n_unique)) + list(range(n_unique - 2, -1, -1))
+    views = {j: scene.render(CAM, poses[j]).rgb for j in range(n_unique)}
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
+                         landmarks=LandmarkConfig(enabled=landmarks))
+    vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
+    for i, j in enumerate(order):
+        vo.track(Frame(views[j], CAM, float(i)))
+    P = vo.result().poses
+    return np.linalg.norm(P[-1, :3, 3] - P[0, :3, 3]) / np.linalg.norm(
+        P[:, :3, 3] - P[0, :3, 3], axis=1).max()
+
+
+def test_landmarks_bring_a_synthetic_palindrome_back_to_its_start():
+    """Seed 0, 30 views there and back: window-only the end lands 0.12 of the
+    extent from the start, with landmarks 0.03 (measured on the AVX-512 CPU)."""
+    off, on = _palindrome_gap(30, 0, False), _palindrome_gap(30, 0, True)
+    assert on < 0.06 and on < 0.5 * off, (on, off)
+
+
+@pytest.mark.slow
+def test_landmarks_hold_palindromes_of_several_seeds():
+    """Seeds 0, 1, 2, 3, 5 (30 views there and back; seed 4 does not initialise).
+    Measured end gaps (off -> on): 0.123 -> 0.030, 0.104 -> 0.038, 0.017 -> 0.075,
+    0.037 -> 0.052, 0.288 -> 0.032: on average 0.114 -> 0.045; the landmark-linked
+    map ends within 0.1 of the extent on every seed (not always nearer than the
+    window-only map: seeds 2 and 3)."""
+    seeds = (0, 1, 2, 3, 5)
+    off = [_palindrome_gap(30, s, False) for s in seeds]
+    on = [_palindrome_gap(30, s, True) for s in seeds]
+    assert max(on) < 0.1 and np.mean(on) < 0.5 * np.mean(off), (on, off)
