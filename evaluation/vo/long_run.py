@@ -27,8 +27,8 @@ its first half (rounded up), so it still returns to its start.
 
 Variants (:data:`VARIANTS`): name -> :class:`spgeo.apps.vo_run.VORunConfig`
 overrides (dotted field names, :func:`spgeo.configs.apply_overrides`) applied
-after the sequence's own; ``default`` (none) and ``loops``
-(``odometry.loop_closure.enabled``).  Adding a variant is one entry there.
+after the sequence's own; ``default`` (none), ``loops``
+(``odometry.loop_closure.enabled``) and ``landmarks`` (``odometry.landmarks.enabled``).  Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through
@@ -219,6 +219,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "refine": {"refine": True},
     "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
     "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
+    "landmarks": {"odometry.landmarks.enabled": True},
 }
 
 

@@ -20,6 +20,7 @@ g     affine brightness ``(a, b)``             VO: keyframe ``lo`` seen from ``h
                                                ``hi * MAX_PRIMS + lo``
 f     supporting frame's pose (Pose3)          VO: frame number
 d     supporting frame's brightness            VO: frame number
+l     sparse landmark's world point (Point3)   VO: landmark id (:mod:`spgeo.vo.landmarks`)
 ====  =======================================  ============================================
 
 The loop-closure pose graph (:mod:`spgeo.loop.pose_graph`) holds one kind of variable,
@@ -34,7 +35,7 @@ from __future__ import annotations
 import gtsam
 
 __all__ = ["MAX_PRIMS", "pose_key", "scale_key", "brightness_key", "pair_brightness_key",
-           "support_pose_key", "support_brightness_key", "similarity_key", "symbol_index"]
+           "support_pose_key", "support_brightness_key", "landmark_key", "similarity_key", "symbol_index"]
 
 #: primitives per keyframe in the packed index of ``s`` (and of ``e`` / ``g``)
 MAX_PRIMS = 1_000_000
@@ -77,6 +78,11 @@ def support_pose_key(frame: int) -> int:
 def support_brightness_key(frame: int) -> int:
     """Key ``d frame`` of supporting frame ``frame``'s brightness (seen from its keyframe)."""
     return gtsam.symbol("d", int(frame))
+
+
+def landmark_key(landmark: int) -> int:
+    """Key ``l landmark`` of a sparse landmark's world point (landmark id)."""
+    return gtsam.symbol("l", int(landmark))
 
 
 def similarity_key(k: int) -> int:

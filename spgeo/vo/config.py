@@ -17,6 +17,7 @@ from ..primitive_models import PRIMITIVE_MODELS
 from ..sfm import SfMConfig
 from ..validation import MAX_IMAGE_SIDE, InputError
 from .feature_retry import FeatureRetryConfig
+from .landmarks import LandmarkConfig
 from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
@@ -324,6 +325,8 @@ class OdometryConfig:
             §5.2): with ``enabled``, keyframes are matched against older ones of
             their map segment and a verified loop corrects the segment's
             keyframes with a Sim(3) pose graph (default off).
+        landmarks: :class:`~spgeo.vo.landmarks.LandmarkConfig`: sparse feature
+            landmarks with projection factors in the window (default off).
     """
 
     resolution: Optional[Tuple[int, int]] = None
@@ -349,6 +352,7 @@ class OdometryConfig:
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
 
     def __post_init__(self) -> None:
         self._check_size()

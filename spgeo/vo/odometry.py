@@ -44,6 +44,7 @@ from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
 from .frame_tracker import FrameTracker
 from .keyframing import KeyframeMaker
+from .landmarks import LandmarkMap
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .processing import checked_frame
 from .smoother import WindowMapper
@@ -100,6 +101,10 @@ class Odometry:
         self._n_lost = 0
         self._mapper = WindowMapper(config)
         self._mapper.support_pose = self._map.support_pose   # the smoother writes the map's
+        self._landmarks = (LandmarkMap(self.camera, config.landmarks)
+                           if config.landmarks.enabled else None)
+        self._mapper.landmarks = self._landmarks
+        self._landmark_segment = -1
         self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
@@ -249,6 +254,7 @@ class Odometry:
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
             "refine": self._refine_report,
+            **({} if self._landmarks is None else {"landmarks": self._landmarks.report()}),
             "frames": frame_records(self._frames),
         }
 
@@ -433,6 +439,8 @@ class Odometry:
         t = time.perf_counter()
         # the mapper reads at most the window and the keyframe leaving it
         segment_kfs = self._map.window_kfs(extra=1)
+        if self._landmarks is not None:
+            self._add_landmarks(segment_kfs, closed)
         if closed or self._restart_window:
             self._restart_window = False
             self._mapper.reset()
@@ -440,6 +448,20 @@ class Odometry:
         if self._mapper.map_keyframe(segment_kfs, self._map.candidates, self._map.segment):
             self._map.seg_kfs = self._map.seg_kfs[-2:]
         timings["mapping"] = time.perf_counter() - t
+
+    def _add_landmarks(self, segment_kfs: List[MapKeyframe], closed: bool) -> None:
+        """The newest keyframe's landmarks (:mod:`spgeo.vo.landmarks`); a loop
+        correction or a new segment forgets the old ones (their points are stale)."""
+        new = segment_kfs[-1]
+        if closed or self._landmark_segment != self._map.segment:
+            self._landmarks.clear()
+            self._landmark_segment = self._map.segment
+            if len(segment_kfs) >= 2:     # the previous keyframe's features too
+                prev = segment_kfs[-2]
+                self._landmarks.add_keyframe(prev.index, prev.image, prev.keyframe.T_world_kf,
+                                             [prev.index])
+        live = [kf.index for kf in segment_kfs[-self.config.window:]]
+        self._landmarks.add_keyframe(new.index, new.image, new.keyframe.T_world_kf, live)
 
     def _close_loop(self, timings: Dict[str, float]) -> bool:
         """Register the new keyframe (and, in a new segment, its keyframe 0) with

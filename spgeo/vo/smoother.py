@@ -61,6 +61,7 @@ from ..graph.builders import (GAUGE_SIGMA, FactorBatch, add_factor_group, add_ke
 from ..graph.keys import pose_key, scale_key, support_brightness_key, support_pose_key
 from .config import OdometryConfig
 from .keyframe import Keyframe, with_shape_values
+from .landmarks import LandmarkMap, add_landmark_factors, read_landmarks
 from .map import MapKeyframe, SupportCandidate
 
 __all__ = ["WindowMapper", "MAP_RELATIVE_TOL", "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
@@ -97,6 +98,10 @@ class WindowMapper:
         self._support_frames: List[int] = []
         self.support_pose: Dict[int, np.ndarray] = {}
         self.reports: List[dict] = []
+        #: sparse landmarks (:mod:`spgeo.vo.landmarks`; None: none, the default)
+        self.landmarks: Optional[LandmarkMap] = None
+        self._poses_in: set = set()       # keyframes whose pose is in the smoother
+        self._lms_in: set = set()         # landmark ids in the smoother
 
     def new_smoother(self) -> gtsam.BatchFixedLagSmoother:
         """An empty smoother with the configured LM parameters and lag."""
@@ -113,6 +118,7 @@ class WindowMapper:
         self.smoother = self.new_smoother()
         release_groups(self._groups)     # else never freed: a reference cycle through gtsam
         self._groups = []
+        self._poses_in, self._lms_in = set(), set()
 
     def estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
@@ -186,8 +192,11 @@ class WindowMapper:
         n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
         chosen = self._choose_support(candidates)
         n_sup = self._add_support(batch, prev, chosen)
+        n_lm = self._add_landmarks(batch, kfs, new)
         est, secs = self._solve(batch)
         self._refresh(est, kfs)
+        if self.landmarks is not None:
+            self._refresh_landmarks(est, kfs)
         alive = [est.exists(g.ref_key) and est.exists(g.tgt_key) for g in self._groups]
         release_groups([g for g, a in zip(self._groups, alive) if not a])
         self._groups = [g for g, a in zip(self._groups, alive) if a]
@@ -196,6 +205,8 @@ class WindowMapper:
                              "support_frames": [c.frame for c in chosen],
                              "primitives_without_pixels": int(n_empty),
                              "seconds": secs, "keys_in_window": int(est.size())})
+        if self.landmarks is not None:
+            self.reports[-1]["factors_landmarks"] = n_lm
         log.debug("mapping kf %d: %d + %d factors, %.2f s", new.index, n_pair, n_sup, secs)
 
     def _add_keyframe(self, batch: FactorBatch, kf: MapKeyframe) -> None:
@@ -235,6 +246,24 @@ class WindowMapper:
             n_sup += self._add_group(batch, g, bkey, c.brightness, prev.index)
             self._support_frames.append(c.frame)
         return n_sup
+
+    def _add_landmarks(self, batch: FactorBatch, kfs: List[MapKeyframe],
+                       new: MapKeyframe) -> int:
+        """The new keyframe's landmark factors (none without landmarks)."""
+        if self.landmarks is None:
+            return 0
+        poses_in = {kf.index for kf in kfs
+                    if kf.index in self._poses_in or batch.values.exists(pose_key(kf.index))}
+        return add_landmark_factors(batch, self.landmarks, new.index, poses_in, self._lms_in,
+                                    new.keyframe.median_depth)
+
+    def _refresh_landmarks(self, est: gtsam.Values, kfs: List[MapKeyframe]) -> None:
+        """Landmark points and the keyframes in the smoother from its estimate."""
+        self._poses_in = {kf.index for kf in kfs if est.exists(pose_key(kf.index))}
+        for kf in kfs:
+            if kf.index in self._poses_in:
+                self.landmarks.set_pose(kf.index, kf.keyframe.T_world_kf)
+        read_landmarks(self.landmarks, est, self._lms_in)
 
     def _solve(self, batch: FactorBatch):
         """``(estimate, seconds)`` of the smoother update with ``batch``."""

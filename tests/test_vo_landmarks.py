@@ -1,0 +1,141 @@
+"""Sparse landmarks of the VO (issue 30, :mod:`spgeo.vo.landmarks`): triangulation,
+association over synthetic views, bounded memory, the smoother's projection factors."""
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+
+from spgeo import synthetic
+from spgeo.graph.builders import FactorBatch
+from spgeo.graph.keys import landmark_key, pose_key
+from spgeo.vo import OdometryConfig
+from spgeo.vo.landmarks import (LandmarkConfig, LandmarkMap, add_landmark_factors, project,
+                                triangulate)
+
+CAM = synthetic.default_camera(160, 120)
+
+
+def _views(n, step=3, seed=0):
+    scene = synthetic.SyntheticScene.generate(seed)
+    poses = synthetic.make_trajectory(n * step, seed)[::step]
+    return [scene.render(CAM, poses[j]).rgb for j in range(n)], poses[:n]
+
+
+def _pose(R_axis, angle, t):
+    T = np.eye(4)
+    T[:3, :3] = gtsam.Rot3.Rodrigues(*(np.asarray(R_axis, float) * angle)).matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_triangulation_is_exact_on_exact_geometry():
+    rng = np.random.default_rng(0)
+    K = np.asarray(CAM.K, float)
+    T1 = _pose([0, 1, 0], 0.05, [0.0, 0.0, 0.0])
+    T2 = _pose([1, 0, 0], -0.03, [0.3, 0.05, 0.02])
+    X = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50), rng.uniform(2, 6, 50)])
+    x1, z1 = project(K, T1, X)
+    x2, z2 = project(K, T2, X)
+    assert np.all(z1 > 0) and np.all(z2 > 0)
+    Y = triangulate(K, T1, T2, x1, x2)
+    assert np.allclose(Y, X, atol=1e-8)
+
+
+def test_landmarks_found_on_synthetic_views_at_true_poses():
+    """With exact poses the triangulated landmarks reproject within the bound,
+    and later keyframes re-observe earlier landmarks."""
+    images, poses = _views(8)
+    lmap = LandmarkMap(CAM, LandmarkConfig(enabled=True))
+    for k, (im, T) in enumerate(zip(images, poses)):
+        lmap.add_keyframe(k, im, T, list(range(max(0, k - 4), k + 1)))
+    rep = lmap.report()
+    assert rep["created"] > 50 and rep["reobserved"] > 20, rep
+    K = np.asarray(CAM.K, float)
+    for lm in lmap.landmarks.values():
+        for j, px in lm.observations.items():
+            uv, z = project(K, poses[j], lm.point[None])
+            assert z[0] > 0 and np.linalg.norm(uv[0] - px) <= 15.0
+
+
+def test_landmark_memory_is_bounded():
+    images, poses = _views(10)
+    cfg = LandmarkConfig(enabled=True, memory_keyframes=2, max_landmarks=60)
+    lmap = LandmarkMap(CAM, cfg)
+    for k, (im, T) in enumerate(zip(images, poses)):
+        lmap.add_keyframe(k, im, T, list(range(max(0, k - 4), k + 1)))
+        assert len(lmap.landmarks) <= 60
+        assert all(lm.last_seen >= k - 2 for lm in lmap.landmarks.values())
+        assert set(lmap._features) <= set(range(max(0, k - 4), k + 1))
+        assert all(set(lm.observations) <= set(range(max(0, k - 4), k + 1))
+                   for lm in lmap.landmarks.values())
+
+
+def test_projection_factors_vanish_at_truth_and_remembered_landmarks_get_a_prior():
+    images, poses = _views(4)
+    lmap = LandmarkMap(CAM, LandmarkConfig(enabled=True))
+    for k in range(3):
+        lmap.add_keyframe(k, images[k], poses[k], list(range(k + 1)))
+    batch = FactorBatch()
+    for j in range(3):
+        batch.insert(pose_key(j), gtsam.Pose3(poses[j]), j)
+    lms_in = set()
+    n = add_landmark_factors(batch, lmap, 2, {0, 1, 2}, lms_in, 1.0)
+    assert n > 0 and lms_in
+    assert batch.graph.error(batch.values) < 0.5 * n * 4.0    # within the 2 px bound
+    # a landmark not in the smoother that is not new: one prior factor for it
+    lmap.created = []
+    batch2 = FactorBatch()
+    batch2.insert(pose_key(2), gtsam.Pose3(poses[2]), 2)
+    n2 = add_landmark_factors(batch2, lmap, 2, {2}, set(), 1.0)
+    priors = [i for i in range(batch2.graph.size())
+              if isinstance(batch2.graph.at(i), gtsam.PriorFactorPoint3)]
+    assert len(priors) == len(lmap.observed_in(2)) and n2 == len(priors)
+    assert batch2.values.exists(landmark_key(lmap.observed_in(2)[0].id))
+
+
+def test_landmarks_are_off_by_default():
+    assert OdometryConfig().landmarks.enabled is False
+    assert len(dataclasses.fields(OdometryConfig)) <= 25
+
+
+def _palindrome_gap(n_unique, seed, landmarks):
+    """End gap of the VO on a synthetic palindrome (frames 0..n-1..0 of a
+    subsampled trajectory): distance of the last camera centre from the first
+    over the largest distance of any centre from the first (0: back at the start)."""
+    from spgeo.frame import Frame
+    from spgeo.frontend import FrontEndConfig, make_frontend
+    from spgeo.vo import KeyframeDecisionConfig, Odometry
+
+    scene = synthetic.SyntheticScene.generate(seed)
+    poses = synthetic.make_trajectory(n_unique * 3, seed)[::3]
+    order = list(range(n_unique)) + list(range(n_unique - 2, -1, -1))
+    views = {j: scene.render(CAM, poses[j]).rgb for j in range(n_unique)}
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
+                         landmarks=LandmarkConfig(enabled=landmarks))
+    vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
+    for i, j in enumerate(order):
+        vo.track(Frame(views[j], CAM, float(i)))
+    P = vo.result().poses
+    return np.linalg.norm(P[-1, :3, 3] - P[0, :3, 3]) / np.linalg.norm(
+        P[:, :3, 3] - P[0, :3, 3], axis=1).max()
+
+
+def test_landmarks_bring_a_synthetic_palindrome_back_to_its_start():
+    """Seed 0, 30 views there and back: window-only the end lands 0.12 of the
+    extent from the start, with landmarks 0.03 (measured on the AVX-512 CPU)."""
+    off, on = _palindrome_gap(30, 0, False), _palindrome_gap(30, 0, True)
+    assert on < 0.06 and on < 0.5 * off, (on, off)
+
+
+@pytest.mark.slow
+def test_landmarks_hold_palindromes_of_several_seeds():
+    """Seeds 0, 1, 2, 3, 5 (30 views there and back; seed 4 does not initialise).
+    Measured end gaps (off -> on): 0.123 -> 0.030, 0.104 -> 0.038, 0.017 -> 0.075,
+    0.037 -> 0.052, 0.288 -> 0.032: on average 0.114 -> 0.045; the landmark-linked
+    map ends within 0.1 of the extent on every seed (not always nearer than the
+    window-only map: seeds 2 and 3)."""
+    seeds = (0, 1, 2, 3, 5)
+    off = [_palindrome_gap(30, s, False) for s in seeds]
+    on = [_palindrome_gap(30, s, True) for s in seeds]
+    assert max(on) < 0.1 and np.mean(on) < 0.5 * np.mean(off), (on, off)
