@@ -28,7 +28,9 @@ its first half (rounded up), so it still returns to its start.
 Variants (:data:`VARIANTS`): name -> :class:`spgeo.apps.vo_run.VORunConfig`
 overrides (dotted field names, :func:`spgeo.configs.apply_overrides`) applied
 after the sequence's own; ``default`` (none), ``loops``
-(``odometry.loop_closure.enabled``) and ``landmarks`` (``odometry.landmarks.enabled``).  Adding a variant is one entry there.
+(``odometry.loop_closure.enabled``), ``refine`` (``refine``) and ``no-landmarks``
+(``odometry.landmarks.enabled=False``: the window-only map).  Adding a variant is one
+entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through
@@ -219,7 +221,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "refine": {"refine": True},
     "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
     "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
-    "landmarks": {"odometry.landmarks.enabled": True},
+    "no-landmarks": {"odometry.landmarks.enabled": False},
 }
 
 
