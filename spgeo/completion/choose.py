@@ -23,7 +23,8 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    (:func:`region_scores`): a region with many points decides by itself, one
    with few or none follows its cell, a cell with few follows the image.
 4. **winner** — per region the candidate of the lowest score; the candidates
-   are refitted on all points and each pixel takes its region's winner
+   are refitted on all points (kept in ``HeldoutChoice.maps`` for
+   :func:`rank_agreement`) and each pixel takes its region's winner
    (:func:`choose_by_heldout`).
 
 Candidates are callables ``fit(uv, depth) -> (H, W)`` metres (finite and > 0
