@@ -14,8 +14,8 @@ from layouts import write_completion_inputs
 from spgeo import synthetic
 from spgeo.completion import CompletionConfig, complete_depth
 from spgeo.completion.baselines import ip_basic_completion, linear_interpolation_completion
-from spgeo.completion.choose import (ChooseConfig, choose_by_heldout, fold_ids, region_labels,
-                                     region_scores)
+from spgeo.completion.choose import (ChooseConfig, choose_by_heldout, fold_ids, rank_agreement,
+                                     region_labels, region_scores)
 from spgeo.completion.network import align_network_depth
 from spgeo.evaluation.completion.void import keypoint_sparse_depth, void_metrics
 from spgeo.evaluation.references.depth_completion import oracle_frontend
@@ -305,6 +305,9 @@ def test_right_prior_is_chosen_across_gaps_where_interpolation_wins_at_corners(k
         assert dense[1] < 0.3 * dense[0]                       # the right prior is better ...
         assert ch.region_counts()["right"] == ch.region_winner.size    # ... and chosen
         assert ch.region_counts()["wrong"] == 0
+        agr = rank_agreement(ch, truth)
+        assert agr["region_agreement"] == 1.0 and agr["chosen_log_error"] == pytest.approx(
+            agr["oracle_log_error"]) and agr["spearman"] > 0
         # single held-out corners: interpolation looks almost as good as the right prior
         points = choose_by_heldout(cands, uv, d, -np.ones((h, w), int), ChooseConfig(block=0.01))
         ratio = points.heldout_error[0] / points.heldout_error[1]
