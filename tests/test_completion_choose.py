@@ -14,8 +14,8 @@ from layouts import write_completion_inputs
 from spgeo import synthetic
 from spgeo.completion import CompletionConfig, complete_depth
 from spgeo.completion.baselines import ip_basic_completion, linear_interpolation_completion
-from spgeo.completion.choose import (ChooseConfig, choose_by_heldout, fold_ids, region_labels,
-                                     region_scores)
+from spgeo.completion.choose import (ChooseConfig, choose_by_heldout, fold_ids, rank_agreement,
+                                     region_labels, region_scores)
 from spgeo.completion.network import align_network_depth
 from spgeo.evaluation.completion.void import keypoint_sparse_depth, void_metrics
 from spgeo.evaluation.references.depth_completion import oracle_frontend
@@ -24,14 +24,27 @@ FASTDEPTH = shared_data_dir().parent / "models" / "fastdepth" / "fastdepth_nyu_2
 
 
 # ============================================================ folds and regions
-def test_fold_split_is_deterministic_and_balanced():
-    a, b = fold_ids(150, 5, seed=3), fold_ids(150, 5, seed=3)
+def test_folds_hold_out_whole_blocks():
+    rng = np.random.default_rng(0)
+    uv = np.stack([rng.integers(0, 640, 150), rng.integers(0, 480, 150)], 1)
+    a, b = fold_ids(uv, (480, 640), 5, seed=3), fold_ids(uv, (480, 640), 5, seed=3)
     np.testing.assert_array_equal(a, b)
-    assert np.bincount(a).tolist() == [30] * 5
-    assert not np.array_equal(a, fold_ids(150, 5, seed=4))
-    assert np.bincount(fold_ids(13, 4)).tolist() in ([4, 3, 3, 3],)
+    assert set(a.tolist()) == set(range(5))
+    assert not np.array_equal(a, fold_ids(uv, (480, 640), 5, seed=4))
+    # blocks of 2 mean spacings (2 * sqrt(640 * 480 / 150) = 80 px): a held-out
+    # point's nearest training point is far more than the few pixels of point folds
+    def gap(folds):
+        d = np.linalg.norm(uv[:, None] - uv[None], axis=2)
+        d[folds[:, None] == folds[None]] = np.inf
+        return np.median(d.min(1))
+    spacing = np.sqrt(640 * 480 / 150)
+    assert gap(a) > 0.8 * spacing > gap(fold_ids(uv, (480, 640), 5, block=0.01))
+    one_block = fold_ids(np.full((13, 2), 5), (480, 640), 4)    # all points in one pixel
+    assert one_block.shape == (13,) and one_block.max() == 0
     with pytest.raises(ValueError):
-        fold_ids(10, 1)
+        fold_ids(uv, (480, 640), 1)
+    with pytest.raises(ValueError):
+        fold_ids(uv, (480, 640), 5, block=0.0)
 
 
 def test_region_labels_and_shrunk_scores():
@@ -254,3 +267,48 @@ def test_cli_complete_with_a_depth_model(tmp_path, capsys):
     assert main(args + ["--depth-model", str(FASTDEPTH)]) == 0
     assert "chosen" in capsys.readouterr().out
     assert cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED).shape == (120, 160)
+
+
+# ============================================================ spatial folds: across gaps
+def _corner_points(h, w, n, seed):
+    """(K, 2) pixels in clusters of three one pixel apart (as FAST corners are)."""
+    rng = np.random.default_rng(seed)
+    c = np.stack([rng.integers(3, w - 3, n), rng.integers(3, h - 3, n)], 1)
+    return np.unique(np.concatenate([c, c + [1, 0], c + [0, 1]]), axis=0)
+
+
+@pytest.mark.parametrize("kind", ["network", "primitives"])
+def test_right_prior_is_chosen_across_gaps_where_interpolation_wins_at_corners(kind):
+    h, w = 120, 160
+    y, x = np.mgrid[0:h, 0:w]
+    labels = x * 4 // w                                        # four stripes (primitives)
+    truth = (2.0 + 0.6 * np.sin(x / 6.0) * np.sin(y / 8.0)) * (1.0 + 0.3 * (labels % 2))
+    for seed in range(3):
+        uv = _corner_points(h, w, 40, seed)
+        d = truth[uv[:, 1], uv[:, 0]]
+        noise = np.exp(0.03 * np.random.default_rng(10 + seed).standard_normal(truth.shape))
+        mode = "global" if kind == "network" else "primitive"
+        # right: the truth up to a scale (per stripe for the primitives) and 3 % noise
+        right = truth * noise / (1.3 if kind == "network" else 1.0 + 0.2 * labels)
+        wrong = right[::-1, ::-1]
+
+        def sparse(p, q):
+            m = np.zeros((h, w))
+            m[p[:, 1], p[:, 0]] = q
+            return m
+
+        cands = {"linear": lambda p, q: linear_interpolation_completion(sparse(p, q)),
+                 "right": lambda p, q: align_network_depth(right, p, q, mode, labels),
+                 "wrong": lambda p, q: align_network_depth(wrong, p, q, mode, labels)}
+        ch = choose_by_heldout(cands, uv, d, -np.ones((h, w), int))
+        dense = [np.mean(np.abs(np.log(ch.maps[c] / truth))) for c in cands]
+        assert dense[1] < 0.3 * dense[0]                       # the right prior is better ...
+        assert ch.region_counts()["right"] == ch.region_winner.size    # ... and chosen
+        assert ch.region_counts()["wrong"] == 0
+        agr = rank_agreement(ch, truth)
+        assert agr["region_agreement"] == 1.0 and agr["chosen_log_error"] == pytest.approx(
+            agr["oracle_log_error"]) and agr["spearman"] > 0
+        # single held-out corners: interpolation looks almost as good as the right prior
+        points = choose_by_heldout(cands, uv, d, -np.ones((h, w), int), ChooseConfig(block=0.01))
+        ratio = points.heldout_error[0] / points.heldout_error[1]
+        assert ratio < 0.5 * ch.heldout_error[0] / ch.heldout_error[1], (ratio, ch.heldout_error)

@@ -103,6 +103,7 @@ class RealCompletionResult:
     n_points: int = 150
     not_run: Dict[str, str] = field(default_factory=dict)
     winners: Dict[str, Dict[str, int]] = field(default_factory=dict)
+    agreement: Dict[str, Dict[str, List[float]]] = field(default_factory=dict)
 
     def mean(self) -> Dict[str, Dict[str, float]]:
         return {m: {k: float(np.nanmean(v[k])) for k in (*METRIC_KEYS, "seconds")}
@@ -134,7 +135,24 @@ class RealCompletionResult:
                         f"| {100 * g['mae_mm']:+.0f} % | {100 * g['imae_per_km']:+.0f} % |")
         for m, why in self.not_run.items():
             rows.append(f"| {m} | not run: {why} | | | | | | |")
-        return "\n".join(rows) + self.winner_table()
+        return "\n".join(rows) + self.winner_table() + self.agreement_table()
+
+    def agreement_table(self) -> str:
+        """Markdown: per held-out-choice row, the means over the frames of
+        :func:`spgeo.completion.choose.rank_agreement` (rank agreement of the
+        held-out score with the dense error); empty when there is none."""
+        if not self.agreement:
+            return ""
+        rows = ["", "", "held-out score vs dense error (means over frames; log errors x 1000):",
+                "", "| row | Spearman (candidates) | pixels whose region took its dense-best "
+                "| chosen dense log error | per-region dense-best (oracle) |",
+                "|---|---:|---:|---:|---:|"]
+        for m, a in self.agreement.items():
+            rows.append(f"| {m} | {np.nanmean(a['spearman']):.2f} "
+                        f"| {100 * np.mean(a['region_agreement']):.0f} % "
+                        f"| {1e3 * np.mean(a['chosen_log_error']):.1f} "
+                        f"| {1e3 * np.mean(a['oracle_log_error']):.1f} |")
+        return "\n".join(rows)
 
     def winner_table(self) -> str:
         """Markdown: regions (primitives / cells) each candidate won, summed over
@@ -151,7 +169,8 @@ class RealCompletionResult:
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "frames": self.frames, "n_points": self.n_points,
                 "mean": self.mean(), "gain_vs_best_baseline": self.gains(),
-                "per_frame": self.per_frame, "not_run": self.not_run, "winners": self.winners}
+                "per_frame": self.per_frame, "not_run": self.not_run, "winners": self.winners,
+                "agreement": self.agreement}
 
 
 def sparse_frames(ds, n_points: int = 150, seed: int = 0, desc: str = "completion",
@@ -223,6 +242,7 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
     base = {b: BASELINES[b] for b in (baselines if baselines is not None else BASELINES)}
     per: Dict[str, Dict[str, List[float]]] = {}
     winners: Dict[str, Dict[str, int]] = {}
+    agreement: Dict[str, Dict[str, List[float]]] = {}
 
     def add(method: str, pred: np.ndarray, gt: np.ndarray, secs: float) -> None:
         met = void_metrics(pred, gt)
@@ -242,14 +262,15 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
                 _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_models,
                                 add)
             if fe == "classical" and choose:
-                _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, winners)
+                _choice_rows(f, gt, sparse, prims, t_fe, config, model, add,
+                             (winners, agreement))
         for b, fn in base.items():
             t0 = time.perf_counter()
             pred = fn(f.image, sparse)
             add(b, pred, gt, time.perf_counter() - t0)
     not_run = {} if "manhattan" in fes or frontends is not None else {
         "spgeo manhattan": "front-end 'manhattan' not in spgeo.frontend.FRONTENDS"}
-    return RealCompletionResult(name, names, per, n_points, not_run, winners)
+    return RealCompletionResult(name, names, per, n_points, not_run, winners, agreement)
 
 
 def _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_models, add):
@@ -267,15 +288,19 @@ def _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_model
                 t_fe + time.perf_counter() - t1)
 
 
-def _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, winners):
+def _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, tallies):
     """The held-out-choice rows and, with ``model``, the network rows of one
-    frame; region wins summed into ``winners``."""
+    frame; ``tallies`` = (winners, agreement): region wins summed into
+    ``winners``, :func:`spgeo.completion.choose.rank_agreement` appended to
+    ``agreement`` per row."""
     import dataclasses
 
     import cv2
 
+    from spgeo.completion.choose import rank_agreement
     from spgeo.completion.network import ALIGNMENTS, align_network_depth, network_depth
 
+    winners, agreement = tallies
     cfg = dataclasses.replace(config, choose="heldout", depth_model=None)
     runs = [("spgeo classical choose=heldout", None)]
     if model is not None:
@@ -288,6 +313,9 @@ def _choice_rows(f, gt, sparse, prims, t_fe, config, model, add, winners):
             won = winners.setdefault(row, {})
             for c, k in res.choice.region_counts().items():
                 won[c] = won.get(c, 0) + k
+            agr = agreement.setdefault(row, {})
+            for k, v in rank_agreement(res.choice, gt).items():
+                agr.setdefault(k, []).append(v)
     if model is None:
         return
     t1 = time.perf_counter()

@@ -4,8 +4,13 @@ Several candidate depth sources can complete the same sparse points (the
 primitive completion, linear interpolation, IP-Basic, a network's depth
 aligned to the points, ...).  None wins everywhere, so the points decide:
 
-1. **folds** — the P sparse points are split into ``folds`` folds of (almost)
-   equal size by a seeded permutation (:func:`fold_ids`; deterministic).
+1. **folds** — the image is cut into square blocks of ``block`` mean point
+   spacings (``sqrt(H W / P)`` pixels) and the blocks holding points are dealt
+   to ``folds`` folds by a seeded permutation (:func:`fold_ids`;
+   deterministic): a held-out point's nearest training point is about a
+   point spacing away or more, as far as the pixels between the sparse
+   points are from them, so a candidate that only reproduces its inputs at
+   their pixels (interpolation at clustered corners) gains nothing.
 2. **held-out errors** — every candidate is fitted ``folds`` times, each time
    on all points but one fold, and read at the held-out fold's pixels; each
    point thus gets one held-out prediction per candidate, and an error
@@ -18,7 +23,8 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    (:func:`region_scores`): a region with many points decides by itself, one
    with few or none follows its cell, a cell with few follows the image.
 4. **winner** — per region the candidate of the lowest score; the candidates
-   are refitted on all points and each pixel takes its region's winner
+   are refitted on all points (kept in ``HeldoutChoice.maps`` for
+   :func:`rank_agreement`) and each pixel takes its region's winner
    (:func:`choose_by_heldout`).
 
 Candidates are callables ``fit(uv, depth) -> (H, W)`` metres (finite and > 0
@@ -37,7 +43,7 @@ import numpy as np
 from ..configs import config_repr
 
 __all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_errors",
-           "region_labels", "region_scores", "choose_by_heldout"]
+           "region_labels", "region_scores", "choose_by_heldout", "rank_agreement"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +59,9 @@ class ChooseConfig:
     Attributes:
         folds: number of folds K (>= 2); every point is held out once.
         seed: seed of the fold permutation.
+        block: side of the held-out image blocks in mean point spacings
+            (``sqrt(H W / P)`` pixels; > 0).  Small values hold out single
+            points.
         prior_points: weight, in points, of the cell's score in a region's
             score and of the global score in a cell's (>= 0; 0: a region with
             a held-out point decides by its points alone).
@@ -61,12 +70,15 @@ class ChooseConfig:
 
     folds: int = 5
     seed: int = 0
+    block: float = 2.0
     prior_points: float = 10.0
     grid: Tuple[int, int] = (4, 3)
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
             raise ValueError(f"ChooseConfig: folds must be an integer >= 2, got {self.folds}")
+        if not (np.isfinite(self.block) and self.block > 0):
+            raise ValueError(f"ChooseConfig: block must be > 0, got {self.block}")
         if not (np.isfinite(self.prior_points) and self.prior_points >= 0):
             raise ValueError(f"ChooseConfig: prior_points must be >= 0, got {self.prior_points}")
         if len(self.grid) != 2 or min(int(g) for g in self.grid) < 1:
@@ -86,6 +98,8 @@ class HeldoutChoice:
             all points (the global score).
         point_errors: (C, P) held-out ``|log error|`` per candidate and point.
         folds: (P,) fold of each point.
+        regions: (H, W) int64 region per pixel (:func:`region_labels`).
+        maps: name -> (H, W) metres, every candidate fitted on all points.
     """
 
     depth: np.ndarray
@@ -95,6 +109,8 @@ class HeldoutChoice:
     heldout_error: np.ndarray
     point_errors: np.ndarray
     folds: np.ndarray
+    regions: np.ndarray
+    maps: Dict[str, np.ndarray]
 
     def pixel_counts(self) -> Dict[str, int]:
         """Pixels taken from each candidate (name -> count)."""
@@ -107,17 +123,40 @@ class HeldoutChoice:
         return {n: int(c[i]) for i, n in enumerate(self.names)}
 
 
-def fold_ids(n_points: int, folds: int, seed: int = 0) -> np.ndarray:
-    """(n_points,) fold index in ``[0, folds)`` per point: a permutation drawn
-    with ``numpy.random.default_rng(seed)`` dealt round-robin, so the folds'
-    sizes differ by at most one.  Deterministic for a given (n, folds, seed).
-    Raises ``ValueError`` for ``folds < 2`` or ``n_points < 0``."""
-    if int(folds) < 2 or n_points < 0:
-        raise ValueError(f"fold_ids: need folds >= 2 and n_points >= 0, got {folds}, {n_points}")
-    perm = np.random.default_rng(seed).permutation(int(n_points))
-    out = np.empty(int(n_points), np.int64)
-    out[perm] = np.arange(int(n_points)) % int(folds)
-    return out
+def fold_ids(uv: np.ndarray, shape: Tuple[int, int], folds: int, block: float = 2.0,
+             seed: int = 0) -> np.ndarray:
+    """(P,) fold index in ``[0, folds)`` per point, whole image blocks per fold.
+
+    Args:
+        uv: (P, 2) pixel coordinates (u = column, v = row).
+        shape: (H, W) of the image, pixels.
+        folds: number of folds (>= 2).
+        block: block side in mean point spacings ``sqrt(H W / P)`` (> 0); the
+            side is halved until at least ``folds`` blocks hold points (when
+            the points allow).
+        seed: seed of ``numpy.random.default_rng`` permuting the blocks,
+            which are then dealt to the folds round-robin.
+    Returns:
+        (P,) int64; deterministic for given arguments.
+    Raises:
+        ValueError: ``folds < 2`` or ``block <= 0``.
+    """
+    if int(folds) < 2 or not block > 0:
+        raise ValueError(f"fold_ids: need folds >= 2 and block > 0, got {folds}, {block}")
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    h, w = int(shape[0]), int(shape[1])
+    side = max(1.0, float(block) * np.sqrt(h * w / max(uv.shape[0], 1)))
+    while True:
+        per_row = int(w // side) + 1
+        key = (uv[:, 1] // side).astype(np.int64) * per_row + (uv[:, 0] // side).astype(np.int64)
+        uniq, inv = np.unique(key, return_inverse=True)
+        if uniq.size >= min(int(folds), uv.shape[0]) or side <= 1.0:
+            break
+        side = max(1.0, side / 2)
+    perm = np.random.default_rng(seed).permutation(uniq.size)
+    of_block = np.empty(uniq.size, np.int64)
+    of_block[perm] = np.arange(uniq.size) % int(folds)
+    return of_block[inv.reshape(-1)]
 
 
 def heldout_log_errors(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
@@ -241,25 +280,25 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
     labels = np.asarray(labels)
     _check_choice_inputs(candidates, uv, depth, labels, config)
     names = tuple(candidates)
-    folds = fold_ids(depth.size, config.folds, config.seed)
+    folds = fold_ids(uv, labels.shape, config.folds, config.block, config.seed)
     err = heldout_log_errors(candidates, uv, depth, folds)
     regions, cell = region_labels(labels, config.grid)
     scores = region_scores(err, regions[uv[:, 1], uv[:, 0]], cell, config.prior_points)
     region_winner = np.argmin(scores, 0).astype(np.int16)
     winner = region_winner[regions]
-    fitted = dict(fitted or {})
+    maps = dict(fitted or {})
     out = np.full(labels.shape, np.nan)
-    for c in np.unique(region_winner):
-        m = fitted.get(names[c])
-        if m is None:
-            m = candidates[names[c]](uv, depth)
+    for c, name in enumerate(names):
+        if name not in maps:
+            maps[name] = np.asarray(candidates[name](uv, depth), dtype=np.float64)
         sel = winner == c
-        out[sel] = np.asarray(m, dtype=np.float64)[sel]
+        out[sel] = np.asarray(maps[name], dtype=np.float64)[sel]
     glob = np.where(np.isfinite(err), err, np.nan)
     with np.errstate(invalid="ignore"):
         heldout = np.nanmean(glob, 1) if glob.size else np.zeros(len(names))
     log.debug("held-out choice: errors %s", dict(zip(names, np.round(heldout, 4))))
-    return HeldoutChoice(out, names, winner, region_winner, heldout, err, folds)
+    return HeldoutChoice(out, names, winner, region_winner, heldout, err, folds, regions,
+                         {n: maps[n] for n in names})
 
 
 def _check_choice_inputs(candidates, uv, depth, labels, config) -> None:
@@ -277,3 +316,47 @@ def _check_choice_inputs(candidates, uv, depth, labels, config) -> None:
     h, w = labels.shape
     if uv.size and (uv.min() < 0 or uv[:, 0].max() >= w or uv[:, 1].max() >= h):
         raise ValueError(f"choose_by_heldout: a point lies outside the {w}x{h} label image")
+
+
+def rank_agreement(choice: HeldoutChoice, reference: np.ndarray) -> Dict[str, float]:
+    """How well the held-out score ranks the candidates as the dense error does.
+
+    Args:
+        choice: a :class:`HeldoutChoice` (its ``maps``, ``regions``, scores).
+        reference: (H, W) reference depth, metres; 0 / NaN / inf = no reference.
+    Returns:
+        ``spearman``: Spearman correlation over the candidates of the global
+        held-out error (``heldout_error``) with the dense mean ``|log error|``
+        (NaN for fewer than two candidates or ties everywhere);
+        ``region_agreement``: fraction of the referenced pixels whose region's
+        winner is the candidate of the lowest dense mean ``|log error|`` in
+        that region; ``oracle_log_error`` / ``chosen_log_error``: the dense
+        mean ``|log error|`` of the per-region dense-best candidates and of
+        the choice.
+    """
+    ref = np.asarray(reference, dtype=np.float64)
+    ok = np.isfinite(ref) & (ref > 0)
+    reg = choice.regions[ok]
+    n = int(choice.regions.max()) + 1
+    cnt = np.bincount(reg, minlength=n).astype(np.float64)
+    logr = np.log(ref[ok])
+    dense = np.stack([np.abs(np.log(np.maximum(choice.maps[c][ok], 1e-9)) - logr)
+                      for c in choice.names])                       # (C, Q)
+    per_region = np.stack([np.bincount(reg, e, n) for e in dense])  # (C, R) sums
+    best = np.argmin(per_region, 0)
+    has = cnt > 0
+    agree = float(cnt[has & (best == choice.region_winner)].sum() / max(cnt.sum(), 1.0))
+    chosen = dense[choice.region_winner[reg], np.arange(reg.size)]
+    return {"spearman": _spearman(choice.heldout_error, dense.mean(1)),
+            "region_agreement": agree,
+            "oracle_log_error": float(per_region.min(0).sum() / max(cnt.sum(), 1.0)),
+            "chosen_log_error": float(chosen.mean()) if chosen.size else float("nan")}
+
+
+def _spearman(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman rank correlation of two (C,) vectors (average ranks for ties); NaN when undefined."""
+    from scipy.stats import spearmanr
+
+    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return float("nan")
+    return float(spearmanr(a, b).correlation)

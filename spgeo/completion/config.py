@@ -109,7 +109,8 @@ class CompletionConfig:
     plane_prior_flat: float = 1e-4
     residual_clip: Optional[float] = 0.05
     choose: str = "heldout"
-    candidates: Tuple[str, ...] = ("primitives", "linear", "ip_basic", "network:global")
+    candidates: Tuple[str, ...] = ("primitives", "linear", "ip_basic", "network:global",
+                                   "network:primitive")
     heldout: ChooseConfig = field(default_factory=ChooseConfig)
     depth_model: Optional[str] = None
     network_min_points: int = 3
