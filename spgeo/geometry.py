@@ -64,6 +64,17 @@ def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
     return points_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
 
 
+def ray_angles_deg(points: np.ndarray, centre_a: np.ndarray, centre_b: np.ndarray) -> np.ndarray:
+    """Angle (degrees) at each point (N, 3) between the rays from the two camera
+    centres ``centre_a``, ``centre_b`` (3,), all in one frame: the triangulation
+    (parallax) angle of a point seen from two views; NaN where a ray has no length."""
+    a = np.asarray(points, dtype=np.float64) - centre_a
+    b = np.asarray(points, dtype=np.float64) - centre_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.sum(a * b, 1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
 def quat_to_rot(q: Sequence[float]) -> np.ndarray:
     """Rotation matrix of a (qx, qy, qz, qw) quaternion (normalised first)."""
     x, y, z, w = np.asarray(q, dtype=np.float64)

@@ -10,8 +10,8 @@ from spgeo import synthetic
 from spgeo.graph.builders import FactorBatch
 from spgeo.graph.keys import landmark_key, pose_key
 from spgeo.vo import OdometryConfig
-from spgeo.vo.landmarks import (LandmarkConfig, LandmarkMap, add_landmark_factors, project,
-                                triangulate)
+from spgeo.geometry import invert_pose, ray_angles_deg, transform_points
+from spgeo.vo.landmarks import LandmarkConfig, LandmarkMap, add_landmark_factors, triangulate
 
 CAM = synthetic.default_camera(160, 120)
 
@@ -20,6 +20,11 @@ def _views(n, step=3, seed=0):
     scene = synthetic.SyntheticScene.generate(seed)
     poses = synthetic.make_trajectory(n * step, seed)[::step]
     return [scene.render(CAM, poses[j]).rgb for j in range(n)], poses[:n]
+
+
+def project(T_world_cam, X):
+    """Pixels and depths of world points ``X`` in ``CAM`` at ``T_world_cam``."""
+    return CAM.project(transform_points(invert_pose(T_world_cam), X))
 
 
 def _pose(R_axis, angle, t):
@@ -35,11 +40,14 @@ def test_triangulation_is_exact_on_exact_geometry():
     T1 = _pose([0, 1, 0], 0.05, [0.0, 0.0, 0.0])
     T2 = _pose([1, 0, 0], -0.03, [0.3, 0.05, 0.02])
     X = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50), rng.uniform(2, 6, 50)])
-    x1, z1 = project(K, T1, X)
-    x2, z2 = project(K, T2, X)
+    x1, z1 = project(T1, X)
+    x2, z2 = project(T2, X)
     assert np.all(z1 > 0) and np.all(z2 > 0)
     Y = triangulate(K, T1, T2, x1, x2)
     assert np.allclose(Y, X, atol=1e-8)
+    # the parallax angle at each point: a known case and the bounds
+    ang = ray_angles_deg(np.array([[0.0, 0.0, 1.0]]), np.zeros(3), np.array([1.0, 0.0, 1.0]))
+    assert np.allclose(ang, 90.0) and np.all(ray_angles_deg(X, T1[:3, 3], T2[:3, 3]) > 0)
 
 
 def test_landmarks_found_on_synthetic_views_at_true_poses():
@@ -51,10 +59,9 @@ def test_landmarks_found_on_synthetic_views_at_true_poses():
         lmap.add_keyframe(k, im, T, list(range(max(0, k - 4), k + 1)))
     rep = lmap.report()
     assert rep["created"] > 50 and rep["reobserved"] > 20, rep
-    K = np.asarray(CAM.K, float)
     for lm in lmap.landmarks.values():
         for j, px in lm.observations.items():
-            uv, z = project(K, poses[j], lm.point[None])
+            uv, z = project(poses[j], lm.point[None])
             assert z[0] > 0 and np.linalg.norm(uv[0] - px) <= 15.0
 
 

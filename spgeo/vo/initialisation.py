@@ -26,7 +26,7 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..geometry import invert_pose, rotation_angle_deg
+from ..geometry import invert_pose, ray_angles_deg, rotation_angle_deg
 from ..primitive_models import apply_primitive_model
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
@@ -147,9 +147,8 @@ def sfm_parallax_deg(sfm: SfMResult, percentile: float) -> float:
     cam = prims.camera
     uv = np.stack([prims.pixels % cam.width, prims.pixels // cam.width], -1).astype(float)
     X = cam.unproject(uv, np.exp(prims.scaled_log_depth()))[keep[prims.primitive_ids]]
-    Y = X - T[:3, 3]
-    cos = np.sum(X * Y, axis=1) / (np.linalg.norm(X, axis=1) * np.linalg.norm(Y, axis=1))
-    angles = np.degrees(np.arccos(np.clip(cos[np.isfinite(cos)], -1.0, 1.0)))
+    angles = ray_angles_deg(X, np.zeros(3), T[:3, 3])
+    angles = angles[np.isfinite(angles)]
     return float(np.percentile(angles, percentile)) if angles.size else float("nan")
 
 

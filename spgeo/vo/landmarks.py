@@ -36,10 +36,11 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_repr
+from ..geometry import invert_pose, ray_angles_deg, transform_points
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
-__all__ = ["LandmarkConfig", "Landmark", "LandmarkMap", "triangulate", "project"]
+__all__ = ["LandmarkConfig", "Landmark", "LandmarkMap", "triangulate"]
 
 log = logging.getLogger(__name__)
 
@@ -110,18 +111,6 @@ class _KeyframeFeatures:
     T_world_kf: np.ndarray
 
 
-def project(K: np.ndarray, T_world_cam: np.ndarray, X: np.ndarray
-            ) -> Tuple[np.ndarray, np.ndarray]:
-    """Pixels (N, 2) and depths (N,) of world points ``X`` (N, 3) in a pinhole
-    camera with intrinsics ``K`` at camera-to-world pose ``T_world_cam``."""
-    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
-    Xc = (X - t) @ R
-    z = Xc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = (Xc[:, :2] / z[:, None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
-    return uv, z
-
-
 def triangulate(K: np.ndarray, T1: np.ndarray, T2: np.ndarray, x1: np.ndarray,
                 x2: np.ndarray) -> np.ndarray:
     """Linear (DLT) triangulation of pixel pairs ``x1``, ``x2`` (N, 2) seen by cameras
@@ -141,14 +130,6 @@ def triangulate(K: np.ndarray, T1: np.ndarray, T2: np.ndarray, x1: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         X = h[:, :3] / h[:, 3:4]
     return np.where(np.abs(h[:, 3:4]) > 1e-12, X, np.nan)
-
-
-def _parallax_deg(T1: np.ndarray, T2: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Angle (degrees) between the rays from the two camera centres to ``X``."""
-    a = X - T1[:3, 3]
-    b = X - T2[:3, 3]
-    c = np.sum(a * b, 1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) + 1e-300)
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 class LandmarkMap:
@@ -205,8 +186,13 @@ class LandmarkMap:
         lm.last_seen = k
         feats.landmark[i] = lm.id
 
+    def _project(self, T_world_kf: np.ndarray, X: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """Pixels (N, 2) and depths (N,) of world points ``X`` (N, 3) in the camera at
+        ``T_world_kf`` (NaN pixels behind it)."""
+        return self.camera.project(transform_points(invert_pose(T_world_kf), X))
+
     def _gate(self, T: np.ndarray, X: np.ndarray, px: np.ndarray, tol: float) -> np.ndarray:
-        uv, z = project(self.K, T, X)
+        uv, z = self._project(T, X)
         return (z > 0) & (np.linalg.norm(uv - px, axis=1) <= tol)
 
     def _reobserve(self, k: int, feats: _KeyframeFeatures) -> int:
@@ -215,7 +201,7 @@ class LandmarkMap:
             return 0
         lms = list(self.landmarks.values())
         X = np.array([lm.point for lm in lms])
-        uv, z = project(self.K, feats.T_world_kf, X)
+        uv, z = self._project(feats.T_world_kf, X)
         m = self.config.search_px
         vis = (z > 0) & (uv[:, 0] > -m) & (uv[:, 1] > -m) & \
             (uv[:, 0] < self.camera.width + m) & (uv[:, 1] < self.camera.height + m)
@@ -253,7 +239,7 @@ class LandmarkMap:
         Xs = np.where(ok[:, None], X, 0.0)
         tol = cfg.max_reprojection_px
         ok &= self._gate(fj.T_world_kf, Xs, x1, tol) & self._gate(fk.T_world_kf, Xs, x2, tol)
-        ok &= _parallax_deg(fj.T_world_kf, fk.T_world_kf, Xs) >= cfg.min_parallax_deg
+        ok &= ray_angles_deg(Xs, fj.T_world_kf[:3, 3], fk.T_world_kf[:3, 3]) >= cfg.min_parallax_deg
         for (a, b), P in zip(new[ok], X[ok]):
             lm = Landmark(self._next_id, P, fk.descriptors[b].copy(),
                           {j: fj.pixels[a].copy()}, j, j)
