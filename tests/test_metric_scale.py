@@ -142,6 +142,9 @@ def test_run_scale_agrees_with_the_sim3_alignment(synthetic_run, tmp_path):
         Xs = view.keyframe(k).primitives.point_cloud().transformed(view.keyframe(k).T_world_kf)
         np.testing.assert_allclose(Xs.points, est.scale * X, rtol=1e-9, atol=1e-9)
         assert len(paths["clouds"]) == len(run.odometry.keyframes_with_depth())
+        saved = view.save(tmp_path / "view")          # the view writes what it shows
+        T_saved = np.loadtxt(saved["trajectory"], comments="#")
+        np.testing.assert_allclose(T_saved[:, 1:4], scaled.poses[:, :3, 3], rtol=1e-6, atol=1e-8)
         tf = json.loads(run.export_nerfstudio(tmp_path / "ns").read_text())
         centres = np.array([f["transform_matrix"] for f in tf["frames"]])[:, :3, 3]
         kf_poses = scaled.poses[scaled.is_keyframe]

@@ -32,6 +32,7 @@ import numpy as np
 from ..configs import config_repr
 from ..trajectory import Trajectory
 from .tracking import Keyframe
+from .odometry import Odometry
 
 __all__ = ["MetricScaleConfig", "MetricScale", "estimate_metric_scale", "scaled_keyframe",
            "scaled_trajectory", "ScaledOdometry"]
@@ -187,7 +188,7 @@ class ScaledOdometry:
 
     :meth:`result`, :attr:`keyframes`, :meth:`keyframe`, :meth:`iter_keyframes`
     and :meth:`window_keyframes` are scaled (:func:`scaled_trajectory`,
-    :func:`scaled_keyframe`); every other attribute is the odometry's
+    :func:`scaled_keyframe`), and so is what :meth:`save` writes; every other attribute is the odometry's
     (``camera``, ``frames``, ``n_keyframes``, ``keyframe_image``,
     ``keyframes_with_depth``, ``report``, ...: frame records and reports stay
     in VO units).  Give it wherever an odometry's outputs are read (clouds,
@@ -222,3 +223,7 @@ class ScaledOdometry:
     def window_keyframes(self) -> Dict[int, Keyframe]:
         return {k: scaled_keyframe(kf, self.scale)
                 for k, kf in self.odometry.window_keyframes().items()}
+
+    #: :meth:`spgeo.vo.Odometry.save` over this view: trajectory and clouds scaled
+    #: (without it the odometry's own ``save`` would write them in VO units)
+    save = Odometry.save
