@@ -15,7 +15,10 @@ from spgeo.synthetic.poses import camera_rotation, default_camera
 
 CAM = default_camera(320, 240)
 DRIFT = 1.1   # the query's depth unit over the true one (emulated scale drift)
-CONFIG = LoopClosureConfig(enabled=True, recognition=PlaceRecognitionConfig(min_keyframe_gap=5))
+# single detections accepted: the verification itself is under test (the consistency
+# of consecutive detections has its own test)
+CONFIG = LoopClosureConfig(enabled=True, recognition=PlaceRecognitionConfig(min_keyframe_gap=5),
+                           verification=VerificationConfig(consistent_detections=1))
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "7scenes_redkitchen_dev"
 
 
@@ -92,7 +95,8 @@ def test_isolated_lookalike_rejected_by_neighbours(scenes, keyframe_views, query
 
     def run(support):
         cfg = LoopClosureConfig(recognition=CONFIG.recognition,
-                                verification=VerificationConfig(min_neighbour_support=support))
+                                verification=VerificationConfig(min_neighbour_support=support,
+                                                                 consistent_detections=1))
         closer = LoopCloser(CAM, cfg)
         for k, v in enumerate(views):
             closer.add_keyframe(k, v.rgb, v.depth, KF_POSES[k])
@@ -131,6 +135,29 @@ def test_correction_moves_query_and_is_a_fixed_point(keyframe_views, query_view)
     assert np.allclose(list(again.scales.values()), 1.0, atol=0.01)
     for k in again.kf_ids:
         assert np.linalg.norm(again.T_world_kf[k][:3, 3] - corr.T_world_kf[k][:3, 3]) < 0.1 * err_before
+
+
+def test_loop_accepted_after_consistent_detections(scenes, keyframe_views, query_view):
+    """With consistent_detections=2 a single detection is held back; the next keyframe's
+    detection near the same candidate accepts both (two edges, each with a positive
+    definite information); a keyframe without a loop in between breaks the streak."""
+    from dataclasses import replace
+
+    cfg = replace(CONFIG, verification=VerificationConfig(consistent_detections=2))
+    closer = filled_closer(keyframe_views, cfg)
+    second = scenes[0].render(CAM, pose(52, (0.02, 0.0, 1.40)))
+    assert closer.add_keyframe(100, query_view.rgb, query_view.depth * DRIFT, Q_POSE) is None
+    loop = closer.add_keyframe(101, second.rgb, second.depth * DRIFT, pose(52, (0.02, 0.0, 1.40)))
+    assert loop is not None and [lp.query_id for lp in closer.loops] == [100, 101]
+    for lp in closer.loops:
+        assert abs(lp.candidate_id - 3) <= 1
+        assert np.linalg.eigvalsh(lp.information).min() > 0
+    broken = filled_closer(keyframe_views, cfg)
+    unseen = scenes[1].render(CAM, Q_POSE)
+    assert broken.add_keyframe(100, query_view.rgb, query_view.depth * DRIFT, Q_POSE) is None
+    assert broken.add_keyframe(101, unseen.rgb, unseen.depth, Q_POSE) is None
+    assert broken.add_keyframe(102, second.rgb, second.depth * DRIFT, Q_POSE) is None
+    assert broken.loops == []
 
 
 def test_ids_must_increase(keyframe_views):

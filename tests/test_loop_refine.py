@@ -41,20 +41,39 @@ def rotation_error(S, S_true):
     return rotation_angle_deg(sim3_parts(S)[0].T @ sim3_parts(S_true)[0])
 
 
-def test_refinement_reduces_rotation_error():
-    cfg = VerificationConfig(reprojection_px=3.0, depth_tolerance=0.15, min_inliers=20, refine=True)
-    errs = []
+def test_loop_edge_accuracy_with_realistic_noise():
+    """PnP + refinement recover a known Sim(3) from keypoints (0.3 px noise) and rough
+    depths (4 % noise): rotation within 0.3 deg, scale within 2 %, and 150 inliers."""
+    cfg = VerificationConfig(reprojection_px=3.0, depth_tolerance=0.15, min_inliers=20)
     for seed in range(3):
         query, cand, S_true = make_matches(seed)
         pairs = np.stack([np.arange(len(query.points))] * 2, 1)
-        raw = verify_sim3(query, cand, pairs, VerificationConfig(**{**cfg.__dict__, "refine": False}))
-        ref = verify_sim3(query, cand, pairs, cfg)
-        assert raw.accepted and ref.accepted
-        errs.append((rotation_error(raw.S_cand_query, S_true), rotation_error(ref.S_cand_query, S_true)))
-        assert abs(np.log(sim3_parts(ref.S_cand_query)[2] / 1.3)) < 0.05
-    raw_err, ref_err = np.mean(errs, 0)
-    assert ref_err < 0.5 * raw_err, errs
-    assert ref_err < 0.5, errs
+        ver = verify_sim3(query, cand, pairs, cfg)
+        assert ver.accepted and ver.n_inliers >= 140, (seed, ver.n_inliers)
+        assert rotation_error(ver.S_cand_query, S_true) < 0.3, seed
+        assert abs(np.log(sim3_parts(ver.S_cand_query)[2] / 1.3)) < 0.02, seed
+
+
+def test_information_matches_the_spread_of_the_estimates():
+    """The information of the refinement (pixels, sigma 1) predicts the spread of the
+    verified similarity over noise draws: the predicted rotation and log-scale standard
+    deviations are within a factor 2 of the empirical ones."""
+    from spgeo.similarity import sim3_inverse, to_gtsam
+    import gtsam
+
+    cfg = VerificationConfig(reprojection_px=6.0, depth_tolerance=0.5, min_inliers=20)
+    xis, covs = [], []
+    for seed in range(40):
+        query, cand, S_true = make_matches(seed + 10, depth_noise=0.07, px_noise=0.7)
+        pairs = np.stack([np.arange(len(query.points))] * 2, 1)
+        ver = verify_sim3(query, cand, pairs, cfg)
+        assert ver.accepted
+        xis.append(gtsam.Similarity3.Logmap(to_gtsam(sim3_inverse(S_true) @ ver.S_cand_query)))
+        covs.append(np.linalg.inv(ver.information))
+    emp = np.std(np.array(xis), axis=0)
+    pred = np.sqrt(np.diag(np.mean(covs, axis=0)))
+    for i in (0, 1, 2, 6):
+        assert 0.5 < pred[i] / emp[i] < 2.0, (i, pred, emp)
 
 
 def test_refine_sim3_keeps_exact_model():

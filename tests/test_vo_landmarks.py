@@ -65,6 +65,31 @@ def test_landmarks_found_on_synthetic_views_at_true_poses():
             assert z[0] > 0 and np.linalg.norm(uv[0] - px) <= 15.0
 
 
+def test_a_loop_correction_moves_landmarks_with_their_keyframes():
+    """Landmarks built at poses that a similarity W moves (a loop correction of the
+    whole map) reproject exactly as before into the moved cameras, and a new keyframe
+    at its moved true pose re-observes them."""
+    from spgeo.similarity import moved_frame, sim3
+
+    images, poses = _views(8)
+    lmap = LandmarkMap(CAM, LandmarkConfig(enabled=True))
+    for k in range(7):
+        lmap.add_keyframe(k, images[k], poses[k], list(range(max(0, k - 4), k + 1)))
+    W = sim3(synthetic.camera_rotation(0.4, -0.1, 0.2), np.array([0.3, -0.5, 0.2]), 1.6)
+    before = {(lm.id, j): project(poses[j], lm.point[None])[0][0]
+              for lm in lmap.landmarks.values() for j in lm.observations}
+    lmap.apply_similarity({k: W for k in range(7)})
+    for lm in lmap.landmarks.values():
+        for j in lm.observations:
+            uv, z = project(moved_frame(W, poses[j]), lm.point[None])
+            assert z[0] > 0
+            np.testing.assert_allclose(uv[0], before[lm.id, j], atol=1e-6)
+    for j, f in lmap._features.items():
+        np.testing.assert_allclose(f.T_world_kf, moved_frame(W, poses[j]), atol=1e-12)
+    lmap.add_keyframe(7, images[7], moved_frame(W, poses[7]), list(range(3, 8)))
+    assert lmap.stats[-1]["reobserved"] > 20, lmap.stats[-1]
+
+
 def test_landmark_memory_is_bounded():
     images, poses = _views(10)
     cfg = LandmarkConfig(enabled=True, memory_keyframes=2, max_landmarks=60)

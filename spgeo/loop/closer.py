@@ -38,6 +38,8 @@ class LoopClosure:
             candidate's camera (its units); the scale is their depth-unit ratio.
         n_matches, n_inliers, inlier_ratio: of the verification.
         neighbour_support: neighbours of the candidate that agreed.
+        information: (7, 7) information of ``S_cand_query`` (GTSAM Similarity3
+            tangent, right perturbation) from the verification's refinement.
     """
 
     query_id: int
@@ -47,6 +49,7 @@ class LoopClosure:
     n_inliers: int
     inlier_ratio: float
     neighbour_support: int
+    information: np.ndarray
 
 
 @dataclass
@@ -90,6 +93,7 @@ class LoopCloser:
         self.database = KeyframeDatabase(config.recognition)
         self.loops: List[LoopClosure] = []
         self.n_rejected = 0     # candidates rejected by verification or the neighbour check
+        self._streak: List[LoopClosure] = []   # consecutive detections, not yet accepted
 
     def add_keyframe(self, kf_id: int, image: np.ndarray, depth: np.ndarray,
                      T_world_kf: np.ndarray) -> Optional[LoopClosure]:
@@ -102,7 +106,8 @@ class LoopCloser:
                 unknown), e.g. ``primitives.depth_map()``.
             T_world_kf: its rigid camera-to-world pose.
         Returns:
-            the accepted :class:`LoopClosure` (also appended to :attr:`loops`), or None.
+            the accepted :class:`LoopClosure` (it and the detections of its streak,
+            :meth:`_consistent`, are appended to :attr:`loops`), or None.
         """
         ids = self.database.ids()
         if ids and int(kf_id) <= ids[-1]:
@@ -110,8 +115,29 @@ class LoopCloser:
         features = extract_features(image, self.camera, depth, self.config.recognition.features)
         loop = self.detect(int(kf_id), features)
         self.database.add(int(kf_id), features, T_world_kf)
-        if loop is not None:
-            self.loops.append(loop)
+        return self._consistent(loop, ids[-1] if ids else None)
+
+    def _consistent(self, loop: Optional[LoopClosure], previous_id: Optional[int]
+                    ) -> Optional[LoopClosure]:
+        """Accept ``loop`` (a detection of the newest keyframe) once it closes a streak of
+        ``consistent_detections`` consecutive keyframes (``previous_id`` the keyframe
+        registered before it) whose candidates lie within ``neighbour_radius`` of the
+        previous one's.  The streak's loops go to :attr:`loops`."""
+        vcfg = self.config.verification
+        if loop is None:
+            self._streak = []
+            return None
+        last = self._streak[-1] if self._streak else None
+        if last is None or last.query_id != previous_id \
+                or abs(last.candidate_id - loop.candidate_id) > vcfg.neighbour_radius:
+            self._streak = []
+        self._streak.append(loop)
+        if len(self._streak) < vcfg.consistent_detections:
+            log.debug("loop %d -> %d detected (%d of %d consistent)", loop.query_id,
+                      loop.candidate_id, len(self._streak), vcfg.consistent_detections)
+            return None
+        self.loops.extend(self._streak)
+        self._streak = []
         return loop
 
     def detect(self, query_id: int, features: KeyframeFeatures) -> Optional[LoopClosure]:
@@ -134,7 +160,7 @@ class LoopCloser:
             log.info("loop closed: keyframe %d -> %d (%d inliers of %d, %d neighbours agree)",
                      query_id, cand.kf_id, ver.n_inliers, ver.n_matches, support)
             return LoopClosure(query_id, cand.kf_id, ver.S_cand_query, ver.n_matches,
-                               ver.n_inliers, ver.inlier_ratio, support)
+                               ver.n_inliers, ver.inlier_ratio, support, ver.information)
         return None
 
     def _neighbour_support(self, query_id: int, cand: Candidate, features: KeyframeFeatures,
@@ -185,8 +211,8 @@ class LoopCloser:
         index = {k: i for i, k in enumerate(ids)}
         poses = [self.database.entries[k].T_world_kf for k in ids]
         edges = odometry_edges(poses)
-        edges += [Sim3Edge(index[lp.candidate_id], index[lp.query_id], lp.S_cand_query, loop=True)
-                  for lp in self.loops]
+        edges += [Sim3Edge(index[lp.candidate_id], index[lp.query_id], lp.S_cand_query, loop=True,
+                           information=lp.information) for lp in self.loops]
         res = optimise_sim3_pose_graph(poses, edges, self.config.pose_graph)
         corr = LoopCorrection(
             ids, {k: res.T_world_kf[i] for k, i in index.items()},
@@ -201,7 +227,11 @@ class LoopCloser:
             entry = self.database.entries[k]
             entry.T_world_kf = corr.T_world_kf[k].copy()
             entry.features = entry.features.scaled(corr.scales[k])
-        for lp in self.loops:   # S' = diag(s_c) S diag(1 / s_q) in the new depth units
+        for lp in self.loops + self._streak:
+            # S' = diag(s_c) S diag(1 / s_q) in the new depth units; a right perturbation's
+            # translation grows by s_q, so the information's translation rows shrink by it
             s_c, s_q = corr.scales[lp.candidate_id], corr.scales[lp.query_id]
             R, t, s = sim3_parts(lp.S_cand_query)
             lp.S_cand_query = sim3(R, s_c * t, s * s_c / s_q)
+            d = np.array([1.0, 1.0, 1.0, 1.0 / s_q, 1.0 / s_q, 1.0 / s_q, 1.0])
+            lp.information = lp.information * d[:, None] * d[None, :]

@@ -49,11 +49,10 @@ class VerificationConfig:
         reprojection_px: a match is an inlier of ``S_cand_query`` when the query
             point, mapped into the candidate, reprojects within this many pixels of
             the candidate's keypoint, and the candidate point, mapped back, within
-            this many pixels of the query's keypoint.
+            this many pixels of the query's keypoint (also the PnP RANSAC threshold).
         depth_tolerance: ... and the mapped query point's depth agrees with the
             candidate point's depth to ``|log ratio| <=`` this.
-        ransac_iterations: minimal (3-point Umeyama) samples drawn.
-        seed: RNG seed of the samples (verification is deterministic).
+        ransac_iterations: PnP RANSAC iterations (OpenCV's, deterministic).
         min_inliers: inliers needed to accept.
         min_inlier_ratio: inliers over the matches that have depth in both keyframes
             needed to accept.
@@ -64,28 +63,27 @@ class VerificationConfig:
             poses, must explain at least ``min_neighbour_inliers`` of the query's
             matches with that neighbour. 0 switches the check off.
         min_neighbour_inliers: see ``min_neighbour_support``.
-        refine: refine the RANSAC similarity on its inliers by reprojection in both
-            images (:func:`spgeo.loop.refine.refine_sim3`). Off by default: it cuts the
-            loops' rotation error (docs/results.md) but breaks the synthetic palindrome
-            of ``tests/test_vo_loop.py`` (last pose farther from the first).
+        consistent_detections: a loop is accepted when this many consecutive query
+            keyframes each verified a loop to candidates within ``neighbour_radius``
+            of each other (all their edges enter the pose graph); 1 accepts at once.
     """
 
     reprojection_px: float = 3.0
     depth_tolerance: float = 0.05
     ransac_iterations: int = 300
-    seed: int = 0
     min_inliers: int = 30
     min_inlier_ratio: float = 0.5
     neighbour_radius: int = 2
     min_neighbour_support: int = 1
     min_neighbour_inliers: int = 15
-    refine: bool = False
+    consistent_detections: int = 2
 
     def __post_init__(self) -> None:
         if (not self.reprojection_px > 0 or not self.depth_tolerance > 0
                 or self.ransac_iterations < 1 or self.min_inliers < 3
                 or not 0 <= self.min_inlier_ratio <= 1 or self.neighbour_radius < 0
-                or self.min_neighbour_support < 0 or self.min_neighbour_inliers < 3):
+                or self.min_neighbour_support < 0 or self.min_neighbour_inliers < 3
+                or self.consistent_detections < 1):
             raise ValueError(f"VerificationConfig: invalid values in {self}")
 
 
@@ -99,7 +97,8 @@ class PoseGraphConfig:
 
     Attributes:
         odometry_sigmas: sigmas of the odometry edges between consecutive keyframes.
-        loop_sigmas: sigmas of the loop edges.
+        loop_sigmas: sigmas of loop edges that carry no information (the loop
+            closer's edges carry their refinement's, :class:`~spgeo.loop.Sim3Edge`).
         loop_huber: Huber threshold (whitened units) on loop edges; 0 means none.
         gauge_sigma: sigma of the prior holding the first keyframe at its input pose
             and scale 1 (the gauge).

@@ -42,6 +42,8 @@ class Sim3Edge:
             tangent order (rotation rad x3, translation x3, log-scale), or None for
             the configuration's default of the edge's kind.
         loop: a loop edge (else odometry).
+        information: ``(7, 7)`` information matrix of the error in the same tangent
+            (a right perturbation of ``S_i_j``); used instead of ``sigmas`` when given.
     """
 
     i: int
@@ -49,6 +51,7 @@ class Sim3Edge:
     S_i_j: np.ndarray
     sigmas: Optional[np.ndarray] = None
     loop: bool = False
+    information: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -91,11 +94,19 @@ def odometry_edges(T_world_kf: Sequence[np.ndarray],
 def _edge_noise(edge: Sim3Edge, config: PoseGraphConfig):
     import gtsam
 
-    default = config.loop_sigmas if edge.loop else config.odometry_sigmas
-    sig = _sigmas3(default) if edge.sigmas is None else np.asarray(edge.sigmas, np.float64)
-    if sig.shape != (7,) or not np.all(sig > 0):
-        raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): sigmas must be 7 positive values")
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    if edge.information is not None:
+        info = np.asarray(edge.information, np.float64)
+        if info.shape != (7, 7) or not np.all(np.isfinite(info)) \
+                or np.linalg.eigvalsh(0.5 * (info + info.T)).min() <= 0:
+            raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): information must be a 7x7 "
+                             "positive definite matrix")
+        noise = gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T))
+    else:
+        default = config.loop_sigmas if edge.loop else config.odometry_sigmas
+        sig = _sigmas3(default) if edge.sigmas is None else np.asarray(edge.sigmas, np.float64)
+        if sig.shape != (7,) or not np.all(sig > 0):
+            raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): sigmas must be 7 positive values")
+        noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
     if edge.loop and config.loop_huber > 0:
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(config.loop_huber), noise)

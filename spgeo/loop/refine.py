@@ -15,7 +15,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..similarity import sim3, sim3_inverse, sim3_parts
 
-__all__ = ["refine_sim3"]
+__all__ = ["refine_sim3", "sim3_information"]
 
 
 def _project(points: np.ndarray, camera: PinholeCamera) -> np.ndarray:
@@ -31,7 +31,11 @@ def _compose(x: np.ndarray, R0: np.ndarray, t0: np.ndarray, s0: float) -> np.nda
 
 
 def _residuals(x, R0, t0, s0, P_q, P_c, uv_q, uv_c, cam_q, cam_c, depth_px):
-    S = _compose(x, R0, t0, s0)
+    return _residuals_of(_compose(x, R0, t0, s0), P_q, P_c, uv_q, uv_c, cam_q, cam_c, depth_px)
+
+
+def _residuals_of(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, depth_px):
+    """Pixel residuals of ``S`` (4x4): candidate image (2M), query image (2M), log-depth (M)."""
     Si = sim3_inverse(S)
     in_c = P_q @ S[:3, :3].T + S[:3, 3]
     in_q = P_c @ Si[:3, :3].T + Si[:3, 3]
@@ -71,3 +75,40 @@ def refine_sim3(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarra
     if not np.all(np.isfinite(sol.x)):
         return None
     return _compose(sol.x, R0, t0, s0)
+
+
+def sim3_information(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarray,
+                     uv_query: np.ndarray, uv_cand: np.ndarray, cam_query: PinholeCamera,
+                     cam_cand: PinholeCamera, pixel_sigma: float = 1.0, huber_px: float = 1.0,
+                     depth_px: float = 10.0) -> np.ndarray:
+    """Information (7x7) of a refined similarity from its reprojection residuals.
+
+    The Gauss-Newton information ``J^T W J / pixel_sigma^2`` of :func:`refine_sim3`'s
+    cost at ``S_cand_query`` (arguments as there), with ``J`` the residuals' Jacobian
+    with respect to a right perturbation ``S @ Exp(xi)`` in GTSAM's Similarity3
+    tangent order (rotation rad x3, translation x3, log-scale), i.e. the frame in which
+    ``gtsam.BetweenFactorSimilarity3`` measures its error, and ``W`` the Huber weights
+    of the residuals (central differences, step 1e-6).
+
+    Returns:
+        (7, 7) symmetric positive semi-definite information matrix.
+    """
+    import gtsam
+
+    from ..similarity import from_gtsam, to_gtsam
+
+    S0 = to_gtsam(np.asarray(S_cand_query, dtype=np.float64))
+    args = (P_query, P_cand, uv_query, uv_cand, cam_query, cam_cand, depth_px)
+    r0 = _residuals_of(from_gtsam(S0), *args)
+    J = np.empty((len(r0), 7))
+    h = 1e-6
+    for i in range(7):
+        d = np.zeros(7)
+        d[i] = h
+        plus = _residuals_of(from_gtsam(S0.compose(gtsam.Similarity3.Expmap(d))), *args)
+        minus = _residuals_of(from_gtsam(S0.compose(gtsam.Similarity3.Expmap(-d))), *args)
+        J[:, i] = (plus - minus) / (2 * h)
+    a = np.abs(r0)
+    w = np.where(a <= huber_px, 1.0, huber_px / np.maximum(a, 1e-12))
+    info = (J * w[:, None]).T @ J / float(pixel_sigma) ** 2
+    return 0.5 * (info + info.T)

@@ -1,6 +1,8 @@
 """Keyframe features lifted to 3-D, and the geometric verification of a loop candidate:
-RANSAC over 3-point Umeyama similarities between the two keyframes' 3-D points,
-scored by reprojection in both images and depth agreement (docs/design.md §5.2).
+PnP (RANSAC) of the candidate's 3-D points in the query image, the scale from the
+query's depths, refined as a Sim(3) on reprojection in both images, scored by
+reprojection in both images and depth agreement; the edge's information comes from
+that refinement (docs/design.md §5.2).
 
 Frames: a keyframe's points are in its camera frame, in its depth units; the
 verified ``S_cand_query`` (convention of :mod:`spgeo.similarity`) maps query-camera
@@ -16,11 +18,11 @@ from typing import Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..similarity import sim3_inverse, umeyama
+from ..similarity import sim3, sim3_inverse
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 from .config import VerificationConfig
-from .refine import refine_sim3
+from .refine import refine_sim3, sim3_information
 
 __all__ = ["KeyframeFeatures", "extract_features", "match_features", "Sim3Verification",
            "count_inliers", "verify_sim3"]
@@ -100,6 +102,8 @@ class Sim3Verification:
         inlier_ratio: ``n_inliers / n_matches`` (0 without matches).
         inliers: (n_matches,) bool over the matches with depth (order of ``pairs``).
         reason: why it was rejected ("" when accepted).
+        information: (7, 7) information of ``S_cand_query`` from its refinement
+            (:func:`spgeo.loop.refine.sim3_information`, pixels), when accepted.
     """
 
     accepted: bool
@@ -109,6 +113,7 @@ class Sim3Verification:
     inlier_ratio: float
     inliers: np.ndarray
     reason: str = ""
+    information: Optional[np.ndarray] = None
 
 
 def _reprojection(points: np.ndarray, camera: PinholeCamera, uv: np.ndarray) -> np.ndarray:
@@ -135,36 +140,50 @@ def count_inliers(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndar
     return ok & np.nan_to_num(dlog <= config.depth_tolerance, nan=False)
 
 
-def _ransac(P_q, P_c, uv_q, uv_c, cam_q, cam_c, config: VerificationConfig):
-    """Best 3-point Umeyama model, then refits on its inliers until they stop growing."""
-    rng = np.random.default_rng(config.seed)
-    best, best_in = None, np.zeros(len(P_q), bool)
-    for _ in range(int(config.ransac_iterations)):
-        idx = rng.choice(len(P_q), 3, replace=False)
-        S = umeyama(P_q[idx], P_c[idx])
-        if S is None:
-            continue
-        inl = count_inliers(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, config)
-        if inl.sum() > best_in.sum():
-            best, best_in = S, inl
-    for _ in range(5):
-        if best is None or best_in.sum() < 3:
-            break
-        S = umeyama(P_q[best_in], P_c[best_in])
-        if S is None:
-            break
-        inl = count_inliers(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, config)
-        if inl.sum() < best_in.sum():
-            break
-        best, best_in = S, inl
-    return best, best_in
+def _pnp_model(P_q, P_c, uv_q, cam_q, config: VerificationConfig) -> Optional[np.ndarray]:
+    """``S_cand_query`` from PnP: the candidate's points (its camera, its units) against
+    the query's keypoints (OpenCV's EPnP RANSAC, ``reprojection_px``, deterministic),
+    the scale from the PnP inliers' depths in the query over the query's own depths
+    (median).  None without a model."""
+    import cv2
+
+    try:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            np.ascontiguousarray(P_c, np.float64), np.ascontiguousarray(uv_q, np.float64),
+            np.asarray(cam_q.K, np.float64), None, iterationsCount=int(config.ransac_iterations),
+            reprojectionError=float(config.reprojection_px), confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP)
+    except cv2.error:
+        return None
+    if not ok or inl is None or len(inl) < 4:
+        return None
+    R = cv2.Rodrigues(rvec)[0]
+    t = np.asarray(tvec, np.float64).ravel()
+    idx = inl.ravel()
+    ratio = (P_c[idx] @ R.T + t)[:, 2] / P_q[idx, 2]
+    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+    if not len(ratio):
+        return None
+    return sim3(R.T, -R.T @ t, float(np.median(ratio)))
 
 
-def _refined(S: np.ndarray, inl: np.ndarray, args) -> np.ndarray:
-    """``S`` refined on the inliers ``inl`` of ``args`` (:func:`_ransac`'s), or ``S``."""
+def _fit(args, config: VerificationConfig):
+    """PnP model (:func:`_pnp_model`), its inliers (:func:`count_inliers`), then the model
+    refined on them by reprojection in both images (:func:`refine_sim3`) and its
+    inliers again.  Returns ``(S or None, inliers)``."""
     P_q, P_c, uv_q, uv_c, cam_q, cam_c = args
-    S_ref = refine_sim3(S, P_q[inl], P_c[inl], uv_q[inl], uv_c[inl], cam_q, cam_c)
-    return S if S_ref is None else S_ref
+    S = _pnp_model(P_q, P_c, uv_q, cam_q, config)
+    if S is None:
+        return None, np.zeros(len(P_q), bool)
+    inl = count_inliers(S, *args, config)
+    for _ in range(2):
+        if inl.sum() < 4:
+            break
+        S_ref = refine_sim3(S, P_q[inl], P_c[inl], uv_q[inl], uv_c[inl], cam_q, cam_c)
+        if S_ref is None:
+            break
+        S, inl = S_ref, count_inliers(S_ref, *args, config)
+    return S, inl
 
 
 def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarray,
@@ -188,9 +207,7 @@ def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarr
         return Sim3Verification(False, None, m, 0, 0.0, np.zeros(m, bool), "too_few_matches")
     args = (query.points[pairs[:, 1]], cand.points[pairs[:, 0]], query.keypoints[pairs[:, 1]],
             cand.keypoints[pairs[:, 0]], query.camera, cand.camera)
-    S, inl = _ransac(*args, config)
-    if S is not None and config.refine and inl.sum() >= 4:
-        S = _refined(S, inl, args)
+    S, inl = _fit(args, config)
     n_in = int(inl.sum())
     ratio = n_in / m
     reason = ""
@@ -201,4 +218,7 @@ def verify_sim3(query: KeyframeFeatures, cand: KeyframeFeatures, pairs: np.ndarr
     elif ratio < config.min_inlier_ratio:
         reason = "low_inlier_ratio"
     log.debug("loop verification: %d inliers of %d matches (%s)", n_in, m, reason or "accepted")
-    return Sim3Verification(not reason, S, m, n_in, ratio, inl, reason)
+    info = None
+    if not reason:
+        info = sim3_information(S, *(a[inl] for a in args[:4]), *args[4:])
+    return Sim3Verification(not reason, S, m, n_in, ratio, inl, reason, info)

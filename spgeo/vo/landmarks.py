@@ -37,6 +37,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..configs import config_repr
 from ..geometry import invert_pose, ray_angles_deg, transform_points
+from ..similarity import moved_frame
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
@@ -266,6 +267,19 @@ class LandmarkMap:
         for lm in self.landmarks.values():
             for j in [j for j in lm.observations if j not in live]:
                 del lm.observations[j]
+
+    def apply_similarity(self, W_new_old: Dict[int, np.ndarray]) -> None:
+        """Move the map by a loop correction: each landmark by the world similarity
+        (4x4, ``S_world_kf(new) @ inv(T_world_kf(old))``) of the last keyframe that saw
+        it, each live keyframe's pose by its own (:func:`spgeo.similarity.moved_frame`);
+        landmarks and keyframes without one stay."""
+        for lm in self.landmarks.values():
+            W = W_new_old.get(lm.last_seen)
+            if W is not None:
+                lm.point = W[:3, :3] @ lm.point + W[:3, 3]
+        for j, f in self._features.items():
+            if j in W_new_old:
+                f.T_world_kf = moved_frame(W_new_old[j], f.T_world_kf)
 
     # ------------------------------------------------------------ queries
     def observed_in(self, k: int) -> List[Landmark]:

@@ -33,9 +33,11 @@ class SegmentLoopClosure:
         config: :class:`~spgeo.loop.LoopClosureConfig`.
 
     Attributes:
-        accepted: one JSON-ready dict per accepted loop (segment, keyframe pair,
-            ``S_cand_query`` (4x4, as detected) and its scale, matches, inliers, neighbour support, the
-            number of keyframes corrected and the range of their depth factors).
+        accepted: one JSON-ready dict per accepted loop (segment, keyframe pair and
+            their frame numbers, ``S_cand_query`` (4x4, as detected: candidate camera
+            from query camera) and its scale, the largest rotation sigma (deg) and the
+            log-scale sigma of its information, matches, inliers, neighbour support,
+            the number of keyframes corrected and the range of their depth factors).
         seconds: total time spent (features, detection, correction).
     """
 
@@ -45,6 +47,7 @@ class SegmentLoopClosure:
         self.segment: Optional[int] = None
         self.closer: Optional[LoopCloser] = None
         self.accepted: List[dict] = []
+        self._frames: Dict[int, int] = {}   # keyframe index -> frame number
         self._rejected_before = 0     # rejections of earlier segments' closers
         self.seconds = 0.0
 
@@ -64,29 +67,40 @@ class SegmentLoopClosure:
         for kf in keyframes:
             if ids and kf.index <= ids[-1]:
                 continue
+            self._frames[kf.index] = kf.frame
             depth = kf.keyframe.primitives.depth_map()
+            n_loops = len(self.closer.loops)
             loop = self.closer.add_keyframe(kf.index, kf.image, depth, kf.keyframe.T_world_kf)
             if loop is not None:
+                found = [self._describe(lp) for lp in self.closer.loops[n_loops:]]
                 corr = self.closer.correct(apply=True)
-                self._record(loop, corr)
+                self._record(found, corr)
         self.seconds += time.perf_counter() - t
         return corr
 
-    def _record(self, loop, corr: LoopCorrection) -> None:
-        scales = np.array([corr.scales[k] for k in corr.kf_ids])
-        self.accepted.append({
+    def _describe(self, loop) -> dict:
+        """A loop as detected (JSON-ready), before a correction rescales it."""
+        sig = np.sqrt(np.diag(np.linalg.inv(loop.information)))
+        return {
             "segment": int(self.segment), "query_keyframe": int(loop.query_id),
             "candidate_keyframe": int(loop.candidate_id),
+            "query_frame": int(self._frames[loop.query_id]),
+            "candidate_frame": int(self._frames[loop.candidate_id]),
             "scale": float(sim3_parts(loop.S_cand_query)[2]),
             "S_cand_query": np.asarray(loop.S_cand_query, dtype=float).tolist(),
+            "sigma_rotation_deg": float(np.degrees(sig[:3].max())),
+            "sigma_log_scale": float(sig[6]),
             "matches": int(loop.n_matches), "inliers": int(loop.n_inliers),
             "inlier_ratio": float(loop.inlier_ratio),
-            "neighbour_support": int(loop.neighbour_support),
-            "n_keyframes_corrected": len(corr.kf_ids),
-            "scale_range": [float(scales.min()), float(scales.max())],
-        })
-        log.info("loop closure: keyframe %d -> %d applied to %d keyframes", loop.query_id,
-                 loop.candidate_id, len(corr.kf_ids))
+            "neighbour_support": int(loop.neighbour_support)}
+
+    def _record(self, found: List[dict], corr: LoopCorrection) -> None:
+        scales = np.array([corr.scales[k] for k in corr.kf_ids])
+        for d in found:
+            self.accepted.append({**d, "n_keyframes_corrected": len(corr.kf_ids),
+                                  "scale_range": [float(scales.min()), float(scales.max())]})
+            log.info("loop closure: keyframe %d -> %d applied to %d keyframes",
+                     d["query_keyframe"], d["candidate_keyframe"], len(corr.kf_ids))
 
     def update_poses(self, T_world_kf: Mapping[int, np.ndarray]) -> None:
         """The odometry's latest (smoothed) poses of registered keyframes."""

@@ -440,7 +440,7 @@ class Odometry:
         # the mapper reads at most the window and the keyframe leaving it
         segment_kfs = self._map.window_kfs(extra=1)
         if self._landmarks is not None:
-            self._add_landmarks(segment_kfs, closed)
+            self._add_landmarks(segment_kfs)
         if closed or self._restart_window:
             self._restart_window = False
             self._mapper.reset()
@@ -449,11 +449,11 @@ class Odometry:
             self._map.seg_kfs = self._map.seg_kfs[-2:]
         timings["mapping"] = time.perf_counter() - t
 
-    def _add_landmarks(self, segment_kfs: List[MapKeyframe], closed: bool) -> None:
-        """The newest keyframe's landmarks (:mod:`spgeo.vo.landmarks`); a loop
-        correction or a new segment forgets the old ones (their points are stale)."""
+    def _add_landmarks(self, segment_kfs: List[MapKeyframe]) -> None:
+        """The newest keyframe's landmarks (:mod:`spgeo.vo.landmarks`); a new segment
+        forgets the old ones (another scale)."""
         new = segment_kfs[-1]
-        if closed or self._landmark_segment != self._map.segment:
+        if self._landmark_segment != self._map.segment:
             self._landmarks.clear()
             self._landmark_segment = self._map.segment
             if len(segment_kfs) >= 2:     # the previous keyframe's features too
@@ -473,5 +473,7 @@ class Odometry:
         corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live())
         if corr is not None:
             self._map.apply_loop_correction(corr, self._motion)
+            if self._landmarks is not None:     # moved with the map, re-observed next
+                self._landmarks.apply_similarity(corr.W_new_old)
         timings["loop"] = time.perf_counter() - t
         return corr is not None
