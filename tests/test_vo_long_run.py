@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from spgeo.cli.eval import PROTOCOLS
@@ -86,3 +87,33 @@ def test_colmap_reference_columns_and_cache(tmp_path, capsys):
     rows = json.loads((tmp_path / "long_run.json").read_text())["rows"]
     assert rows[-1]["status"] == "reference (cached)"
     assert rows[-1]["rot_vs_gt_deg"] == pytest.approx(col["rot_vs_gt_deg"])
+
+
+def test_loop_edges_of_a_report_are_judged_against_the_reference():
+    """A run's accepted loops (report.json) become (candidate frame, query frame,
+    S_cand_query) edges; an edge equal to the reference's relative pose (any scale)
+    has zero error, one turned by 2 degrees has 2."""
+    from spgeo.evaluation.vo.long_run import ColmapReference, loop_edges, reference_columns
+    from spgeo.similarity import sim3
+    from spgeo.synthetic.poses import camera_rotation
+    from spgeo.trajectory import Trajectory
+    from scipy.spatial.transform import Rotation
+
+    n = 80
+    poses = np.stack([sim3(camera_rotation(0.02 * i, 0.01 * i, 0.0), np.array([0.05 * i, 0, 0]))
+                      for i in range(n)])
+    stamps = np.arange(n, dtype=float)
+    ref = ColmapReference(Trajectory(stamps, poses), (stamps, poses), {})
+    T_cq = np.linalg.inv(poses[3]) @ poses[70]
+    turn = sim3(Rotation.from_rotvec([0.0, np.radians(2.0), 0.0]).as_matrix(), np.zeros(3))
+    report = {"loop_closures": {"accepted": [
+        {"candidate_frame": 3, "query_frame": 70,
+         "S_cand_query": (T_cq @ sim3(np.eye(3), np.zeros(3), 1.3)).tolist()},
+        {"candidate_frame": 3, "query_frame": 70, "S_cand_query": (T_cq @ turn).tolist()}]}}
+    edges = loop_edges(report)
+    assert [(e[0], e[1]) for e in edges] == [(3.0, 70.0)] * 2
+    cols = reference_columns(Trajectory(stamps, poses), ref, edges)
+    assert cols["loop_rot_vs_colmap_max_deg"] == pytest.approx(2.0, abs=1e-6)
+    assert cols["loop_rot_vs_colmap_mean_deg"] == pytest.approx(1.0, abs=1e-6)
+    assert reference_columns(Trajectory(stamps, poses), ref)["loop_rot_vs_colmap_max_deg"] is None
+    assert loop_edges({"loop_closures": None}) == []

@@ -91,13 +91,13 @@ from spgeo.evaluation.jobs import (THREAD_ENV, EvalTable, Job, RunnerConfig, pro
 from spgeo.evaluation.runner import protocol_argv, protocol_parser, run_protocol, write_json
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.evaluation.vo.memory import palindrome
-from spgeo.evaluation.vo.reference_metrics import compare_to_reference
+from spgeo.evaluation.vo.reference_metrics import compare_to_reference, edge_errors
 
 __all__ = ["LongRunSequence", "SEQUENCES", "VARIANTS", "TABLE", "Reordered", "run_config",
            "run_one", "run_metrics", "end_pose_error", "scale_drift", "run_subprocess",
            "make_jobs", "markdown", "write_outputs", "build_parser", "run", "main",
            "REFERENCES", "REFERENCE_TABLE", "ColmapReference", "colmap_reference",
-           "reference_columns", "with_reference", "colmap_row", "colmap_references"]
+           "reference_columns", "loop_edges", "with_reference", "colmap_row", "colmap_references"]
 
 #: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
 SEVENSCENES_FRAMES = 300
@@ -465,22 +465,43 @@ REFERENCE_TABLE: Tuple[Tuple[str, str, int], ...] = (
     ("orient. vs COLMAP med deg", "orient_vs_colmap_median_deg", 2),
     ("orient. vs COLMAP max deg", "orient_vs_colmap_max_deg", 2),
     ("win. scale vs COLMAP min", "window_scale_vs_colmap_min", 3),
-    ("win. scale vs COLMAP max", "window_scale_vs_colmap_max", 3))
+    ("win. scale vs COLMAP max", "window_scale_vs_colmap_max", 3),
+    ("loop edges rot. vs COLMAP mean deg", "loop_rot_vs_colmap_mean_deg", 2),
+    ("loop edges rot. vs COLMAP max deg", "loop_rot_vs_colmap_max_deg", 2),
+    ("loop edges dir. vs COLMAP max deg", "loop_dir_vs_colmap_max_deg", 1))
 
 
 def _finite(x: float) -> Optional[float]:
     return float(x) if np.isfinite(x) else None
 
 
-def reference_columns(traj, ref: ColmapReference) -> Dict[str, Any]:
+def loop_edges(report: Mapping[str, Any]) -> List[Tuple[float, float, np.ndarray]]:
+    """The accepted loop edges of a run's ``report.json`` as
+    :func:`~spgeo.evaluation.vo.reference_metrics.edge_errors` wants them:
+    ``(candidate frame, query frame, S_cand_query)`` (frames = played positions)."""
+    loops = report.get("loop_closures") or {}
+    return [(float(a["candidate_frame"]), float(a["query_frame"]),
+             np.asarray(a["S_cand_query"], dtype=np.float64))
+            for a in loops.get("accepted", []) if "query_frame" in a]
+
+
+def reference_columns(traj, ref: ColmapReference,
+                      edges: Sequence[Tuple[float, float, np.ndarray]] = ()) -> Dict[str, Any]:
     """The reference fields of a row whose run has trajectory ``traj``
     (:class:`~spgeo.trajectory.Trajectory`, timestamps = played positions): against
     the ground truth and against COLMAP (:data:`REFERENCE_TABLE`; ``reference``:
-    both :meth:`~spgeo.evaluation.vo.reference_metrics.ReferenceComparison.summary`)."""
+    both :meth:`~spgeo.evaluation.vo.reference_metrics.ReferenceComparison.summary`),
+    and the run's loop ``edges`` (:func:`loop_edges`) against COLMAP's relative poses
+    of the same frames (rotation angle, translation direction; None without edges)."""
     vs_gt = compare_to_reference(traj, ref.gt, "ground truth", with_ate=False)
     vs_col = compare_to_reference(traj, ref.trajectory, "colmap", with_ate=False)
     o, w = vs_col.orientation, vs_col.window_scale
-    return {"rot_vs_gt_deg": _finite(vs_gt.relative_rotation.mean_deg),
+    e = edge_errors(list(edges), ref.trajectory)
+    dirs = e.translation_direction_deg[np.isfinite(e.translation_direction_deg)]
+    return {"loop_rot_vs_colmap_mean_deg": _finite(e.mean_deg),
+            "loop_rot_vs_colmap_max_deg": _finite(e.max_deg),
+            "loop_dir_vs_colmap_max_deg": _finite(dirs.max()) if len(dirs) else None,
+            "rot_vs_gt_deg": _finite(vs_gt.relative_rotation.mean_deg),
             "rot_vs_colmap_deg": _finite(vs_col.relative_rotation.mean_deg),
             "orient_vs_colmap_median_deg": _finite(o.median_deg),
             "orient_vs_colmap_max_deg": _finite(o.max_deg),
@@ -500,8 +521,11 @@ def with_reference(row: Dict[str, Any], out: Path,
     ref = refs.get(row["sequence"])
     if ref is None or row.get("error") or not path.is_file():
         return row
+    report = path.parent / "report.json"
     try:
-        return {**row, **reference_columns(Trajectory.load(path), ref)}
+        edges = loop_edges(json.loads(report.read_text(encoding="utf-8"))) \
+            if report.is_file() else []
+        return {**row, **reference_columns(Trajectory.load(path), ref, edges)}
     except ValueError as exc:       # e.g. a pose that is not a rigid transform
         return {**row, "reference": {"error": str(exc)}}
 

@@ -96,7 +96,8 @@ class LoopCloser:
         self._streak: List[LoopClosure] = []   # consecutive detections, not yet accepted
 
     def add_keyframe(self, kf_id: int, image: np.ndarray, depth: np.ndarray,
-                     T_world_kf: np.ndarray) -> Optional[LoopClosure]:
+                     T_world_kf: np.ndarray, connected_from: Optional[int] = None
+                     ) -> Optional[LoopClosure]:
         """Register a new keyframe and look for a loop to an older one.
 
         Args:
@@ -105,6 +106,10 @@ class LoopCloser:
             depth: its depth map in its own units at any resolution (NaN / <= 0 where
                 unknown), e.g. ``primitives.depth_map()``.
             T_world_kf: its rigid camera-to-world pose.
+            connected_from: keyframes with ids from this one on are already connected
+                to the new one (e.g. it re-observes their landmarks): not candidates, as
+                ORB-SLAM excludes the query's covisible keyframes; None: no such
+                knowledge.
         Returns:
             the accepted :class:`LoopClosure` (it and the detections of its streak,
             :meth:`_consistent`, are appended to :attr:`loops`), or None.
@@ -113,7 +118,7 @@ class LoopCloser:
         if ids and int(kf_id) <= ids[-1]:
             raise ValueError(f"add_keyframe: id {kf_id} is not larger than {ids[-1]}")
         features = extract_features(image, self.camera, depth, self.config.recognition.features)
-        loop = self.detect(int(kf_id), features)
+        loop = self.detect(int(kf_id), features, connected_from)
         self.database.add(int(kf_id), features, T_world_kf)
         return self._consistent(loop, ids[-1] if ids else None)
 
@@ -140,11 +145,13 @@ class LoopCloser:
         self._streak = []
         return loop
 
-    def detect(self, query_id: int, features: KeyframeFeatures) -> Optional[LoopClosure]:
-        """The first candidate (most matches first) that passes verification and the
-        neighbour check, as a :class:`LoopClosure`; None otherwise.  Nothing is stored."""
+    def detect(self, query_id: int, features: KeyframeFeatures,
+               connected_from: Optional[int] = None) -> Optional[LoopClosure]:
+        """The first candidate (most matches first, older than ``connected_from``) that
+        passes verification and the neighbour check, as a :class:`LoopClosure`; None
+        otherwise.  Nothing is stored."""
         vcfg = self.config.verification
-        for cand in self.database.candidates(query_id, features):
+        for cand in self.database.candidates(query_id, features, connected_from):
             ver = verify_sim3(features, self.database.entries[cand.kf_id].features, cand.pairs,
                               vcfg)
             if not ver.accepted:

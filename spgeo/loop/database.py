@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -64,21 +64,25 @@ class KeyframeDatabase:
         self.entries[int(kf_id)] = DatabaseEntry(int(kf_id), features,
                                                  check_pose(T_world_kf, "T_world_kf").copy())
 
-    def eligible(self, query_id: int) -> List[int]:
+    def eligible(self, query_id: int, connected_from: Optional[int] = None) -> List[int]:
         """Ids old enough to close a loop with ``query_id`` (at most
-        ``query_id - min_keyframe_gap``), ascending."""
+        ``query_id - min_keyframe_gap``, and below ``connected_from`` when given: the
+        keyframes from there on are already connected to the query), ascending."""
         limit = int(query_id) - self.config.min_keyframe_gap
+        if connected_from is not None:
+            limit = min(limit, int(connected_from) - 1)
         return [k for k in self.ids() if k <= limit]
 
     def matches(self, kf_id: int, query: KeyframeFeatures) -> np.ndarray:
         """(M, 2) matches ``(index in keyframe kf_id, index in query)``."""
         return match_features(self.entries[kf_id].features, query, self.config.features)
 
-    def candidates(self, query_id: int, query: KeyframeFeatures) -> List[Candidate]:
-        """Eligible keyframes with at least ``min_matches`` matches to ``query``, most
-        matches first, at most ``max_candidates``."""
+    def candidates(self, query_id: int, query: KeyframeFeatures,
+                   connected_from: Optional[int] = None) -> List[Candidate]:
+        """Eligible keyframes (:meth:`eligible`) with at least ``min_matches`` matches to
+        ``query``, most matches first, at most ``max_candidates``."""
         found = []
-        for k in self.eligible(query_id):
+        for k in self.eligible(query_id, connected_from):
             pairs = self.matches(k, query)
             if len(pairs) >= self.config.min_matches:
                 found.append(Candidate(k, pairs))

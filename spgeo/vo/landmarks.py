@@ -206,11 +206,14 @@ class LandmarkMap:
         m = self.config.search_px
         vis = (z > 0) & (uv[:, 0] > -m) & (uv[:, 1] > -m) & \
             (uv[:, 0] < self.camera.width + m) & (uv[:, 1] < self.camera.height + m)
+        vis &= np.array([k not in lm.observations for lm in lms])
         idx = np.flatnonzero(vis)
         if len(idx) < 2:
             return 0
         D = np.array([lms[i].descriptor for i in idx])
         pairs = ratio_matches(D, feats.descriptors, self.config.features)
+        if len(pairs):     # features already associated stay so
+            pairs = pairs[feats.landmark[pairs[:, 1]] < 0]
         n = 0
         for a, b in pairs:
             if np.linalg.norm(uv[idx[a]] - feats.pixels[b]) <= m:
@@ -267,6 +270,13 @@ class LandmarkMap:
         for lm in self.landmarks.values():
             for j in [j for j in lm.observations if j not in live]:
                 del lm.observations[j]
+
+    def reobserve(self, k: int) -> int:
+        """Associate live keyframe ``k``'s features that observe no landmark with the
+        remembered landmarks it does not observe yet, at its current pose (after a
+        loop correction moved it and the map); returns how many."""
+        f = self._features.get(k)
+        return 0 if f is None else self._reobserve(k, f)
 
     def apply_similarity(self, W_new_old: Dict[int, np.ndarray]) -> None:
         """Move the map by a loop correction: each landmark by the world similarity

@@ -18,6 +18,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..loop import LoopCloser, LoopClosureConfig, LoopCorrection
 from ..similarity import sim3_parts
+from .landmarks import LandmarkMap
 from .map import MapKeyframe
 
 __all__ = ["SegmentLoopClosure"]
@@ -51,12 +52,15 @@ class SegmentLoopClosure:
         self._rejected_before = 0     # rejections of earlier segments' closers
         self.seconds = 0.0
 
-    def add_keyframes(self, segment: int, keyframes: Sequence[MapKeyframe]
-                      ) -> Optional[LoopCorrection]:
+    def add_keyframes(self, segment: int, keyframes: Sequence[MapKeyframe],
+                      landmarks: Optional[LandmarkMap] = None) -> Optional[LoopCorrection]:
         """Register the keyframes of ``keyframes`` (the current segment's, in order,
         live) not registered yet, the newest last; a new ``segment`` starts a new
-        loop closer.  Returns the correction of an accepted loop (not yet applied
-        to the keyframes: :meth:`spgeo.vo.Odometry` does that), or None."""
+        loop closer.  With the odometry's ``landmarks`` (the new keyframes' already
+        associated), keyframes the new one is connected to by landmarks are not loop
+        candidates (:meth:`connected_from`).  Returns the correction of an accepted
+        loop (not yet applied to the keyframes: :meth:`spgeo.vo.Odometry` does
+        that), or None."""
         t = time.perf_counter()
         if segment != self.segment:
             if self.closer is not None:
@@ -70,13 +74,28 @@ class SegmentLoopClosure:
             self._frames[kf.index] = kf.frame
             depth = kf.keyframe.primitives.depth_map()
             n_loops = len(self.closer.loops)
-            loop = self.closer.add_keyframe(kf.index, kf.image, depth, kf.keyframe.T_world_kf)
+            loop = self.closer.add_keyframe(kf.index, kf.image, depth, kf.keyframe.T_world_kf,
+                                            self.connected_from(kf.index, landmarks))
             if loop is not None:
                 found = [self._describe(lp) for lp in self.closer.loops[n_loops:]]
                 corr = self.closer.correct(apply=True)
                 self._record(found, corr)
         self.seconds += time.perf_counter() - t
         return corr
+
+    def connected_from(self, k: int, landmarks: Optional[LandmarkMap]) -> Optional[int]:
+        """The oldest keyframe that keyframe ``k`` is connected to by ``landmarks``:
+        ``k`` observes ``min_neighbour_inliers`` landmarks first seen in keyframe ``f``
+        or earlier; keyframes from ``f - neighbour_radius`` on are connected (the map
+        already holds them together: no loop needed).  None without landmarks or
+        with too few."""
+        if landmarks is None:
+            return None
+        vcfg = self.config.verification
+        first = sorted(lm.first_seen for lm in landmarks.observed_in(k))
+        if len(first) < vcfg.min_neighbour_inliers:
+            return None
+        return first[vcfg.min_neighbour_inliers - 1] - vcfg.neighbour_radius
 
     def _describe(self, loop) -> dict:
         """A loop as detected (JSON-ready), before a correction rescales it."""

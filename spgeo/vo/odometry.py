@@ -419,6 +419,10 @@ class Odometry:
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
                                   prior_weights=weights))
         self._map.anchors.pop(idx, None)
+        if self._landmarks is not None:
+            t = time.perf_counter()
+            self._add_landmarks(self._map.window_kfs(extra=1))
+            timings["landmarks"] = time.perf_counter() - t
         closed = self._close_loop(timings)
         self._map_new_keyframe(closed, timings)
         self._map.candidates.clear()
@@ -439,8 +443,6 @@ class Odometry:
         t = time.perf_counter()
         # the mapper reads at most the window and the keyframe leaving it
         segment_kfs = self._map.window_kfs(extra=1)
-        if self._landmarks is not None:
-            self._add_landmarks(segment_kfs)
         if closed or self._restart_window:
             self._restart_window = False
             self._mapper.reset()
@@ -470,10 +472,12 @@ class Odometry:
         if self._loops is None:
             return False
         t = time.perf_counter()
-        corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live())
+        corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live(),
+                                         self._landmarks)
         if corr is not None:
             self._map.apply_loop_correction(corr, self._motion)
-            if self._landmarks is not None:     # moved with the map, re-observed next
+            if self._landmarks is not None:     # moved with the map, then fused
                 self._landmarks.apply_similarity(corr.W_new_old)
+                self._landmarks.reobserve(self._map.seg_kfs[-1])
         timings["loop"] = time.perf_counter() - t
         return corr is not None
