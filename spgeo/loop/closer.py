@@ -155,7 +155,8 @@ class LoopCloser:
             ver = verify_sim3(features, self.database.entries[cand.kf_id].features, cand.pairs,
                               vcfg)
             if not ver.accepted:
-                log.debug("loop %d -> %d rejected: %s", query_id, cand.kf_id, ver.reason)
+                log.debug("loop %d -> %d rejected: %s (%d of %d)", query_id, cand.kf_id, ver.reason,
+                          ver.n_inliers, ver.n_matches)
                 self.n_rejected += 1
                 continue
             support = self._neighbour_support(query_id, cand, features, ver.S_cand_query)
