@@ -221,6 +221,8 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "refine": {"refine": True},
     "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
     "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
+    "refine-sparse": {"refine": True, "refine.neighbours": 0},
+    "refine-n1": {"refine": True, "refine.neighbours": 1},
     "no-landmarks": {"odometry.landmarks.enabled": False},
 }
 

@@ -58,8 +58,9 @@ from ..factors.photometric_group import release_groups
 from ..factors.priors import pose_gauge_prior
 from ..graph.builders import (GAUGE_SIGMA, FactorBatch, add_keyframe_variables,
                               gtsam_error_line, link_keyframe_pair)
-from ..graph.keys import pose_key, scale_key
+from ..graph.keys import landmark_key, pose_key, scale_key
 from .config import OdometryConfig
+from .landmarks import LandmarkMap, add_segment_landmark_factors
 from .map import MapKeyframe
 
 __all__ = ["GlobalBAConfig", "GlobalBAResult", "refine_keyframes", "SCALE_GAUGE_SIGMA"]
@@ -100,8 +101,8 @@ class GlobalBAConfig:
     shape_prior_weight: Optional[float] = None
 
     def __post_init__(self) -> None:
-        if int(self.neighbours) < 1 or int(self.max_iterations) < 1:
-            raise ValueError("GlobalBAConfig: neighbours and max_iterations must be >= 1")
+        if int(self.neighbours) < 0 or int(self.max_iterations) < 1:
+            raise ValueError("GlobalBAConfig: neighbours must be >= 0, max_iterations >= 1")
         if not self.relative_tol > 0:
             raise ValueError("GlobalBAConfig: relative_tol must be > 0")
         if self.map_level is not None and int(self.map_level) < 0:
@@ -125,6 +126,8 @@ class GlobalBAResult:
         iterations: LM iterations, summed over the segments.
         seconds: wall time of the whole call (restore, build, solve).
         n_factors: photometric factors (primitive, directed pair) in all graphs.
+        points: landmark id -> refined (3,) world point (segments solved ``"ok"``).
+        n_landmark_factors: landmark projection factors in all graphs.
         status: ``"ok"`` (every segment solved), ``"failed"`` (at least one
             segment kept unchanged after a gtsam error) or ``"skipped"`` (no
             segment with two keyframes).
@@ -138,6 +141,8 @@ class GlobalBAResult:
     iterations: int = 0
     seconds: float = 0.0
     n_factors: int = 0
+    points: Dict[int, np.ndarray] = field(default_factory=dict)
+    n_landmark_factors: int = 0
     status: str = "skipped"
     segments: List[dict] = field(default_factory=list)
 
@@ -146,6 +151,8 @@ class GlobalBAResult:
         return {"status": self.status, "seconds": float(self.seconds),
                 "initial_cost": float(self.initial_cost), "final_cost": float(self.final_cost),
                 "iterations": int(self.iterations), "n_factors": int(self.n_factors),
+                "n_landmarks": len(self.points),
+                "n_landmark_factors": int(self.n_landmark_factors),
                 "n_keyframes": len(self.T_world_kf), "segments": list(self.segments)}
 
 
@@ -183,10 +190,10 @@ def _restored(kf: MapKeyframe, store, levels: int) -> MapKeyframe:
 
 
 def _build(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
-           groups: list):
-    """``(batch, n_factors, gauge)`` of one segment's graph (its factor groups
-    appended to ``groups``).  Raises ValueError when the first two keyframes
-    share a position (no scale gauge)."""
+           groups: list, landmarks: Optional[LandmarkMap]):
+    """``(batch, n_factors, gauge, (landmark ids, n_landmark_factors))`` of one segment's graph (its
+    factor groups appended to ``groups``).  Raises ValueError when the first two
+    keyframes share a position (no scale gauge)."""
     first = kfs[0]
     baseline = kfs[1].keyframe.T_world_kf[:3, 3] - first.keyframe.T_world_kf[:3, 3]
     gauge = _DistanceGauge(pose_key(first.index), pose_key(kfs[1].index), baseline,
@@ -202,7 +209,9 @@ def _build(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
     for j, kf in enumerate(kfs):
         for prev in kfs[max(0, j - int(ba.neighbours)):j]:
             n += link_keyframe_pair(batch, config, prev, kf, kf.index, groups)
-    return batch, n, gauge
+    lms = (([], 0) if landmarks is None else
+           add_segment_landmark_factors(batch, landmarks, {kf.index for kf in kfs}))
+    return batch, n, gauge, lms
 
 
 def _solve(batch: FactorBatch, ba: GlobalBAConfig):
@@ -218,19 +227,22 @@ def _solve(batch: FactorBatch, ba: GlobalBAConfig):
 
 
 def _segment(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
-             out: GlobalBAResult) -> bool:
+             out: GlobalBAResult, landmarks: Optional[LandmarkMap]) -> bool:
     """Optimise one segment's (restored) keyframes into ``out``; False when it failed."""
     t = time.perf_counter()
     rep = {"segment": int(kfs[0].segment), "keyframes": [int(k.index) for k in kfs]}
     groups: list = []
     try:
-        batch, n, _gauge = _build(kfs, config, ba, groups)
-        rep["n_factors"] = int(n)
+        batch, n, _gauge, (lms, n_lm) = _build(kfs, config, ba, groups, landmarks)
+        rep.update(n_factors=int(n), n_landmarks=len(lms), n_landmark_factors=int(n_lm))
         est, iters, c0, c1 = _solve(batch, ba)
+        points = {lid: np.asarray(est.atPoint3(landmark_key(lid)), dtype=np.float64)
+                  for lid in lms}
         poses = {k.index: est.atPose3(pose_key(k.index)).matrix() for k in kfs}
         shapes = {k.index: np.array([est.atVector(scale_key(i, keyframe=k.index))
                                      for i in range(len(k.keyframe.primitives))]) for k in kfs}
-        if not all(np.all(np.isfinite(a)) for a in [*poses.values(), *shapes.values()]):
+        if not all(np.all(np.isfinite(a)) for a in [*poses.values(), *shapes.values(),
+                                                     *points.values()]):
             raise RuntimeError("non-finite estimate")
     except (RuntimeError, ValueError) as exc:   # e.g. gtsam.IndeterminantLinearSystemException
         log.warning("global BA of segment %d failed (%s); kept", kfs[0].segment,
@@ -241,6 +253,8 @@ def _segment(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
         release_groups(groups)       # else never freed: a reference cycle through gtsam
     out.T_world_kf.update(poses)
     out.shapes.update(shapes)
+    out.points.update(points)
+    out.n_landmark_factors += n_lm
     out.initial_cost += c0
     out.final_cost += c1
     out.iterations += iters
@@ -253,7 +267,8 @@ def _segment(kfs: List[MapKeyframe], config: OdometryConfig, ba: GlobalBAConfig,
 
 
 def refine_keyframes(keyframes: Sequence[MapKeyframe], store, config: OdometryConfig,
-                     ba: GlobalBAConfig = GlobalBAConfig()) -> GlobalBAResult:
+                     ba: GlobalBAConfig = GlobalBAConfig(),
+                     landmarks: Optional[LandmarkMap] = None) -> GlobalBAResult:
     """Photometric bundle adjustment of every keyframe, one graph per map segment
     (module docstring); segments with fewer than two keyframes are left out.
 
@@ -265,6 +280,9 @@ def refine_keyframes(keyframes: Sequence[MapKeyframe], store, config: OdometryCo
         config: the odometry's :class:`~spgeo.vo.config.OdometryConfig`
             (photometric options, primitive model, pyramid levels, priors).
         ba: :class:`GlobalBAConfig`.
+        landmarks: the odometry's :class:`~spgeo.vo.landmarks.LandmarkMap` (None:
+            photometric factors only); its landmarks seen by two keyframes of a
+            segment get projection factors there (none is modified).
 
     Returns:
         A :class:`GlobalBAResult` (apply it with :meth:`spgeo.vo.Odometry.refine`).
@@ -287,7 +305,7 @@ def refine_keyframes(keyframes: Sequence[MapKeyframe], store, config: OdometryCo
         if len(segments[seg]) < 2:
             continue
         kfs = [_restored(kf, store, config.keyframe_levels) for kf in segments[seg]]
-        ok.append(_segment(kfs, config, ba, out))
+        ok.append(_segment(kfs, config, ba, out, landmarks))
         del kfs
     out.status = "skipped" if not ok else ("ok" if all(ok) else "failed")
     out.seconds = time.perf_counter() - t0

@@ -288,7 +288,9 @@ class Odometry:
         optimised (:mod:`spgeo.vo.global_ba`), beyond the window's bound.
         Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
         res = refine_keyframes([self._map.kfs[k] for k in self._map.order], self._map.store,
-                               self.config, config)
+                               self.config, config, self._landmarks)
+        if self._landmarks is not None:
+            self._landmarks.set_points(res.points)
         if res.T_world_kf:   # the window restarts at the next keyframe
             if self._map.apply_refinement(res, self.config.primitive_model, self._motion):
                 self._restart_window = True
