@@ -14,16 +14,10 @@ at the processing size) are associated, in order:
 
 Landmarks are world points (the VO map's frame and arbitrary monocular units)
 with an id, a descriptor (the latest observation's), their observations in the
-live keyframes (keyframe index -> pixel), their observations in the keyframes
-of the segment that left the window (``retired``, for the global refinement
-:mod:`spgeo.vo.global_ba`) and the last keyframe that saw them.
+live keyframes (keyframe index -> pixel) and the last keyframe that saw them.
 Memory is bounded: a landmark not seen for ``memory_keyframes`` keyframes is
-forgotten with its observations, and at most ``max_landmarks`` (the most
-recently seen) are kept; the features of a keyframe are dropped when it leaves
-the window.  The retired observations cost 2 floats (16 bytes plus a dict
-entry, ~100 bytes in all) per observation of a remembered landmark: at most
-``max_landmarks`` x the keyframes that saw each (on 7-Scenes 0:300, 24
-keyframes, ~1 MB).
+forgotten, and at most ``max_landmarks`` (the most recently seen) are kept; the
+features of a keyframe are dropped when it leaves the window.
 
 The window smoother (:class:`spgeo.vo.smoother.WindowMapper`) turns them into
 GTSAM ``GenericProjectionFactorCal3_S2`` factors (Huber kernel, pixels) on the
@@ -99,8 +93,7 @@ class LandmarkConfig:
 
 @dataclass
 class Landmark:
-    """A world point with its live observations (keyframe index -> (2,) pixel) and
-    those of the segment's keyframes that left the window (``retired``)."""
+    """A world point with its live observations (keyframe index -> (2,) pixel)."""
 
     id: int
     point: np.ndarray
@@ -108,7 +101,6 @@ class Landmark:
     observations: Dict[int, np.ndarray]
     last_seen: int
     first_seen: int
-    retired: Dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -259,8 +251,8 @@ class LandmarkMap:
         return n_link
 
     def _forget(self, k: int, live: set) -> None:
-        """Drop features of keyframes not in ``live``, move observations in them
-        to ``retired``, and drop landmarks out of memory."""
+        """Drop features of keyframes not in ``live``, observations in them, and
+        landmarks out of memory."""
         for j in [j for j in self._features if j not in live]:
             del self._features[j]
         horizon = k - self.config.memory_keyframes
@@ -273,7 +265,7 @@ class LandmarkMap:
                 del self.landmarks[lm.id]
         for lm in self.landmarks.values():
             for j in [j for j in lm.observations if j not in live]:
-                lm.retired[j] = lm.observations.pop(j)
+                del lm.observations[j]
 
     # ------------------------------------------------------------ queries
     def observed_in(self, k: int) -> List[Landmark]:
@@ -283,12 +275,6 @@ class LandmarkMap:
             return []
         ids = f.landmark[f.landmark >= 0]
         return [self.landmarks[int(i)] for i in ids if int(i) in self.landmarks]
-
-    def set_points(self, points: Dict[int, np.ndarray]) -> None:
-        """New world points (landmark id -> (3,)) of remembered landmarks."""
-        for lid, p in points.items():
-            if lid in self.landmarks:
-                self.landmarks[lid].point = np.asarray(p, dtype=np.float64)
 
     def set_pose(self, k: int, T_world_kf: np.ndarray) -> None:
         """The smoothed pose of live keyframe ``k`` (for the next triangulations)."""
@@ -303,47 +289,6 @@ class LandmarkMap:
         secs = [s["seconds"] for s in self.stats]
         return {"landmarks": len(self.landmarks), **tot, "keyframes": len(self.stats),
                 "seconds_per_keyframe": float(np.mean(secs)) if secs else None}
-
-
-def _projection_model(lmap: LandmarkMap):
-    """``(gtsam.Cal3_S2, robust noise model)`` of the projection factors: the
-    processing camera; Huber at ``huber_px`` on a ``pixel_sigma`` isotropic sigma."""
-    import gtsam
-
-    cfg = lmap.config
-    cal = gtsam.Cal3_S2(float(lmap.K[0, 0]), float(lmap.K[1, 1]), 0.0,
-                        float(lmap.K[0, 2]), float(lmap.K[1, 2]))
-    noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / cfg.pixel_sigma),
-        gtsam.noiseModel.Isotropic.Sigma(2, cfg.pixel_sigma))
-    return cal, noise
-
-
-def add_segment_landmark_factors(batch, lmap: LandmarkMap,
-                                 keyframes: set) -> Tuple[List[int], int]:
-    """Projection factors of every remembered landmark seen by at least two of
-    ``keyframes`` (indices whose poses are in ``batch``), live and retired
-    observations alike, for the global refinement; each landmark's point enters
-    ``batch`` at its current value.  Returns the ids of the landmarks added and
-    the number of factors."""
-    import gtsam
-
-    from ..graph.keys import landmark_key, pose_key
-
-    cal, noise = _projection_model(lmap)
-    ids, n = [], 0
-    for lm in lmap.landmarks.values():
-        obs = {j: px for j, px in {**lm.retired, **lm.observations}.items() if j in keyframes}
-        if len(obs) < 2 or not np.all(np.isfinite(lm.point)):
-            continue
-        key = landmark_key(lm.id)
-        batch.insert(key, gtsam.Point3(*lm.point), lm.first_seen)
-        for j, px in sorted(obs.items()):
-            batch.graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                gtsam.Point2(float(px[0]), float(px[1])), noise, pose_key(j), key, cal))
-        ids.append(lm.id)
-        n += len(obs)
-    return ids, n
 
 
 def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in: set,
@@ -367,7 +312,11 @@ def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in
     from ..graph.keys import landmark_key, pose_key
 
     cfg = lmap.config
-    cal, noise = _projection_model(lmap)
+    cal = gtsam.Cal3_S2(float(lmap.K[0, 0]), float(lmap.K[1, 1]), 0.0,
+                        float(lmap.K[0, 2]), float(lmap.K[1, 2]))
+    noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / cfg.pixel_sigma),
+        gtsam.noiseModel.Isotropic.Sigma(2, cfg.pixel_sigma))
     created = set(lmap.created)
     n = 0
     seen = sorted(lmap.observed_in(k), key=lambda lm: (lm.first_seen, lm.id))
