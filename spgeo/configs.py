@@ -144,30 +144,6 @@ def _coerce(name: str, value: Any, current: Any, hint: Any) -> Any:
     return value
 
 
-def _optional_config(hint: Any) -> Optional[type]:
-    """The dataclass ``X`` of an ``Optional[X]`` field annotation (a sub-config that is
-    off when None), else None."""
-    args = typing.get_args(hint)
-    if type(None) not in args:
-        return None
-    return next((a for a in args if isinstance(a, type) and dataclasses.is_dataclass(a)), None)
-
-
-def _switch(full: str, value: Any, current: Any, kind: type) -> Any:
-    """The value of an optional sub-config field set to a whole value: ``True`` switches
-    it on (``current``, else ``kind()`` with its defaults), ``False`` / ``None`` off
-    (None), an instance of ``kind`` replaces it; ``ConfigError`` otherwise."""
-    if value is True:
-        return current if current is not None else kind()
-    if value is False or value is None:
-        return None
-    if isinstance(value, kind):
-        return value
-    raise ConfigError(f"field {full!r} is an optional {kind.__name__}: set it to True "
-                      f"(its defaults), False / None (off) or set its sub-fields "
-                      f"({full}.FIELD=VALUE), got {value!r}")
-
-
 def _valid_fields(obj: Any, prefix: str = "") -> List[str]:
     out = []
     for f in dataclasses.fields(obj):
@@ -190,11 +166,6 @@ def _set(obj: Any, path: Sequence[str], value: Any, done: str) -> Any:
     current = getattr(obj, name)
     nested = dataclasses.is_dataclass(current) and not isinstance(current, type)
     hint = _field_hints(obj).get(name)
-    switch = _optional_config(hint)
-    if switch is not None and len(path) == 1 and not isinstance(value, Mapping):
-        return _replace(obj, name, _switch(full, value, current, switch), full)
-    if switch is not None and current is None:
-        current, nested = switch(), True      # off: its defaults, then the sub-fields set
     if len(path) > 1:
         if not nested:
             raise ConfigError(f"field {full!r} of {type(obj).__name__} has no sub-fields "
@@ -235,11 +206,6 @@ def apply_overrides(config: Any, overrides: Overrides, route: Optional[str] = No
 
     Values must match the field's current type (an int is accepted for a
     float field, a list for a tuple field; None only for optional fields).
-    An optional sub-config (a field annotated ``Optional[SomeConfig]``, off when
-    None, e.g. ``VORunConfig.refine``) takes ``True`` (on with its defaults, or
-    as it is when already on), ``False`` / ``None`` (off), or sub-fields
-    (``refine.max_iterations=5``): setting a sub-field of one that is off
-    switches it on with its defaults and that value.
     Raises ``ConfigError`` naming an unknown field and listing the valid ones.
     """
     top = {f.name for f in dataclasses.fields(config)}

@@ -2,8 +2,8 @@
 GTSAM conversion, differences, Umeyama alignment and the move of an anchored frame.
 
 The one similarity toolkit of the project (beside the rigid helpers of
-:mod:`spgeo.geometry`): loop closure (:mod:`spgeo.loop`), the VO's loop and
-refinement corrections (:mod:`spgeo.vo`) and the evaluation use it.
+:mod:`spgeo.geometry`): loop closure (:mod:`spgeo.loop`), the VO's loop
+corrections (:mod:`spgeo.vo`) and the evaluation use it.
 
 Convention: ``S_a_b`` maps points of frame
 ``b`` into frame ``a`` as ``x_a = s R x_b + t``; its matrix is

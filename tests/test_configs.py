@@ -52,27 +52,6 @@ def test_apply_overrides_nested_and_types():
             apply_overrides(Outer(), bad)
 
 
-@dataclass(frozen=True)
-class Switched:
-    extra: Optional[Inner] = None     # an optional sub-config: off when None
-    size: int = 1
-
-
-def test_optional_sub_config_switches_on_and_off():
-    on = apply_overrides(Switched(), ["extra=True"])
-    assert on == Switched(extra=Inner())                        # on with its defaults
-    # a sub-field of one that is off: on with its defaults and that value
-    assert apply_overrides(Switched(), ["extra.iters=3"]) == Switched(extra=Inner(iters=3))
-    assert apply_overrides(Switched(), {"extra": {"tol": 0.5}}).extra == Inner(tol=0.5)
-    # True keeps one that is on as it is; False / None switch it off
-    assert apply_overrides(on, ["extra.iters=4", "extra=True"]).extra == Inner(iters=4)
-    assert apply_overrides(on, ["extra=False"]) == Switched()
-    assert apply_overrides(on, ["extra=None"]) == Switched()
-    for bad in (["extra=3"], ["extra=x"], ["extra.bogus=1"], ["extra.iters=1.5"]):
-        with pytest.raises(ConfigError):
-            apply_overrides(Switched(), bad)
-
-
 def test_unknown_field_names_it_and_lists_valid_fields():
     with pytest.raises(ConfigError) as exc:
         apply_overrides(Outer(), ["inner.bogus=1"])

@@ -28,7 +28,7 @@ its first half (rounded up), so it still returns to its start.
 Variants (:data:`VARIANTS`): name -> :class:`spgeo.apps.vo_run.VORunConfig`
 overrides (dotted field names, :func:`spgeo.configs.apply_overrides`) applied
 after the sequence's own; ``default`` (none), ``loops``
-(``odometry.loop_closure.enabled``), ``refine`` (``refine``) and ``no-landmarks``
+(``odometry.loop_closure.enabled``) and ``no-landmarks``
 (``odometry.landmarks.enabled=False``: the window-only map).  Adding a variant is one
 entry there.
 
@@ -49,8 +49,7 @@ over first; one means no drift), end-pose error (the estimated relative pose
 from the first to the last evaluated frame after the Sim(3) alignment's scale,
 against the ground truth's: metres and degrees; on a palindrome the true
 relative pose is the identity), FPS (frames over the run loop's wall time),
-peak RSS (``report.json`` ``run.memory``, MiB), refinement seconds when the
-report has them, and the process's wall time.  The table is printed and
+peak RSS (``report.json`` ``run.memory``, MiB) and the process's wall time.  The table is printed and
 written as ``DIR/long_run.md`` and ``DIR/long_run.json`` (rows and
 provenance), each atomically and after every run, so an interrupted benchmark
 keeps what it did.  Exit status 2 for an unknown sequence or variant, 1 when
@@ -218,9 +217,6 @@ SEQUENCES: Dict[str, LongRunSequence] = {
 VARIANTS: Dict[str, Mapping[str, Any]] = {
     "default": {},
     "loops": {"odometry.loop_closure.enabled": True},
-    "refine": {"refine": True},
-    "refine-loose": {"refine": True, "refine.shape_prior_weight": 1e-5},
-    "loops+refine": {"odometry.loop_closure.enabled": True, "refine": True},
     "no-landmarks": {"odometry.landmarks.enabled": False},
 }
 
@@ -277,16 +273,6 @@ def scale_drift(run, depth_frames) -> Tuple[Optional[float], Optional[str]]:
     return float(ratios[-1] / ratios[0]), source
 
 
-def _refine_seconds(report: Mapping[str, Any]) -> Optional[float]:
-    """Seconds of the refinement when the report has them (``refine.seconds``
-    or ``seconds_per_stage.refine``), else None."""
-    ref = report.get("refine")
-    if isinstance(ref, Mapping) and ref.get("seconds") is not None:
-        return float(ref["seconds"])
-    value = (report.get("seconds_per_stage") or {}).get("refine")
-    return None if value is None else float(value)
-
-
 def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, Any]:
     """The row fields of a finished run: ``run`` (:class:`~spgeo.apps.vo_run.VORun`),
     ``ate`` (its :meth:`~spgeo.apps.vo_run.VORun.ate`), ``report`` (its saved
@@ -309,7 +295,6 @@ def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, 
         "scale_drift": drift, "scale_drift_from": drift_from,
         "end_err_m": end_m, "end_err_deg": end_deg, "fps": run.fps,
         "peak_rss_mb": (report.get("run") or {}).get("memory", {}).get("peak_rss_mb"),
-        "refine_s": _refine_seconds(report),
     }
 
 
@@ -570,7 +555,7 @@ TABLE: Tuple[Tuple[str, str, int], ...] = (
     ("KF ATE m", "kf_ate_m", 4), ("loops acc.", "loops_accepted", 0),
     ("loops rej.", "loops_rejected", 0), ("scale drift", "scale_drift", 3),
     ("end err m", "end_err_m", 4), ("end err deg", "end_err_deg", 2), ("FPS", "fps", 1),
-    ("peak RSS MiB", "peak_rss_mb", 0), ("refine s", "refine_s", 1), ("run s", "run_s", 1),
+    ("peak RSS MiB", "peak_rss_mb", 0), ("run s", "run_s", 1),
     ("status", "status", 0), ("error", "error", 0))
 
 _NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres, frames flagged lost excluded (metres of the "

@@ -54,7 +54,6 @@ from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
                         PrimitiveFrontEnd, build_frontend, check_model_options)
 from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
-from ..vo.global_ba import GlobalBAConfig
 from ..vo.metric_scale import MetricScale, estimate_metric_scale
 from ..validation import FrameReadError
 from .memory import RssCheckpoints
@@ -111,15 +110,6 @@ class VORunConfig:
         blas_threads: BLAS threads while the run lasts (threadpoolctl; default
             1: the VO's matrices are small, and idle BLAS workers spinning on
             the other core slow the main thread); None leaves BLAS as it is.
-        refine: the global photometric bundle adjustment of all keyframes
-            after the last frame (not after an interrupted run), with this
-            :class:`~spgeo.vo.global_ba.GlobalBAConfig`
-            (:meth:`spgeo.vo.Odometry.refine`); default None: no refinement
-            (``--refine`` sets ``GlobalBAConfig()``; ``--set refine=True`` too,
-            ``--set refine.FIELD=VALUE`` switches it on with that value,
-            :func:`spgeo.configs.apply_overrides`).  Its seconds and costs are
-            ``report.json``'s ``"refine"``, the peak RSS before it
-            ``run.memory.peak_rss_mb_before_refine``.
         metric_scale: a metric-depth network (registry name, built-in or
             registered with ``spgeo models register NAME PATH --preset
             fastdepth``, or an ``.onnx`` path read with the ``fastdepth``
@@ -144,7 +134,6 @@ class VORunConfig:
     depth_model: Optional[str] = None
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
-    refine: Optional[GlobalBAConfig] = None
     metric_scale: Optional[str] = None
 
     def __post_init__(self) -> None:
@@ -156,9 +145,6 @@ class VORunConfig:
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
-        if self.refine is not None and not isinstance(self.refine, GlobalBAConfig):
-            raise ValueError("VORunConfig.refine must be a GlobalBAConfig (refine with it) or "
-                             f"None (no refinement), got {self.refine!r}")
         if self.metric_scale is not None and not (isinstance(self.metric_scale, str)
                                                   and self.metric_scale.strip()):
             raise ValueError("VORunConfig.metric_scale must be None or a model name / .onnx "
@@ -364,12 +350,6 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
                 f"{loop.skipped[0].reason}"
                 if loop.skipped else "no frames (empty sequence or frame selection)")
         raise ValueError(f"run_odometry: {what}")
-    memory_before = None
-    if loop.config.refine is not None and not interrupted:
-        memory_before = loop.memory.report()["peak_rss_mb"]
-        ba = loop.vo.refine(loop.config.refine)
-        log.info("refine: %s in %.2f s, cost %.4g -> %.4g", ba.status, ba.seconds,
-                 ba.initial_cost, ba.final_cost)
     n = len(loop.stamps)
     metric, metric_failure = _metric_outcome(loop)
     log.info("VO: %d frames in %.2f s (%.1f FPS), %d keyframes, %d lost, %d skipped", n, wall,
@@ -377,9 +357,7 @@ def _finish(loop: _Loop, wall: float, interrupted: bool) -> VORun:
     return VORun(loop.vo, loop.gt, np.array(loop.stamps, dtype=np.float64), loop.names, wall,
                  n / max(wall, 1e-9), loop.config, interrupted,
                  resolution=loop.cam.size, skipped=loop.skipped,
-                 memory={**loop.memory.report(),
-                         **({} if memory_before is None
-                            else {"peak_rss_mb_before_refine": memory_before})},
+                 memory=loop.memory.report(),
                  metric_scale=metric, metric_scale_failure=metric_failure)
 
 

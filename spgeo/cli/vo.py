@@ -8,7 +8,7 @@
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
              [--mesh] [--export-colmap DIR] [--export-nerfstudio DIR] [--all-frames]
-             [--refine] [--metric-scale NAME|PATH]
+             [--metric-scale NAME|PATH]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -82,8 +82,6 @@ def _run_config(args: argparse.Namespace):
         explicit["progress"] = False
     if args.strict:
         explicit["strict"] = True
-    if args.refine:      # on with its defaults, or as --config set it
-        explicit["refine"] = True
     if args.sam_family is not None:
         explicit["sam_family"] = args.sam_family
     if args.normal_model is not None:
@@ -241,9 +239,6 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                         "onnx-depth (need `spgeo models fetch`) or depth (reads the sensor "
                         "depth: RGB-D / oracle)")
     add_model_arguments(p)
-    p.add_argument("--refine", action="store_true",
-                   help="after the last frame, a global photometric bundle adjustment of all "
-                        "keyframes (seconds and costs under \"refine\" in report.json)")
     p.add_argument("--metric-scale", default=None, metavar="NAME|PATH",
                    help="write the outputs in metres: one global scale estimated after the "
                         "run from a metric-depth network against the keyframes' depths "

@@ -1,9 +1,8 @@
 """The factor builders shared by the project's GTSAM graphs (keys: :mod:`spgeo.graph.keys`).
 
 * :class:`FactorBatch`: new factors, values and smoother timestamps.
-* Keyframe graphs (the VO window smoother :class:`spgeo.vo.smoother.WindowMapper` and the
-  global refinement :func:`spgeo.vo.global_ba.refine_keyframes` build their keyframe
-  variables and photometric factor groups with these functions only):
+* Keyframe graphs (the VO window smoother :class:`spgeo.vo.smoother.WindowMapper` builds
+  its keyframe variables and photometric factor groups with these functions only):
   :func:`mapping_pixels`, :func:`pair_factor_group`, :func:`add_keyframe_variables`,
   :func:`add_factor_group`, :func:`link_keyframe_pair`.  Each keyframe is a
   :class:`~spgeo.vo.map.MapKeyframe` (live: its ``keyframe`` set), the options an
@@ -63,8 +62,7 @@ def gtsam_error_line(exc: BaseException) -> str:
 
 
 class FactorBatch:
-    """New factors, values and key timestamps: of one smoother update, or (the
-    timestamps unused) a whole graph (:mod:`spgeo.vo.global_ba`)."""
+    """New factors, values and key timestamps of one smoother update."""
 
     def __init__(self) -> None:
         self.graph = gtsam.NonlinearFactorGraph()
@@ -137,15 +135,13 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
                                   chunk=max(1, config.map_chunk // shape.dim))
 
 
-def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig,
-                           prior_weights: Optional[np.ndarray] = None) -> None:
+def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig) -> None:
     """A (live) keyframe's pose and shape variables at their current values,
-    with the shapes' priors (weights ``prior_weights`` (N,), default
-    ``kf.prior_weights``, else ``scale_prior_weight``; planar: the slope prior
-    too); timestamps ``kf.index``."""
+    with the shapes' priors (weights ``kf.prior_weights`` (N,), else
+    ``scale_prior_weight``; planar: the slope prior too); timestamps ``kf.index``."""
     batch.insert(pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
     th = shape_values(kf.keyframe.primitives, config.primitive_model)
-    pw = prior_weights if prior_weights is not None else kf.prior_weights
+    pw = kf.prior_weights
     if pw is None:
         pw = np.full(th.shape[0], config.scale_prior_weight)
     for i in range(th.shape[0]):

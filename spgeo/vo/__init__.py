@@ -6,12 +6,10 @@ its map initialisation, :mod:`spgeo.vo.initialisation`; its keyframe map,
 (:mod:`spgeo.vo.config`), frame-to-keyframe tracking (:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
 (:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
 (:mod:`spgeo.vo.smoother`; its keyframes: :mod:`spgeo.vo.map`; its graph's keys
-and builders: :mod:`spgeo.graph`), the global bundle adjustment after a run
-(:mod:`spgeo.vo.global_ba`) and the results (:mod:`spgeo.vo.result`).
+and builders: :mod:`spgeo.graph`) and the results (:mod:`spgeo.vo.result`).
 """
 from ..primitive_models import PRIMITIVE_MODELS
 from .config import InitConfig, KeyframeDecisionConfig, OdometryConfig, ScaleCheckConfig, TrackerConfig
-from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .odometry import Odometry
 from .rendering import ScaleInit, init_scales_from_render, render_depth, render_primitives
 from .result import STATUSES, FrameResult, FrameStatus, OdometryResult
@@ -21,5 +19,4 @@ __all__ = ["Odometry", "OdometryConfig", "TrackerConfig", "KeyframeDecisionConfi
            "ScaleCheckConfig", "InitConfig", "PRIMITIVE_MODELS", "FrameResult",
            "FrameStatus", "OdometryResult", "STATUSES", "Keyframe",
            "TrackResult", "TrackingCost", "track_frame", "constant_velocity_guess",
-           "render_depth", "render_primitives", "init_scales_from_render", "ScaleInit",
-           "GlobalBAConfig", "GlobalBAResult", "refine_keyframes"]
+           "render_depth", "render_primitives", "init_scales_from_render", "ScaleInit"]

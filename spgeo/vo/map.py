@@ -4,7 +4,7 @@ final pose with image and primitives in the store), keyframes in creation order,
 segments, the store of retired keyframes, the frames anchored to keyframes,
 the supporting frames' smoothed poses, the supporting-frame candidates of the
 newest keyframe, and one :meth:`KeyframeMap.apply_similarity` that moves all of
-it with its keyframes (loop correction and global refinement).
+it with its keyframes (loop correction).
 
 The map holds state; :class:`spgeo.vo.Odometry` decides (tracking, keyframes,
 mapping) and :class:`spgeo.vo.smoother.WindowMapper` smooths the window, writing
@@ -17,9 +17,7 @@ from typing import Callable, Dict, Iterable, Iterator, List, Optional, Sequence,
 
 import numpy as np
 
-from ..geometry import invert_pose
-from ..similarity import moved_frame, sim3
-from .keyframe import with_shape_values
+from ..similarity import moved_frame
 from .keyframe_store import KeyframeStore
 from .motion import MotionModel
 from .result import FrameResult, FrameStatus
@@ -104,22 +102,6 @@ class MapKeyframe:
             return
         prims = self.keyframe.primitives
         self.keyframe = self.keyframe.rebuilt(prims.with_log_scales(prims.log_scales + shift), T)
-
-    def replace_state(self, keyframe: Keyframe, store) -> None:
-        """Take the pose and primitives of ``keyframe`` (this keyframe rebuilt
-        with new shapes and pose, e.g. by the global bundle adjustment: same
-        image and primitive pixels).  A live keyframe keeps it as its
-        ``keyframe``; a retired one rewrites its primitives in ``store`` (a
-        :class:`~spgeo.vo.keyframe_store.KeyframeStore`; any loop-closure shift
-        is then part of them) and keeps the new pose and median depth."""
-        if self._final is None:
-            self.keyframe = keyframe
-            return
-        image, _ = store.get(self.index)
-        store.put(self.index, image, keyframe.primitives)
-        self._final = (np.array(keyframe.T_world_kf, dtype=float), float(keyframe.median_depth),
-                       self._final[2])
-        self._log_scale_shift = 0.0
 
 
 @dataclass
@@ -301,25 +283,6 @@ class KeyframeMap:
             else:
                 res.status = FrameStatus.LOST
                 self.anchors.pop(r.frame, None)
-
-    def apply_refinement(self, res, primitive_model: str, motion: MotionModel) -> bool:
-        """Move the keyframes of a :class:`~spgeo.vo.global_ba.GlobalBAResult`
-        ``res`` to its poses and shapes (``primitive_model``'s parameters; retired
-        ones rewritten in the store) and what follows them
-        (:meth:`apply_similarity`: each keyframe's similarity is its new pose
-        with the change of its median depth, after its old pose).  Returns
-        whether the segment's newest keyframe moved."""
-        def move(mk: MapKeyframe) -> np.ndarray:
-            T = res.T_world_kf[mk.index]
-            T_old, med_old = mk.T_world_kf, mk.median_depth
-            kf = self.restore(mk.index)[1]
-            mk.replace_state(with_shape_values(kf, res.shapes[mk.index], primitive_model, T),
-                             self.store)
-            return sim3(T[:3, :3], T[:3, 3], mk.median_depth / med_old) @ invert_pose(T_old)
-
-        last = self.seg_kfs[-1] if self.seg_kfs else None
-        return self.apply_similarity(res.T_world_kf, move, motion,
-                                     lambda W: float(np.cbrt(np.linalg.det(W[last][:3, :3]))))
 
     def apply_loop_correction(self, corr, motion: MotionModel) -> None:
         """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`

@@ -38,7 +38,6 @@ from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose
 from ..validation import check_camera
 from .config import OdometryConfig
-from .global_ba import GlobalBAConfig, GlobalBAResult, refine_keyframes
 from .initialisation import FAILED, START, InitDecision, Initialiser
 from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
@@ -108,8 +107,6 @@ class Odometry:
         self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
-        self._refine_report: Optional[dict] = None      # the last refine()'s
-        self._restart_window = False                    # after refine(): like a loop
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -253,7 +250,6 @@ class Odometry:
             "scale_checks": self._maker.scale_checks,
             "mapping": self._mapper.reports,
             "loop_closures": None if self._loops is None else self._loops.report(),
-            "refine": self._refine_report,
             **({} if self._landmarks is None else {"landmarks": self._landmarks.report()}),
             "frames": frame_records(self._frames),
         }
@@ -271,31 +267,6 @@ class Odometry:
         traj = self.result() if trajectory is None else trajectory
         return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
-
-    # ------------------------------------------------------------ global refinement
-    def refine(self, config: GlobalBAConfig = GlobalBAConfig()) -> GlobalBAResult:
-        """Global photometric bundle adjustment of every keyframe
-        (:func:`spgeo.vo.global_ba.refine_keyframes`), applied to the map: each
-        keyframe's pose and shapes (retired ones rewritten in the keyframe
-        store), and every other frame moves with its keyframe's correction (in
-        :meth:`result`: frames tracked against a keyframe through its pose and
-        median depth; supporting frames' smoothed poses by the keyframe's
-        similarity correction, :func:`spgeo.similarity.moved_frame`).  Meant
-        after the last frame; tracking may go on (the window restarts at the
-        next keyframe from the previous keyframe and the new one, as after a
-        loop correction).  Its report is :meth:`report`'s ``"refine"``.
-        Memory: every keyframe of a segment is held at once while it is
-        optimised (:mod:`spgeo.vo.global_ba`), beyond the window's bound.
-        Returns the :class:`~spgeo.vo.global_ba.GlobalBAResult`."""
-        res = refine_keyframes([self._map.kfs[k] for k in self._map.order], self._map.store,
-                               self.config, config)
-        if res.T_world_kf:   # the window restarts at the next keyframe
-            if self._map.apply_refinement(res, self.config.primitive_model, self._motion):
-                self._restart_window = True
-            if self._loops is not None:
-                self._loops.update_poses(self._map.live_poses())
-        self._refine_report = res.report()
-        return res
 
     # ------------------------------------------------------------ stages
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
@@ -443,8 +414,7 @@ class Odometry:
         t = time.perf_counter()
         # the mapper reads at most the window and the keyframe leaving it
         segment_kfs = self._map.window_kfs(extra=1)
-        if closed or self._restart_window:
-            self._restart_window = False
+        if closed:
             self._mapper.reset()
             segment_kfs = segment_kfs[-2:]
         if self._mapper.map_keyframe(segment_kfs, self._map.candidates, self._map.segment):

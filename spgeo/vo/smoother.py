@@ -35,8 +35,7 @@ counted in the report (``primitives_without_pixels``).
 The smoother's solver constants (``MAP_*``) are module constants, its prior sigmas
 those of :mod:`spgeo.graph.builders` (``GAUGE_SIGMA``, ``PLANAR_SLOPE_SIGMA``,
 ``BRIGHTNESS_PRIOR_SIGMA``): nothing overrides them.  Keys: :mod:`spgeo.graph.keys`;
-the keyframe variables and factor groups come from :mod:`spgeo.graph.builders`,
-shared with the global refinement (:mod:`spgeo.vo.global_ba`).
+the keyframe variables and factor groups come from :mod:`spgeo.graph.builders`.
 
 A failed update (a gtsam ``RuntimeError``, e.g. an indeterminant system)
 restarts the window from the last two keyframes once; if the restarted
