@@ -6,8 +6,8 @@ Renders make_trajectory(N_UNIQUE*STEP, SEED)[::STEP] at 160x120 as 0..N-1..0, ru
 (classical front-end) with loop closure off and on; prints ATE (Sim(3), positions), the
 last-vs-first distance in ground-truth units and the loop report.  With a 5th argument it
 prints each accepted loop's rotation / translation-direction error against ground truth.
-Environment LOOP_SIGMAS="0.1,0.05,0.02" sets PoseGraphConfig.loop_sigmas, LOOP_HUBER its loop_huber,
-LOOP_REFINE=1 VerificationConfig.refine.
+Environment LOOP_HUBER sets PoseGraphConfig.loop_huber (the loop edges carry their own
+information since issue 30, so PoseGraphConfig.loop_sigmas no longer applies to them).
 """
 import sys, time, logging
 import numpy as np
@@ -27,10 +27,9 @@ idx = list(palindrome(N, 2*N-1))
 views = {j: scene.render(cam, poses[j]).rgb for j in set(idx)}
 import os
 from spgeo.loop import PoseGraphConfig
-SIG = os.environ.get("LOOP_SIGMAS")     # e.g. "0.1,0.05,0.02": PoseGraphConfig.loop_sigmas
-PG = PoseGraphConfig() if not SIG else PoseGraphConfig(loop_sigmas=tuple(float(v) for v in SIG.split(",")))
+PG = PoseGraphConfig()
 from spgeo.loop import VerificationConfig
-VC = VerificationConfig(refine=os.environ.get("LOOP_REFINE", "0") == "1")   # LOOP_REFINE=1
+VC = VerificationConfig()
 PG = replace(PG, loop_huber=float(os.environ.get("LOOP_HUBER", PG.loop_huber)))   # e.g. LOOP_HUBER=1
 def run(on):
     cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=kft), loop_closure=LoopClosureConfig(enabled=on, pose_graph=PG, verification=VC))
