@@ -58,31 +58,44 @@ def ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray],
                   options: FeatureOptions) -> np.ndarray:
     """(M, 2) index pairs of descriptors ``d1`` -> ``d2`` (of :func:`opencv_features`
     with ``options``) passing the ratio test (and, with ``options.cross_check``, the
-    mutual check); L2 distances for SIFT, Hamming for ORB."""
+    mutual check); L2 distances for SIFT, Hamming for ORB.  Sorted by the ``d1``
+    index.
+
+    The pairs are those of ``cv2.BFMatcher.knnMatch(k=2)`` in both directions (the
+    same ``cv2.batchDistance`` distances and ties: the lowest index is the nearest),
+    but the reverse direction is computed only for the ``d2`` descriptors that are
+    a forward match."""
     import cv2
 
     if d1 is None or d2 is None or len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), np.int64)
-    norm = cv2.NORM_L2 if options.features == "sift" else cv2.NORM_HAMMING
-    bf = cv2.BFMatcher(norm, crossCheck=False)
+    sift = options.features == "sift"
+    norm, dtype = (cv2.NORM_L2, cv2.CV_32F) if sift else (cv2.NORM_HAMMING, cv2.CV_32S)
+    i, j = _nearest_passing(d1, d2, norm, dtype, options.ratio)
+    if options.cross_check and len(i):
+        targets, inv = np.unique(j, return_inverse=True)
+        back_i, back_ok = _nearest_passing(np.ascontiguousarray(d2[targets]), d1, norm, dtype,
+                                           options.ratio, every=True)
+        keep = back_ok[inv] & (back_i[inv] == i)
+        i, j = i[keep], j[keep]
+    return np.stack([i, j], 1).astype(np.int64).reshape(-1, 2)
 
-    def one_way(a, b):
-        out = {}
-        for pair in bf.knnMatch(a, b, k=2):
-            if len(pair) < 2:
-                continue
-            m, n = pair
-            if m.distance < options.ratio * n.distance:
-                out[m.queryIdx] = m.trainIdx
-        return out
 
-    fwd = one_way(d1, d2)
-    if options.cross_check:
-        bwd = one_way(d2, d1)
-        pairs = [(i, j) for i, j in fwd.items() if bwd.get(j) == i]
-    else:
-        pairs = list(fwd.items())
-    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+def _nearest_passing(a: np.ndarray, b: np.ndarray, norm: int, dtype: int, ratio: float,
+                     every: bool = False):
+    """Nearest neighbour in ``b`` of each row of ``a`` and the ratio test (best <
+    ``ratio`` x second-best distance, compared in float64 as ``DMatch.distance``):
+    ``(rows passing, their nearest)``, or with ``every`` ``(nearest of every row,
+    passes)``."""
+    import cv2
+
+    dist, idx = cv2.batchDistance(a, b, dtype, normType=norm, K=2)
+    ok = dist[:, 0].astype(np.float64) < ratio * dist[:, 1].astype(np.float64)
+    nearest = idx[:, 0].astype(np.int64)
+    if every:
+        return nearest, ok
+    rows = np.flatnonzero(ok)
+    return rows, nearest[rows]
 
 
 @contextlib.contextmanager

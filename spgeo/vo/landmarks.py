@@ -206,7 +206,8 @@ class LandmarkMap:
         m = self.config.search_px
         vis = (z > 0) & (uv[:, 0] > -m) & (uv[:, 1] > -m) & \
             (uv[:, 0] < self.camera.width + m) & (uv[:, 1] < self.camera.height + m)
-        vis &= np.array([k not in lm.observations for lm in lms])
+        if np.any(feats.landmark >= 0):     # a second pass (:meth:`reobserve`)
+            vis &= np.array([k not in lm.observations for lm in lms])
         idx = np.flatnonzero(vis)
         if len(idx) < 2:
             return 0
@@ -214,12 +215,12 @@ class LandmarkMap:
         pairs = ratio_matches(D, feats.descriptors, self.config.features)
         if len(pairs):     # features already associated stay so
             pairs = pairs[feats.landmark[pairs[:, 1]] < 0]
-        n = 0
-        for a, b in pairs:
-            if np.linalg.norm(uv[idx[a]] - feats.pixels[b]) <= m:
-                self._observe(lms[idx[a]], k, feats, int(b))
-                n += 1
-        return n
+        if not len(pairs):
+            return 0
+        near = np.linalg.norm(uv[idx[pairs[:, 0]]] - feats.pixels[pairs[:, 1]], axis=1) <= m
+        for a, b in pairs[near]:
+            self._observe(lms[idx[a]], k, feats, int(b))
+        return int(np.count_nonzero(near))
 
     def _match_pair(self, k: int, fk: _KeyframeFeatures, j: int, fj: _KeyframeFeatures) -> int:
         """Observations and new landmarks from the matches of keyframes ``k`` and ``j``."""
@@ -256,9 +257,14 @@ class LandmarkMap:
 
     def _forget(self, k: int, live: set) -> None:
         """Drop features of keyframes not in ``live``, observations in them, and
-        landmarks out of memory."""
+        landmarks out of memory.  (Every observation of a landmark in keyframe ``j``
+        is marked in ``j``'s features, and only live keyframes keep features.)"""
         for j in [j for j in self._features if j not in live]:
-            del self._features[j]
+            ids = self._features.pop(j).landmark
+            for lid in ids[ids >= 0].tolist():
+                lm = self.landmarks.get(lid)
+                if lm is not None:
+                    lm.observations.pop(j, None)
         horizon = k - self.config.memory_keyframes
         for lid in [lid for lid, lm in self.landmarks.items() if lm.last_seen < horizon]:
             del self.landmarks[lid]
@@ -267,9 +273,6 @@ class LandmarkMap:
             order = sorted(self.landmarks.values(), key=lambda lm: (lm.last_seen, lm.id))
             for lm in order[:extra]:
                 del self.landmarks[lm.id]
-        for lm in self.landmarks.values():
-            for j in [j for j in lm.observations if j not in live]:
-                del lm.observations[j]
 
     def reobserve(self, k: int) -> int:
         """Associate live keyframe ``k``'s features that observe no landmark with the
@@ -361,9 +364,9 @@ def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in
                     key, gtsam.Point3(*lm.point), gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
             lms_in.add(lm.id)
         for j, px in sorted(obs.items()):
-            if j in poses_in:
+            if j in poses_in:       # px: a (2,) float64 array, gtsam's Point2
                 batch.graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    gtsam.Point2(float(px[0]), float(px[1])), noise, pose_key(j), key, cal))
+                    px, noise, pose_key(j), key, cal))
                 n += 1
     return n
 
@@ -373,14 +376,14 @@ def read_landmarks(lmap: LandmarkMap, est, lms_in: set) -> None:
     still in it."""
     from ..graph.keys import landmark_key
 
-    keep = set()
-    for lid in lms_in:
-        key = landmark_key(lid)
-        if est.exists(key):
-            keep.add(lid)
-            lm = lmap.landmarks.get(lid)
-            if lm is not None:
-                p = np.asarray(est.atPoint3(key), dtype=np.float64)
-                if np.all(np.isfinite(p)):
-                    lm.point = p
+    keys = {lid: landmark_key(lid) for lid in lms_in}
+    keep = [lid for lid, key in keys.items() if est.exists(key)]
     lms_in.intersection_update(keep)
+    lms = [(lmap.landmarks.get(lid), keys[lid]) for lid in keep]
+    lms = [(lm, key) for lm, key in lms if lm is not None]
+    if not lms:
+        return
+    P = np.array([est.atPoint3(key) for _, key in lms], dtype=np.float64).reshape(-1, 3)
+    for (lm, _), p, ok in zip(lms, P, np.all(np.isfinite(P), axis=1)):
+        if ok:
+            lm.point = p
