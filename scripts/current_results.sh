@@ -13,7 +13,7 @@ FASTDEPTH="$SHARED/models/fastdepth/fastdepth_nyu_224.onnx"
 ( run completion spgeo eval completion_real --frontends classical --depth-model "$FASTDEPTH" --out "$OUT/completion"
   run frontier spgeo eval vo_frontier --datasets 7scenes --resolutions 320x240 --frontends classical depth --set-grid defaults --out "$OUT/frontier"
   run integration spgeo eval bench_integration --runs 15 --solvers cholesky direct ) &
-( run long_run spgeo eval vo_long_run --out "$OUT/long_run" --sequences 7scenes,7scenes-palindrome,synthetic-loop,kitti --variants default,no-landmarks --reference colmap
+( run long_run spgeo eval vo_long_run --out "$OUT/long_run" --sequences 7scenes,7scenes-palindrome,synthetic-loop,kitti --variants default,loops,no-landmarks --reference colmap
   run synthetic spgeo eval vo_synthetic --frames 150 --seeds 0 1 2 3 --out "$OUT/synthetic"
   run sfm_ablation spgeo eval sfm_ablation --out "$OUT/sfm_ablation"
   run demo spgeo demo --out "$OUT/demo" ) &
