@@ -4,7 +4,7 @@ its camera-to-world pose, and the retrieval of loop candidates for a query keyfr
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -60,7 +60,14 @@ class KeyframeDatabase:
         return sorted(self.entries)
 
     def add(self, kf_id: int, features: KeyframeFeatures, T_world_kf: np.ndarray) -> None:
-        """Store a keyframe (replacing one with the same id)."""
+        """Store a keyframe (replacing one with the same id).  Float descriptors whose
+        values are whole numbers in [0, 255] (OpenCV's SIFT) are kept as uint8, a
+        quarter of the memory (:func:`~spgeo.twoview.backends.ratio_matches` matches them
+        as the float32 values they are)."""
+        d = features.descriptors
+        if d is not None and d.dtype == np.float32 and d.size and d.min() >= 0 \
+                and d.max() <= 255 and np.array_equal(d, np.round(d)):
+            features = replace(features, descriptors=d.astype(np.uint8))
         self.entries[int(kf_id)] = DatabaseEntry(int(kf_id), features,
                                                  check_pose(T_world_kf, "T_world_kf").copy())
 

@@ -64,13 +64,16 @@ def ratio_matches(d1: Optional[np.ndarray], d2: Optional[np.ndarray],
     The pairs are those of ``cv2.BFMatcher.knnMatch(k=2)`` in both directions (the
     same ``cv2.batchDistance`` distances and ties: the lowest index is the nearest),
     but the reverse direction is computed only for the ``d2`` descriptors that are
-    a forward match."""
+    a forward match.  SIFT descriptors may come as float32 or as the uint8 of their
+    whole-number values (:class:`spgeo.loop.KeyframeDatabase` keeps them so)."""
     import cv2
 
     if d1 is None or d2 is None or len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), np.int64)
     sift = options.features == "sift"
     norm, dtype = (cv2.NORM_L2, cv2.CV_32F) if sift else (cv2.NORM_HAMMING, cv2.CV_32S)
+    if sift:    # SIFT descriptors stored as uint8 (whole numbers) match as their float32
+        d1, d2 = (np.asarray(d, np.float32) for d in (d1, d2))
     i, j = _nearest_passing(d1, d2, norm, dtype, options.ratio)
     if options.cross_check and len(i):
         targets, inv = np.unique(j, return_inverse=True)
