@@ -29,8 +29,9 @@ Variants (:data:`VARIANTS`): name -> :class:`spgeo.apps.vo_run.VORunConfig`
 overrides (dotted field names, :func:`spgeo.configs.apply_overrides`) applied
 after the sequence's own; ``default`` (none), ``loops``
 (``odometry.loop_closure.enabled``) and ``no-landmarks``
-(``odometry.landmarks.enabled=False``: the window-only map).  Adding a variant is one
-entry there.
+(``odometry.landmarks.enabled=False``: the window-only map) and
+``no-landmarks+loops`` (the window-only map with loop closure: where nothing else
+remembers the start, so loops are sought).  Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through
@@ -218,6 +219,8 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "default": {},
     "loops": {"odometry.loop_closure.enabled": True},
     "no-landmarks": {"odometry.landmarks.enabled": False},
+    "no-landmarks+loops": {"odometry.landmarks.enabled": False,
+                           "odometry.loop_closure.enabled": True},
 }
 
 
