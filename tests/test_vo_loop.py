@@ -49,6 +49,19 @@ def test_loop_closure_is_off_by_default_and_reports_none(short_run):
     assert np.array_equal(same.result().poses, vo.result().poses)
 
 
+def test_landmark_seconds_are_their_own_stage(short_run):
+    """The landmarks' time (associated before loop detection and the window update) is
+    ``seconds_per_stage.landmarks`` in the report, at least the landmark map's own
+    per-keyframe seconds, and no more than the run's total."""
+    _, vo = short_run
+    rep = vo.report()
+    lm = rep["landmarks"]
+    stage = rep["seconds_per_stage"]["landmarks"]
+    assert lm["keyframes"] >= 2 and stage > 0
+    assert stage >= 0.99 * lm["seconds_per_keyframe"] * (lm["keyframes"] - 1)
+    assert stage < rep["seconds_total"]
+
+
 def test_enabled_without_loop_changes_nothing(short_run):
     """Registering keyframes only reads them: with no loop (the run is shorter than
     the keyframe gap a loop needs) the trajectory is byte-identical."""

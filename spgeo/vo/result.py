@@ -22,7 +22,7 @@ __all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "timing_s
            "frame_records", "save_run", "write_keyframe_clouds"]
 
 #: the per-frame stages whose seconds :func:`timing_statistics` adds up
-STAGES = ("track", "frontend", "scale_check", "mapping", "init", "loop")
+STAGES = ("track", "frontend", "scale_check", "landmarks", "mapping", "init", "loop")
 
 #: The per-run result of :meth:`spgeo.vo.Odometry.result` (alias of
 #: :class:`~spgeo.trajectory.Trajectory`: ``statuses``, ``segments``,
