@@ -96,11 +96,14 @@ def _edge_noise(edge: Sim3Edge, config: PoseGraphConfig):
 
     if edge.information is not None:
         info = np.asarray(edge.information, np.float64)
-        if info.shape != (7, 7) or not np.all(np.isfinite(info)) \
-                or np.linalg.eigvalsh(0.5 * (info + info.T)).min() <= 0:
-            raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): information must be a 7x7 "
-                             "positive definite matrix")
-        noise = gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T))
+        if info.shape != (7, 7) or not np.all(np.isfinite(info)):
+            raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): information must be a finite 7x7 "
+                             "matrix")
+        info = 0.5 * (info + info.T)
+        if np.linalg.eigvalsh(info).min() <= 0:
+            raise ValueError(f"Sim3Edge({edge.i}, {edge.j}): information must be positive "
+                             "definite")
+        noise = gtsam.noiseModel.Gaussian.Information(info)
     else:
         default = config.loop_sigmas if edge.loop else config.odometry_sigmas
         sig = _sigmas3(default) if edge.sigmas is None else np.asarray(edge.sigmas, np.float64)

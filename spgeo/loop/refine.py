@@ -1,10 +1,12 @@
 """Refinement of a verified loop similarity on its inliers (docs/design.md §5.2).
 
-The RANSAC model of :func:`spgeo.loop.verify_sim3` is a Umeyama fit of 3-D points
-lifted with rough keyframe depths, so its rotation follows the depth errors. The
+The model of :func:`spgeo.loop.verify_sim3` is a PnP pose of the candidate's 3-D
+points in the query image with the scale from the query's rough depths. The
 refinement minimises the reprojection error of the inliers in both images (robust
 Huber loss, pixels) plus a weak log-depth agreement term that fixes the scale;
 bearings dominate, so the rotation comes from the keypoints rather than the depths.
+:func:`sim3_information` is the Gauss-Newton information of the same cost at the
+refined similarity: the loop edge's weight in the pose graph.
 """
 from __future__ import annotations
 
@@ -15,7 +17,13 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..similarity import sim3, sim3_inverse, sim3_parts
 
-__all__ = ["refine_sim3", "sim3_information"]
+__all__ = ["refine_sim3", "sim3_information", "HUBER_PX", "DEPTH_PX"]
+
+#: Huber threshold of the refinement's residuals (pixels), and the weight of a log-depth
+#: disagreement (pixels per unit log ratio: 5 % costs 0.5 px); :func:`sim3_information`
+#: weighs the same cost
+HUBER_PX = 1.0
+DEPTH_PX = 10.0
 
 
 def _project(points: np.ndarray, camera: PinholeCamera) -> np.ndarray:
@@ -47,8 +55,8 @@ def _residuals_of(S, P_q, P_c, uv_q, uv_c, cam_q, cam_c, depth_px):
 
 def refine_sim3(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarray,
                 uv_query: np.ndarray, uv_cand: np.ndarray, cam_query: PinholeCamera,
-                cam_cand: PinholeCamera, huber_px: float = 1.0,
-                depth_px: float = 10.0) -> Optional[np.ndarray]:
+                cam_cand: PinholeCamera, huber_px: float = HUBER_PX,
+                depth_px: float = DEPTH_PX) -> Optional[np.ndarray]:
     """``S_cand_query`` refined on matched inliers (arguments as :func:`count_inliers`).
 
     Args:
@@ -79,8 +87,8 @@ def refine_sim3(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarra
 
 def sim3_information(S_cand_query: np.ndarray, P_query: np.ndarray, P_cand: np.ndarray,
                      uv_query: np.ndarray, uv_cand: np.ndarray, cam_query: PinholeCamera,
-                     cam_cand: PinholeCamera, pixel_sigma: float = 1.0, huber_px: float = 1.0,
-                     depth_px: float = 10.0) -> np.ndarray:
+                     cam_cand: PinholeCamera, pixel_sigma: float = 1.0,
+                     huber_px: float = HUBER_PX, depth_px: float = DEPTH_PX) -> np.ndarray:
     """Information (7x7) of a refined similarity from its reprojection residuals.
 
     The Gauss-Newton information ``J^T W J / pixel_sigma^2`` of :func:`refine_sim3`'s
