@@ -120,7 +120,7 @@ def test_palindrome_loops_are_true_revisits(palindrome_runs):
     """Every accepted loop of the window-only palindrome joins two frames whose true
     cameras see the same place (optical axes within 30 degrees), and its edge is the
     true relative pose: rotation within 1.5 degrees, translation direction within 15
-    (at the commit of issue 30's loop closure: 0.2-0.8 and 1-7 degrees)."""
+    (measured values: docs/history.md, "Loop closure rebuilt")."""
     from spgeo.geometry import rotation_angle_deg
 
     _, on, poses, _ = palindrome_runs
@@ -139,7 +139,7 @@ def test_palindrome_loops_are_true_revisits(palindrome_runs):
 @pytest.mark.slow
 def test_palindrome_ends_nearer_its_start_with_loop_closure(palindrome_runs):
     """On the window-only map, loop closure brings the palindrome's last pose nearer
-    its first (0.180 vs 0.191 of its extent at the commit of issue 30's loop closure)."""
+    its first (measured gaps: docs/history.md, "Loop closure rebuilt")."""
     off, on, _, _ = palindrome_runs
     assert _gap(on) < _gap(off)
 
