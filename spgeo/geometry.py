@@ -53,6 +53,20 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def nearest_rigid(T: np.ndarray) -> np.ndarray:
+    """The rigid 4x4 transform nearest ``T`` (its rotation block projected on
+    SO(3) by SVD, its translation kept): for a pose composed of poses whose
+    rotations carry rounding (GTSAM's estimates are orthonormal to ~1e-6)."""
+    T = np.array(T, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, T[:3, 3]
+    return out
+
+
 def relative_pose(T_world_a: np.ndarray, T_world_b: np.ndarray) -> np.ndarray:
     """``T_a_b = inv(T_world_a) @ T_world_b`` (pose of b in a)."""
     return invert_pose(T_world_a) @ np.asarray(T_world_b, dtype=np.float64)

@@ -47,8 +47,8 @@ def run(frames):
 def run_frequent_kf(frames):
     """As ``run`` with keyframes every 0.1 median depths of translation (3
     keyframes on this sequence, so two mapping updates)."""
-    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)),
-                  frontend())
+    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1),
+                                      mapping="inline"), frontend())
     for i, f in enumerate(frames):
         if i == BLANK:
             f = Frame(np.zeros_like(f.image), CAM, f.timestamp, depth=f.depth, name="blank")
@@ -122,7 +122,8 @@ def test_fixed_lag_marginalises_old_keyframes(frames):
     """Default 5-keyframe window; frequent keyframes (relative-cost threshold
     0.08, 3 LM iterations per update, for test time): once more than 5 keyframes exist, the oldest keyframes' keys
     have left the smoother (marginalised) and exactly the last 5 remain."""
-    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08), map_iterations=3)
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08), map_iterations=3,
+                         mapping="inline")   # the smoother is reached
     vo = Odometry(CAM, cfg, frontend())
     for f in frames:
         vo.track(f)
@@ -261,8 +262,8 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
             raise RuntimeError("Indeterminant linear system detected (injected)")
 
     # keyframes every 0.1 median depths: a third keyframe maps after the failure
-    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1)),
-                  frontend())
+    vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1),
+                                      mapping="inline"), frontend())
     injected = False
     for i, f in enumerate(frames):
         if not injected and len(vo.keyframes) >= 2:

@@ -28,7 +28,8 @@ def _run(images, landmarks=True, **loop):
     default, unless ``landmarks`` is False: the window-only map)."""
     cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
                          loop_closure=LoopClosureConfig(**loop),
-                         landmarks=LandmarkConfig(enabled=landmarks))
+                         landmarks=LandmarkConfig(enabled=landmarks),
+                         mapping="inline")   # loop closure maps inline: runs compared bit for bit
     vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))))
     for i, im in enumerate(images):
         vo.track(Frame(im, CAM, float(i)))

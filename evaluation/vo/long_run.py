@@ -31,7 +31,8 @@ after the sequence's own; ``default`` (none), ``loops``
 (``odometry.loop_closure.enabled``) and ``no-landmarks``
 (``odometry.landmarks.enabled=False``: the window-only map) and
 ``no-landmarks+loops`` (the window-only map with loop closure: where nothing else
-remembers the start, so loops are sought).  Adding a variant is one entry there.
+remembers the start, so loops are sought) and ``inline`` (the back end between two
+frames instead of the live mapping worker).  Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through
@@ -221,6 +222,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "no-landmarks": {"odometry.landmarks.enabled": False},
     "no-landmarks+loops": {"odometry.landmarks.enabled": False,
                            "odometry.loop_closure.enabled": True},
+    "inline": {"odometry.mapping": "inline"},
 }
 
 

@@ -22,10 +22,12 @@ from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
 __all__ = ["TrackerConfig", "KeyframeDecisionConfig", "ScaleCheckConfig", "InitConfig",
-           "OdometryConfig", "INIT_METHODS"]
+           "OdometryConfig", "INIT_METHODS", "MAPPING_MODES"]
 
 #: how a monocular map's initialisation SfM starts (``InitConfig.method``)
 INIT_METHODS = ("twoview", "tracked")
+#: where the VO's back end runs (``OdometryConfig.mapping``)
+MAPPING_MODES = ("live", "inline")
 
 
 @config_repr
@@ -326,7 +328,14 @@ class OdometryConfig:
             their map segment and a verified loop corrects the segment's
             keyframes with a Sim(3) pose graph (default off).
         landmarks: :class:`~spgeo.vo.landmarks.LandmarkConfig`: sparse feature
-            landmarks with projection factors in the window (default off).
+            landmarks with projection factors in the window (default on).
+        mapping: where a new keyframe's landmarks and window update run, one of
+            :data:`MAPPING_MODES`: ``"live"`` (default) in a worker process
+            (:mod:`spgeo.vo.mapping_worker`) while the next frames are tracked
+            against the map before the update; ``"inline"`` between two frames,
+            in this process (deterministic; the smoother can be reached).  With
+            loop closure on, mapping is inline (the loop closer moves the map
+            the update reads).
     """
 
     resolution: Optional[Tuple[int, int]] = None
@@ -353,12 +362,22 @@ class OdometryConfig:
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
+    mapping: str = "live"
+
+    @property
+    def mapping_in_worker(self) -> bool:
+        """Whether the back end runs in the mapping worker process (``mapping``
+        ``"live"`` and loop closure off)."""
+        return self.mapping == "live" and not self.loop_closure.enabled
 
     def __post_init__(self) -> None:
         self._check_size()
         if self.init.method not in INIT_METHODS:
             raise InputError(f"OdometryConfig.init.method must be one of {INIT_METHODS}, "
                              f"got {self.init.method!r}")
+        if self.mapping not in MAPPING_MODES:
+            raise InputError(f"OdometryConfig.mapping must be one of {MAPPING_MODES}, "
+                             f"got {self.mapping!r}")
         if self.primitive_model not in PRIMITIVE_MODELS:
             raise InputError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")

@@ -144,6 +144,19 @@ class Keyframe:
     def camera(self) -> PinholeCamera:
         return self.primitives.camera
 
+    def __getstate__(self) -> dict:
+        """Pickled without what is derived from the primitives alone (points,
+        level data and lattices: rebuilt on load by the same code, so equal bit
+        for bit); the pixel selection is kept.  A quarter of the bytes (the
+        mapping worker's transfer, :mod:`spgeo.vo.mapping_worker`)."""
+        state = dict(self.__dict__)
+        state.update(points=None, _cache={}, _lattice={}, _lattice_points={})
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.points = _points(self.primitives)
+
     def lattice_entries(self, stride: int) -> np.ndarray:
         """Indices of the primitive entries on the pixel lattice of ``stride``
         (cached)."""

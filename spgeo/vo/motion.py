@@ -45,6 +45,12 @@ class MotionModel:
         self.prev_good, self.last_good = self.last_good, tr.T_world_frame.copy()
         self.brightness = np.asarray(tr.brightness, dtype=float).copy()
 
+    def replace_last(self, tr: TrackResult) -> None:
+        """The last accepted frame tracked again (``tr`` ok): its pose and
+        brightness replace the last good ones (the previous pose stays)."""
+        self.last_good = tr.T_world_frame.copy()
+        self.brightness = np.asarray(tr.brightness, dtype=float).copy()
+
     def guesses(self) -> List[Callable[[], Optional[np.ndarray]]]:
         """The initial pose guesses in the order to try, each computed when
         called: the constant-velocity prediction, then (with a velocity) the last

@@ -1,7 +1,7 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives (docs/design.md §5):
 the per-frame state machine (initialise, track, lose, re-initialise).
 
-One thread, one call per frame (:meth:`Odometry.track`).  The states and
+One call per frame (:meth:`Odometry.track`).  The states and
 their rules (initialisation, tracking with its retries, relocalisation,
 re-initialisation, keyframe decisions, the trajectory that
 :meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
@@ -15,7 +15,10 @@ model's guesses, the retries, relocalisation, the keyframe decision).  The initi
 keyframe pair without parallax never initialises a map
 (:attr:`Odometry.init_failure`).  Mapping is
 :class:`spgeo.vo.smoother.WindowMapper`'s (fixed-lag smoother over the last
-``window`` keyframes and their supporting frames).
+``window`` keyframes and their supporting frames); with the landmarks it is
+the back end (:class:`spgeo.vo.backend.WindowBackend`), which runs in a worker
+process while the next frames are tracked (``OdometryConfig.mapping="live"``,
+:mod:`spgeo.vo.mapping_worker`) or between two frames (``"inline"``).
 
 Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
 the ``"depth"`` front-end.
@@ -35,7 +38,8 @@ import gtsam
 from ..camera import PinholeCamera
 from ..frame import Frame
 from ..frontend import PrimitiveFrontEnd
-from ..geometry import invert_pose
+from ..geometry import invert_pose, nearest_rigid
+from ..similarity import moved_frame, sim3
 from ..validation import check_camera
 from .config import OdometryConfig
 from .initialisation import FAILED, START, InitDecision, Initialiser
@@ -43,13 +47,15 @@ from .keyframe_store import KeyframeStore
 from .loops import SegmentLoopClosure
 from .frame_tracker import FrameTracker
 from .keyframing import KeyframeMaker
-from .landmarks import LandmarkMap
+from .backend import WindowBackend
+from .keyframe import with_shape_values
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
-from .processing import checked_frame
-from .smoother import WindowMapper
+from .mapping_worker import LiveMapping, MappingUpdate, MappingWorker
+from .processing import checked_frame, opencv_threads
+from .smoother import adopt_selection
 from .result import (FrameResult, FrameStatus, OdometryResult, frame_records, save_run,
                      timing_statistics)
-from .tracking import Keyframe, TrackResult
+from .tracking import Keyframe, TrackResult, track_frame
 
 __all__ = ["Odometry"]
 
@@ -71,6 +77,26 @@ class Odometry:
         store: where keyframes that left the window keep their image and
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
+        wait_for_mapper: with the mapping worker (``config.mapping="live"``),
+            wait for each window update before the next frame: the numbers of
+            ``"inline"`` mapping, through the worker (its tests).
+
+    Live mapping (docs/design.md §5.1, *Mapping off the tracking path*): a new
+    keyframe's back end runs in the worker while the next frames are tracked
+    against the new keyframe as made (pose and scales before the update); the
+    update is applied at the first frame that finds it ready.  A frame that
+    wants a keyframe while the update is pending is made one at once (the
+    render overlaps the solve), then, once the update is applied, tracked again
+    against the updated keyframe and decided again: an unrefined keyframe
+    tracks worse and would ask for keyframes sooner; a kept keyframe moves with
+    the keyframe it was tracked against.  One update is in flight at a time.
+    Frames tracked while an update was pending, the updates' latency in frames
+    and the worker's seconds and peak memory are in :meth:`report`
+    (``mapping_worker``).  The trajectory then depends on when updates arrive,
+    i.e. on the machine and its load.  :meth:`result`, :meth:`report`,
+    :meth:`save` and the keyframe accessors wait for the pending update.
+    :meth:`close` (or ``with Odometry(...) as vo:``) stops the worker; so does
+    garbage collection.
 
     Memory: after a frame is processed only its :class:`FrameResult` (pose,
     status, timings, the small :class:`TrackResult`) and relative pose stay;
@@ -82,7 +108,8 @@ class Odometry:
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
-                 store: Optional[KeyframeStore] = None) -> None:
+                 store: Optional[KeyframeStore] = None,
+                 wait_for_mapper: bool = False) -> None:
         if frontend is None:
             raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
         if not isinstance(config, OdometryConfig):
@@ -98,12 +125,16 @@ class Odometry:
         self._motion = self._tracker.motion
         self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
         self._n_lost = 0
-        self._mapper = WindowMapper(config)
-        self._mapper.support_pose = self._map.support_pose   # the smoother writes the map's
-        self._landmarks = (LandmarkMap(self.camera, config.landmarks)
-                           if config.landmarks.enabled else None)
-        self._mapper.landmarks = self._landmarks
-        self._landmark_segment = -1
+        self._backend: Optional[WindowBackend] = None
+        self._worker: Optional[MappingWorker] = None
+        if config.mapping_in_worker:
+            self._worker = MappingWorker(self.camera, config)
+        else:
+            self._backend = WindowBackend(self.camera, config)
+            # the smoother writes the map's supporting-frame poses
+            self._backend.mapper.support_pose = self._map.support_pose
+        self._wait = bool(wait_for_mapper)
+        self._live = LiveMapping()
         self._maker = KeyframeMaker(self.camera, config, frontend)
         self._loops = (SegmentLoopClosure(self.camera, config.loop_closure)
                        if config.loop_closure.enabled else None)
@@ -132,12 +163,21 @@ class Odometry:
                 not strictly after the previous frame's (seconds, or frame
                 numbers for data without time); the frame is not processed.
         """
+        with opencv_threads(1):
+            return self._track_frame(frame)
+
+    def _track_frame(self, frame: Frame) -> FrameResult:
+        """:meth:`track`'s body."""
         t0 = time.perf_counter()
         idx = len(self._frames)
         frame = checked_frame(frame, idx, self.camera, self.input_camera,
                               bool(self.frontend.uses_depth),
                               self._frames[-1].timestamp if self._frames else None)
         timings: Dict[str, float] = {}
+        if self._worker is not None and self._worker.ready():
+            self._sync(timings)
+        if self._worker is not None and self._worker.pending:
+            self._live.older_map_frames += 1
         if idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
         elif len(self._map.seg_kfs) < 2:
@@ -152,7 +192,9 @@ class Odometry:
 
     def result(self) -> OdometryResult:
         """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
-        :meth:`spgeo.vo.map.KeyframeMap.frame_poses`)."""
+        :meth:`spgeo.vo.map.KeyframeMap.frame_poses`), after the pending window
+        update (live mapping: waits for it)."""
+        self._sync()
         poses, is_kf = self._map.frame_poses(self._frames)
         return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
                               poses, [f.status for f in self._frames], is_kf,
@@ -160,16 +202,38 @@ class Odometry:
 
     def smoother_estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
-        return self._mapper.estimate()
+        return self._inline_backend("smoother_estimate").mapper.estimate()
 
     @property
     def smoother(self) -> gtsam.BatchFixedLagSmoother:
-        """The window's ``gtsam.BatchFixedLagSmoother`` (:class:`WindowMapper`)."""
-        return self._mapper.smoother
+        """The window's ``gtsam.BatchFixedLagSmoother`` (:class:`WindowMapper`;
+        ``OdometryConfig.mapping="inline"`` only: live, it is in the worker
+        process, and this raises ``RuntimeError``)."""
+        return self._inline_backend("smoother").mapper.smoother
 
     @smoother.setter
     def smoother(self, value) -> None:
-        self._mapper.smoother = value
+        self._inline_backend("smoother").mapper.smoother = value
+
+    def _inline_backend(self, what: str) -> WindowBackend:
+        if self._backend is None:
+            raise RuntimeError(f"Odometry.{what}: the window smoother is in the mapping "
+                               "worker process (OdometryConfig.mapping='live'); use "
+                               "mapping='inline' to reach it")
+        return self._backend
+
+    def close(self) -> None:
+        """Stop the mapping worker (a pending update is dropped: call
+        :meth:`result` first to keep it); idempotent.  Nothing to do with
+        inline mapping."""
+        if self._worker is not None:
+            self._worker.close()
+
+    def __enter__(self) -> "Odometry":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     @property
     def keyframes(self) -> List[Keyframe]:
@@ -178,6 +242,7 @@ class Odometry:
         Keyframes that left the window are built again from the store at every
         call (new objects, equal to the ones they were): for their poses use
         :meth:`result`, for the window :meth:`window_keyframes`."""
+        self._sync()
         return [self.keyframe(k) for k in self._map.order]
 
     @property
@@ -187,6 +252,7 @@ class Odometry:
 
     def keyframe(self, k: int) -> Keyframe:
         """Keyframe ``k`` (:attr:`keyframes`; one read from the store if retired)."""
+        self._sync()
         return self._map.restore(k)[1]
 
     def keyframe_image(self, k: int) -> np.ndarray:
@@ -199,11 +265,13 @@ class Odometry:
         in the order given, at their current state: keyframes that left the
         window are read back from the store one at a time (a consumer that
         keeps none holds one in memory)."""
+        self._sync()
         return self._map.iter_keyframes(indices)
 
     def window_keyframes(self) -> Dict[int, Keyframe]:
         """Keyframe index -> :class:`Keyframe` of the keyframes not retired (the
         window's: the only ones that can still change), in creation order."""
+        self._sync()
         return {k: self._map.kfs[k].keyframe for k in self._map.live}
 
     @property
@@ -236,7 +304,11 @@ class Odometry:
         """Run statistics (JSON-ready): counts, per-stage seconds, mapping and
         initialisation reports (``initialised``: :attr:`initialised`;
         ``init_failure``: :attr:`init_failure`), configuration."""
-        maps = [m["seconds"] for m in self._mapper.reports if "seconds" in m]
+        self._sync()
+        reports = self._live.reports if self._backend is None else self._backend.mapper.reports
+        maps = [m["seconds"] for m in reports if "seconds" in m]
+        lms = (self._live.landmarks if self._backend is None
+               else self._backend.landmarks_report())
         return {
             "n_frames": len(self._frames), "n_keyframes": len(self._map.order),
             "n_segments": self._map.segment + 1,
@@ -248,9 +320,11 @@ class Odometry:
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
             "sfm": self._initialiser.reports,
             "scale_checks": self._maker.scale_checks,
-            "mapping": self._mapper.reports,
+            "mapping": reports,
+            "mapping_mode": "inline" if self._worker is None else "live",
+            **({} if self._worker is None else {"mapping_worker": self._live.report()}),
             "loop_closures": None if self._loops is None else self._loops.report(),
-            **({} if self._landmarks is None else {"landmarks": self._landmarks.report()}),
+            **({} if lms is None else {"landmarks": lms}),
             "frames": frame_records(self._frames),
         }
 
@@ -344,7 +418,10 @@ class Odometry:
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
         # tracked against an older keyframe: make it a keyframe to re-anchor the map
         if ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest):
-            res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
+            if ref is latest and self._worker is not None and self._worker.pending:
+                tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
+            else:
+                res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
             if res is not None:
                 return res
         if ref is latest:
@@ -372,30 +449,51 @@ class Odometry:
             # a featureless frame cannot start a map: stay lost, retry on the next frame
             return FrameResult(idx, float(frame.timestamp), self._motion.last_good.copy(),
                                FrameStatus.LOST)
+        self._sync(timings)
         med = self._map.latest.keyframe.median_depth
         self._map.segment += 1
-        self._mapper.reset()
+        if self._backend is not None:
+            self._backend.reset()
+        self._live.reset_next = True
         return self._start(frame, idx, self._motion.last_good.copy(), timings, median_depth=med)
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
-                      timings: Dict[str, float], track: Optional[TrackResult]):
+                      timings: Dict[str, float], track: Optional[TrackResult],
+                      made: Optional[Tuple[Keyframe, np.ndarray]] = None):
         """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`),
-        then loop closure and the window update.  None when the render gives
+        then loop closure and the window update (live: sent to the worker once
+        the pending update is applied; a keyframe made on the map before that
+        update moves with the keyframe it was tracked against; ``made``: the
+        keyframe already made, :meth:`_redecided`).  None when the render gives
         no scale."""
         k = self._map.next_index
-        made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
+        if made is None:
+            made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
+        anchor = self._map.anchors.get(idx)
+        if self._sync(timings) and made is not None and anchor is not None:
+            ref, _, median_then = anchor
+            made = self._moved_keyframe(made, nearest_rigid(self._map.frame_pose(*anchor)),
+                                        self._map.kfs[ref].median_depth / median_then)
         if made is None:
             return None
         keyframe, weights = made
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
                                   prior_weights=weights))
         self._map.anchors.pop(idx, None)
-        if self._landmarks is not None:
-            t = time.perf_counter()
-            self._add_landmarks(self._map.window_kfs(extra=1))
-            timings["landmarks"] = time.perf_counter() - t
+        if self._worker is not None:
+            self._submit(k)
+            if self._wait:
+                self._sync(timings)
+            T_new = self._map.kfs[k].keyframe.T_world_kf
+            return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
+                               keyframe_index=k, track=track)
+        self._backend.add_landmarks(self._map.window_kfs(extra=1), self._map.segment, timings)
         closed = self._close_loop(timings)
-        self._map_new_keyframe(closed, timings)
+        t = time.perf_counter()
+        if self._backend.map(self._map.window_kfs(extra=1), self._map.candidates,
+                             self._map.segment, closed, timings):
+            self._map.seg_kfs = self._map.seg_kfs[-2:]
+        timings["mapping"] = time.perf_counter() - t
         self._map.candidates.clear()
         self._map.retire_outside_window()
         T_new = self._map.kfs[k].keyframe.T_world_kf
@@ -406,34 +504,102 @@ class Odometry:
         return FrameResult(idx, float(frame.timestamp), T_new.copy(), FrameStatus.KEYFRAME,
                            keyframe_index=k, track=track)
 
-    # ------------------------------------------------------------ mapping, loop closure
-    def _map_new_keyframe(self, closed: bool, timings: Dict[str, float]) -> None:
-        """Window update with the newest keyframe; after an applied loop
-        correction the window restarts from the previous and the new keyframe
-        (their corrected poses and scales; older keyframes stay as corrected)."""
+    # ------------------------------------------------------------ live mapping
+    def _redecided(self, frame: Frame, idx: int, tr: TrackResult, timings: Dict[str, float]
+                   ) -> Tuple[TrackResult, np.ndarray, Optional[FrameResult]]:
+        """Frame ``idx`` wants to be a keyframe, decided against the latest
+        keyframe before its pending update: the keyframe is made on that map
+        (while the worker solves), then the update is applied, the frame is
+        tracked again against the updated keyframe and the decision taken again
+        (an unrefined keyframe tracks worse and would ask for keyframes sooner).
+        Returns ``(track result, T_latest_frame, keyframe FrameResult or None)``."""
+        latest = self._map.latest
+        made = self._maker.rendered(frame, idx, self._map.next_index, tr.T_world_frame,
+                                    self._map.window_kfs(), timings)
+        ref, _, median_then = self._map.anchors[idx]
+        self._sync(timings)
         t = time.perf_counter()
-        # the mapper reads at most the window and the keyframe leaving it
-        segment_kfs = self._map.window_kfs(extra=1)
-        if closed:
-            self._mapper.reset()
-            segment_kfs = segment_kfs[-2:]
-        if self._mapper.map_keyframe(segment_kfs, self._map.candidates, self._map.segment):
-            self._map.seg_kfs = self._map.seg_kfs[-2:]
-        timings["mapping"] = time.perf_counter() - t
+        tr2 = track_frame(latest.keyframe, frame.image, self._map.frame_pose(*self._map.anchors[idx]),
+                          tr.brightness, self.config.tracker)
+        timings["track"] = timings.get("track", 0.0) + time.perf_counter() - t
+        if tr2.ok:
+            tr = tr2
+            self._motion.replace_last(tr)
+            T_ref_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
+            self._map.anchors[idx] = (ref, T_ref_f, latest.keyframe.median_depth)
+        else:
+            T_ref_f = self._map.anchors[idx][1] * 1.0
+            T_ref_f[:3, 3] *= latest.keyframe.median_depth / median_then
+            self._map.anchors[idx] = (ref, T_ref_f, latest.keyframe.median_depth)
+        if not self._tracker.wants_keyframe(tr, T_ref_f, latest):
+            return tr, T_ref_f, None
+        T_world = nearest_rigid(latest.keyframe.T_world_kf @ T_ref_f)
+        if made is not None:
+            made = self._moved_keyframe(made, T_world, latest.keyframe.median_depth / median_then)
+        return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, made=made)
 
-    def _add_landmarks(self, segment_kfs: List[MapKeyframe]) -> None:
-        """The newest keyframe's landmarks (:mod:`spgeo.vo.landmarks`); a new segment
-        forgets the old ones (another scale)."""
-        new = segment_kfs[-1]
-        if self._landmark_segment != self._map.segment:
-            self._landmarks.clear()
-            self._landmark_segment = self._map.segment
-            if len(segment_kfs) >= 2:     # the previous keyframe's features too
-                prev = segment_kfs[-2]
-                self._landmarks.add_keyframe(prev.index, prev.image, prev.keyframe.T_world_kf,
-                                             [prev.index])
-        live = [kf.index for kf in segment_kfs[-self.config.window:]]
-        self._landmarks.add_keyframe(new.index, new.image, new.keyframe.T_world_kf, live)
+    @staticmethod
+    def _moved_keyframe(made: Tuple[Keyframe, np.ndarray], T_world_kf: np.ndarray,
+                        scale: float) -> Tuple[Keyframe, np.ndarray]:
+        """A keyframe made before a window update, at its pose after it
+        (``T_world_kf``) and with its depths multiplied by ``scale`` (the change
+        of its reference keyframe's median depth)."""
+        keyframe, weights = made
+        prims = keyframe.primitives
+        return keyframe.rebuilt(prims.with_log_scales(prims.log_scales + float(np.log(scale))),
+                                T_world_kf), weights
+
+    def _submit(self, k: int) -> None:
+        """Send new keyframe ``k``'s back-end job to the worker; the next frames
+        are tracked against ``k`` as made (brightness relative to it: zero)."""
+        window = self._map.window_kfs(extra=1)
+        for kf in window:
+            adopt_selection(kf, self.config)
+        job = self._worker.job(window, self._map.candidates, self._map.segment,
+                               self._live.reset_next)
+        self._worker.submit(job)
+        self._live.reset_next = False
+        kf = self._map.kfs[k].keyframe
+        self._live.pending = (k, kf.T_world_kf.copy(), float(kf.median_depth), len(self._frames))
+        self._map.candidates.clear()
+        self._motion.brightness = np.zeros(2)
+
+    def _sync(self, timings: Optional[Dict[str, float]] = None) -> bool:
+        """Wait for the pending window update and apply it (:meth:`_apply`);
+        its seconds (waiting included) in ``timings["mapping"]``.  Returns
+        whether an update was applied."""
+        if self._worker is None or not self._worker.pending:
+            return False
+        t = time.perf_counter()
+        self._apply(self._worker.receive())
+        if timings is not None:
+            timings["mapping"] = timings.get("mapping", 0.0) + time.perf_counter() - t
+        return True
+
+    def _apply(self, upd: MappingUpdate) -> None:
+        """A worker's update applied as the inline back end applies it: the
+        refreshed keyframes (:func:`with_shape_values`), supporting frames and
+        window restart, then retirement and the motion model (frames tracked
+        since the job was sent: moved with their keyframe's similarity)."""
+        k, T_old, med_old, n_sent = self._live.pending
+        for j, (T, th) in sorted(upd.keyframes.items()):
+            mk = self._map.kfs[j]
+            mk.keyframe = with_shape_values(mk.keyframe, th, self.config.primitive_model, T)
+            self._worker.synced(j, mk.keyframe)
+        self._map.support_pose.update(upd.support_pose)
+        if upd.restarted:
+            self._map.seg_kfs = self._map.seg_kfs[-2:]
+        self._map.retire_outside_window()
+        T_new, med_new = self._map.kfs[k].T_world_kf, self._map.kfs[k].median_depth
+        if len(self._frames) == n_sent:     # nothing tracked meanwhile: as inline
+            self._motion.to_keyframe(T_new)
+        else:
+            W = sim3(T_new[:3, :3], T_new[:3, 3], med_new / med_old) @ invert_pose(T_old)
+            self._motion.move(lambda T: nearest_rigid(moved_frame(W, T)))
+            for c in self._map.candidates:
+                c.T_kf_frame = c.T_kf_frame.copy()
+                c.T_kf_frame[:3, 3] *= med_new / med_old
+        self._live.record(upd, len(self._frames) - n_sent)
 
     def _close_loop(self, timings: Dict[str, float]) -> bool:
         """Register the new keyframe (and, in a new segment, its keyframe 0) with
@@ -442,12 +608,12 @@ class Odometry:
         if self._loops is None:
             return False
         t = time.perf_counter()
-        corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live(),
-                                         self._landmarks)
+        landmarks = self._backend.landmarks
+        corr = self._loops.add_keyframes(self._map.segment, self._map.segment_live(), landmarks)
         if corr is not None:
             self._map.apply_loop_correction(corr, self._motion)
-            if self._landmarks is not None:     # moved with the map, then fused
-                self._landmarks.apply_similarity(corr.W_new_old)
-                self._landmarks.reobserve(self._map.seg_kfs[-1])
+            if landmarks is not None:     # moved with the map, then fused
+                landmarks.apply_similarity(corr.W_new_old)
+                landmarks.reobserve(self._map.seg_kfs[-1])
         timings["loop"] = time.perf_counter() - t
         return corr is not None

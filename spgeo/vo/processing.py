@@ -11,8 +11,9 @@ and ``spgeo vo`` process the same pixels.
 """
 from __future__ import annotations
 
+import contextlib
 import math
-from typing import Optional, Tuple
+from typing import Iterator, Optional, Tuple
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from ..frame import Frame
 from ..validation import MAX_IMAGE_SIDE, InputError
 
 __all__ = ["DEFAULT_TARGET_PIXELS", "SIZE_MULTIPLE", "processing_size", "resize_for_vo",
-           "checked_frame"]
+           "checked_frame", "opencv_threads"]
 
 #: Default processing area in pixels (``OdometryConfig.target_pixels``): that of 320x240.
 DEFAULT_TARGET_PIXELS = 320 * 240
@@ -122,3 +123,19 @@ def checked_frame(frame: Frame, index: int, camera: PinholeCamera, input_camera:
                          f"is not after the previous frame's {previous_timestamp!r}: "
                          "timestamps must be strictly increasing")
     return frame
+
+
+@contextlib.contextmanager
+def opencv_threads(n: int) -> Iterator[None]:
+    """OpenCV limited to ``n`` threads inside the block, its setting restored
+    after (about a microsecond).  :meth:`spgeo.vo.Odometry.track` runs with one:
+    at the processing size OpenCV's thread pool costs more than it gives, and
+    the second core maps (docs/results.md, *Real time on two cores*)."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)

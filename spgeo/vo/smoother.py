@@ -63,7 +63,7 @@ from .keyframe import Keyframe, with_shape_values
 from .landmarks import LandmarkMap, add_landmark_factors, read_landmarks
 from .map import MapKeyframe, SupportCandidate
 
-__all__ = ["WindowMapper", "MAP_RELATIVE_TOL", "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
+__all__ = ["WindowMapper", "adopt_selection", "choose_support", "MAP_RELATIVE_TOL", "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +88,13 @@ class WindowMapper:
         support_pose: frame number -> smoothed ``T_world_frame`` of a
             supporting frame.
         reports: one dict per mapped keyframe (factor counts, seconds, ...).
+        refreshed: what the last :meth:`map_keyframe` wrote into its keyframes:
+            keyframe index -> ``(T_world_kf, shape values)``, the arguments of
+            :func:`~spgeo.vo.keyframe.with_shape_values` (a copy of the
+            keyframes, e.g. a mapping worker's caller, applies them to stay
+            equal).
+        refreshed_support: frame number -> ``T_world_frame`` written into
+            :attr:`support_pose` by the last :meth:`map_keyframe`.
     """
 
     def __init__(self, config: OdometryConfig) -> None:
@@ -97,6 +104,8 @@ class WindowMapper:
         self._support_frames: List[int] = []
         self.support_pose: Dict[int, np.ndarray] = {}
         self.reports: List[dict] = []
+        self.refreshed: Dict[int, tuple] = {}
+        self.refreshed_support: Dict[int, np.ndarray] = {}
         #: sparse landmarks (:mod:`spgeo.vo.landmarks`; None: none, the default)
         self.landmarks: Optional[LandmarkMap] = None
         self._poses_in: set = set()       # keyframes whose pose is in the smoother
@@ -146,7 +155,8 @@ class WindowMapper:
         """
         kfs = list(segment_kfs)
         for kf in kfs:
-            self._adopt(kf)
+            adopt_selection(kf, self.config)
+        self.refreshed, self.refreshed_support = {}, {}
         restarted = False
         while True:
             try:
@@ -165,16 +175,6 @@ class WindowMapper:
                 self.reset()
                 kfs, restarted = kfs[-2:], True
 
-    def _adopt(self, kf: MapKeyframe) -> None:
-        """Give a keyframe the configured pixel selection (rebuilt when it
-        has another one; its cached mapping pixels are dropped then)."""
-        sel = self.config.selection
-        if kf.keyframe.selection != sel:
-            k = kf.keyframe
-            kf.keyframe = Keyframe.build(kf.image, k.primitives, k.T_world_kf,
-                                         self.config.keyframe_levels, sel)
-            kf.map_pixels = None
-
     def _update(self, kfs: List[MapKeyframe], candidates: Sequence[SupportCandidate],
                 segment: int) -> None:
         """One smoother update with the newest keyframe ``kfs[-1]``; raises
@@ -189,7 +189,7 @@ class WindowMapper:
         n_pair = self._link_keyframes(batch, prev, new)
         sel_new = self._map_pixels(new)
         n_empty = len(new.keyframe.primitives) - (0 if sel_new is None else sel_new[2].size)
-        chosen = self._choose_support(candidates)
+        chosen = choose_support(candidates, self.config.n_support)
         n_sup = self._add_support(batch, prev, chosen)
         n_lm = self._add_landmarks(batch, kfs, new)
         est, secs = self._solve(batch)
@@ -220,15 +220,6 @@ class WindowMapper:
     def _link_keyframes(self, batch: FactorBatch, prev: MapKeyframe, new: MapKeyframe) -> int:
         """Photometric factors of the new keyframe pair, both directions."""
         return link_keyframe_pair(batch, self.config, prev, new, new.index, self._groups)
-
-    def _choose_support(self, candidates: Sequence[SupportCandidate]) -> List[SupportCandidate]:
-        """Supporting frames of the previous keyframe: evenly spaced among its tracked frames."""
-        n_support = self.config.n_support
-        if n_support > 0 and candidates:
-            pick = np.unique(np.round(np.linspace(0, len(candidates) - 1,
-                                                  min(n_support, len(candidates)))).astype(int))
-            return [candidates[i] for i in pick]
-        return []
 
     def _add_support(self, batch: FactorBatch, prev: MapKeyframe,
                      chosen: Sequence[SupportCandidate]) -> int:
@@ -287,12 +278,36 @@ class WindowMapper:
                 log.warning("mapping produced non-finite values for keyframe %d; kept", j)
                 continue
             kf.keyframe = with_shape_values(kf.keyframe, th, self.config.primitive_model, T)
+            self.refreshed[j] = (T, th)
         for f in self._support_frames[-(self.config.window + 1) * max(self.config.n_support, 1):]:
             key = support_pose_key(f)
             if est.exists(key):
                 T = est.atPose3(key).matrix()
                 if np.all(np.isfinite(T)):
-                    self.support_pose[f] = T
+                    self.support_pose[f] = self.refreshed_support[f] = T
+
+
+def choose_support(candidates: Sequence[SupportCandidate], n_support: int
+                   ) -> List[SupportCandidate]:
+    """The supporting frames of the previous keyframe: ``n_support`` evenly
+    spaced among its tracked frames ``candidates`` (all when fewer; choosing
+    again among the chosen keeps them all)."""
+    if n_support > 0 and candidates:
+        pick = np.unique(np.round(np.linspace(0, len(candidates) - 1,
+                                              min(n_support, len(candidates)))).astype(int))
+        return [candidates[i] for i in pick]
+    return []
+
+
+def adopt_selection(kf: MapKeyframe, config: OdometryConfig) -> None:
+    """Give a keyframe ``config``'s pixel selection (its :class:`Keyframe`
+    rebuilt when it has another one; its cached mapping pixels dropped then)."""
+    sel = config.selection
+    if kf.keyframe.selection != sel:
+        k = kf.keyframe
+        kf.keyframe = Keyframe.build(kf.image, k.primitives, k.T_world_kf,
+                                     config.keyframe_levels, sel)
+        kf.map_pixels = None
 
 
 class _UpdateFailed(RuntimeError):
