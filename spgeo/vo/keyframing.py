@@ -68,15 +68,16 @@ class KeyframeMaker:
                               self.config.selection)
 
     def rendered(self, frame: Frame, idx: int, k: int, T_world: np.ndarray,
-                 window: Sequence[MapKeyframe], timings: Dict[str, float]
-                 ) -> Optional[Tuple[Keyframe, np.ndarray]]:
-        """Keyframe ``k`` of frame ``idx`` at ``T_world``, its primitives' scales
-        rendered from the ``window`` keyframes (the newest last; the reverse
-        scale check against it), and the weights of their scale priors.
-        None when the render reaches no primitive."""
+                 window: Sequence[MapKeyframe], timings: Dict[str, float],
+                 prims: Optional[PrimitiveSet] = None) -> Optional[Tuple[Keyframe, np.ndarray]]:
+        """Keyframe ``k`` of frame ``idx`` at ``T_world``, its primitives (``prims``:
+        :meth:`primify` of ``frame`` already done) with scales rendered from the
+        ``window`` keyframes (the newest last; the reverse scale check against
+        it), and the weights of their scale priors.  None when the render
+        reaches no primitive."""
         cfg = self.config
         t = time.perf_counter()
-        prims = self.primify(frame)
+        prims = self.primify(frame) if prims is None else prims
         depth = render_primitives([(w.keyframe.primitives, w.keyframe.T_world_kf) for w in window],
                                   prims.camera, T_world, splat=RENDER_SPLAT,
                                   tolerance=cfg.render_tolerance)
@@ -84,9 +85,9 @@ class KeyframeMaker:
             init = init_scales_from_render(prims, depth)
         except ValueError as exc:
             log.warning("frame %d: no keyframe (%s)", idx, exc)
-            timings["frontend"] = time.perf_counter() - t
+            timings["frontend"] = timings.get("frontend", 0.0) + time.perf_counter() - t
             return None
-        timings["frontend"] = time.perf_counter() - t
+        timings["frontend"] = timings.get("frontend", 0.0) + time.perf_counter() - t
         keyframe = Keyframe.build(frame.image, init.primitives, T_world, cfg.keyframe_levels,
                                   cfg.selection)
         prims = self._checked_scales(keyframe, init.primitives, window[-1], k, idx, timings)

@@ -37,6 +37,7 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..frame import Frame
+from ..primitives import PrimitiveSet
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, nearest_rigid
 from ..similarity import moved_frame, sim3
@@ -401,6 +402,12 @@ class Odometry:
         ref = latest
         t = time.perf_counter()
         tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
+        if not tr.ok and self._worker is not None and self._worker.pending:
+            # lost against the map before its update: tracked again after it
+            timings["track"] = time.perf_counter() - t
+            self._sync(timings)
+            t = time.perf_counter() - timings["track"]
+            tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
         relocalised = False
         if not tr.ok:
             older = [self._map.kfs[k] for k in reversed(self._map.seg_kfs[-self.config.window:-1])]
@@ -459,21 +466,18 @@ class Odometry:
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult],
-                      made: Optional[Tuple[Keyframe, np.ndarray]] = None):
-        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`),
-        then loop closure and the window update (live: sent to the worker once
-        the pending update is applied; a keyframe made on the map before that
-        update moves with the keyframe it was tracked against; ``made``: the
-        keyframe already made, :meth:`_redecided`).  None when the render gives
-        no scale."""
+                      prims: Optional[PrimitiveSet] = None):
+        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`;
+        ``prims``: its front-end primitives, already made), then loop closure
+        and the window update (live: sent to the worker).  A pending update is
+        applied first: the keyframe is made on the updated map (the frame's pose
+        moved with the keyframe it was tracked against).  None when the render
+        gives no scale."""
+        if self._sync(timings) and idx in self._map.anchors:
+            T_world = nearest_rigid(self._map.frame_pose(*self._map.anchors[idx]))
         k = self._map.next_index
-        if made is None:
-            made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
-        anchor = self._map.anchors.get(idx)
-        if self._sync(timings) and made is not None and anchor is not None:
-            ref, _, median_then = anchor
-            made = self._moved_keyframe(made, nearest_rigid(self._map.frame_pose(*anchor)),
-                                        self._map.kfs[ref].median_depth / median_then)
+        made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings,
+                                    prims=prims)
         if made is None:
             return None
         keyframe, weights = made
@@ -508,14 +512,16 @@ class Odometry:
     def _redecided(self, frame: Frame, idx: int, tr: TrackResult, timings: Dict[str, float]
                    ) -> Tuple[TrackResult, np.ndarray, Optional[FrameResult]]:
         """Frame ``idx`` wants to be a keyframe, decided against the latest
-        keyframe before its pending update: the keyframe is made on that map
-        (while the worker solves), then the update is applied, the frame is
+        keyframe before its pending update: its front-end primitives are made
+        while the worker solves, then the update is applied, the frame is
         tracked again against the updated keyframe and the decision taken again
-        (an unrefined keyframe tracks worse and would ask for keyframes sooner).
+        (an unrefined keyframe tracks worse and would ask for keyframes sooner);
+        a kept keyframe is rendered from the updated map (:meth:`_new_keyframe`).
         Returns ``(track result, T_latest_frame, keyframe FrameResult or None)``."""
         latest = self._map.latest
-        made = self._maker.rendered(frame, idx, self._map.next_index, tr.T_world_frame,
-                                    self._map.window_kfs(), timings)
+        t = time.perf_counter()
+        prims = self._maker.primify(frame)
+        timings["frontend"] = time.perf_counter() - t
         ref, _, median_then = self._map.anchors[idx]
         self._sync(timings)
         t = time.perf_counter()
@@ -526,28 +532,14 @@ class Odometry:
             tr = tr2
             self._motion.replace_last(tr)
             T_ref_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
-            self._map.anchors[idx] = (ref, T_ref_f, latest.keyframe.median_depth)
         else:
-            T_ref_f = self._map.anchors[idx][1] * 1.0
+            T_ref_f = self._map.anchors[idx][1].copy()
             T_ref_f[:3, 3] *= latest.keyframe.median_depth / median_then
-            self._map.anchors[idx] = (ref, T_ref_f, latest.keyframe.median_depth)
+        self._map.anchors[idx] = (ref, T_ref_f, latest.keyframe.median_depth)
         if not self._tracker.wants_keyframe(tr, T_ref_f, latest):
             return tr, T_ref_f, None
         T_world = nearest_rigid(latest.keyframe.T_world_kf @ T_ref_f)
-        if made is not None:
-            made = self._moved_keyframe(made, T_world, latest.keyframe.median_depth / median_then)
-        return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, made=made)
-
-    @staticmethod
-    def _moved_keyframe(made: Tuple[Keyframe, np.ndarray], T_world_kf: np.ndarray,
-                        scale: float) -> Tuple[Keyframe, np.ndarray]:
-        """A keyframe made before a window update, at its pose after it
-        (``T_world_kf``) and with its depths multiplied by ``scale`` (the change
-        of its reference keyframe's median depth)."""
-        keyframe, weights = made
-        prims = keyframe.primitives
-        return keyframe.rebuilt(prims.with_log_scales(prims.log_scales + float(np.log(scale))),
-                                T_world_kf), weights
+        return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, prims=prims)
 
     def _submit(self, k: int) -> None:
         """Send new keyframe ``k``'s back-end job to the worker; the next frames
