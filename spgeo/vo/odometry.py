@@ -86,11 +86,13 @@ class Odometry:
     keyframe's back end runs in the worker while the next frames are tracked
     against the new keyframe as made (pose and scales before the update); the
     update is applied at the first frame that finds it ready.  A frame that
-    wants a keyframe while the update is pending is made one at once (the
-    render overlaps the solve), then, once the update is applied, tracked again
-    against the updated keyframe and decided again: an unrefined keyframe
-    tracks worse and would ask for keyframes sooner; a kept keyframe moves with
-    the keyframe it was tracked against.  One update is in flight at a time.
+    wants a keyframe while the update is pending gets its front-end primitives
+    at once (the segmentation overlaps the solve), then, once the update is
+    applied, is tracked again against the updated keyframe and decided again
+    (an unrefined keyframe tracks worse and would ask for keyframes sooner); a
+    kept keyframe is rendered on the updated map.  A frame lost against a
+    pending map is tracked again after the update.  One update is in flight at
+    a time.
     Frames tracked while an update was pending, the updates' latency in frames
     and the worker's seconds and peak memory are in :meth:`report`
     (``mapping_worker``).  The trajectory then depends on when updates arrive,
