@@ -343,6 +343,11 @@ class LiveMapping:
     seconds: Dict[str, float] = field(default_factory=dict)
     worker_peak_rss_mib: Optional[float] = None
 
+    def lead(self, n_frames: int) -> int:
+        """Frames processed since the pending job was sent, when ``n_frames``
+        have been (0 when none is pending)."""
+        return 0 if self.pending is None else n_frames - self.pending[3]
+
     def record(self, upd: MappingUpdate, latency: int) -> None:
         """An applied update, ``latency`` frames after its job was sent."""
         self.pending = None

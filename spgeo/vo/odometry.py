@@ -58,7 +58,12 @@ from .result import (FrameResult, FrameStatus, OdometryResult, frame_records, sa
                      timing_statistics)
 from .tracking import Keyframe, TrackResult, track_frame
 
-__all__ = ["Odometry"]
+__all__ = ["Odometry", "MAX_LEAD_FRAMES"]
+
+#: live mapping: the most frames tracked while a window update is pending; the next one
+#: waits for it (a 30 Hz camera gives about this many during a ~0.3 s update: an offline
+#: run then tracks as far ahead of its map as a live one; docs/results.md)
+MAX_LEAD_FRAMES = 8
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +97,8 @@ class Odometry:
     (an unrefined keyframe tracks worse and would ask for keyframes sooner); a
     kept keyframe is rendered on the updated map.  A frame lost against a
     pending map is tracked again after the update.  One update is in flight at
-    a time.
+    a time, and at most :data:`MAX_LEAD_FRAMES` frames are tracked while it is
+    pending (the next waits for it).
     Frames tracked while an update was pending, the updates' latency in frames
     and the worker's seconds and peak memory are in :meth:`report`
     (``mapping_worker``).  The trajectory then depends on when updates arrive,
@@ -177,7 +183,7 @@ class Odometry:
                               bool(self.frontend.uses_depth),
                               self._frames[-1].timestamp if self._frames else None)
         timings: Dict[str, float] = {}
-        if self._worker is not None and self._worker.ready():
+        if self._worker is not None and (self._worker.ready() or self._live.lead(idx) >= MAX_LEAD_FRAMES):
             self._sync(timings)
         if self._worker is not None and self._worker.pending:
             self._live.older_map_frames += 1
