@@ -94,7 +94,10 @@ def test_end_to_end_accuracy(frames, run):
 def test_blank_frame_is_lost_and_tracking_continues(run):
     vo, results = run
     assert results[BLANK].status == "lost"
-    np.testing.assert_allclose(results[BLANK].T_world_cam, results[BLANK - 1].T_world_cam)
+    # the trajectory keeps the previous frame's pose (online, the last good pose: with live
+    # mapping it moves with a window update applied in between)
+    poses = vo.result().poses
+    np.testing.assert_allclose(poses[BLANK], poses[BLANK - 1])
     after = [r.status for r in results[BLANK + 1:]]
     assert after[0] in ("relocalised", "keyframe")
     assert sum(s == "lost" for s in after) <= 2
