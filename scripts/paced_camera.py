@@ -14,37 +14,29 @@ worker's report.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
-from pathlib import Path
 
 import numpy as np
+
+from realtime_speed import clip_and_config, clip_arguments   # this folder's (run as a script)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent
-                                          / "shared/data/7scenes_redkitchen_dev"))
-    ap.add_argument("--dataset", default="7scenes")
-    ap.add_argument("--frames", default="0:300")
+    clip_arguments(ap)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--buffers", type=int, default=4)
-    ap.add_argument("--mapping", default=None)
     args = ap.parse_args()
 
     from spgeo.apps.vo_run import blas_threads
-    from spgeo.datasets import open_dataset
     from spgeo.evaluation.trajectory import ate_sim3
     from spgeo.frame import Frame
     from spgeo.frontend import FrontEndConfig, make_frontend
-    from spgeo.vo import Odometry, OdometryConfig
+    from spgeo.vo import Odometry
 
-    frames = list(open_dataset(args.dataset, args.data, frames=args.frames))
+    frames, cfg = clip_and_config(args)
     cam = frames[0].camera
-    cfg = OdometryConfig()
-    if args.mapping is not None:
-        cfg = dataclasses.replace(cfg, mapping=args.mapping)
     size = cfg.processing_size_for(cam.size)
     vo = Odometry(cam, cfg, make_frontend("classical", FrontEndConfig(working_size=size)))
     period = 1.0 / args.rate

@@ -29,25 +29,39 @@ from pathlib import Path
 import numpy as np
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def clip_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--data``, ``--dataset``, ``--frames`` (the clip) and ``--mapping``
+    (also :mod:`paced_camera`'s)."""
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent
                                           / "shared/data/7scenes_redkitchen_dev"))
     ap.add_argument("--dataset", default="7scenes")
     ap.add_argument("--frames", default="0:300")
     ap.add_argument("--mapping", default=None, help="OdometryConfig.mapping (default: the default)")
-    ap.add_argument("--label", default="run")
-    args = ap.parse_args()
 
-    from spgeo.apps.vo_run import VORunConfig, run_odometry
+
+def clip_and_config(args: argparse.Namespace):
+    """``(frames decoded in memory, OdometryConfig)`` of :func:`clip_arguments`'
+    values (``mapping`` set only when given: older checkouts have no such field)."""
     from spgeo.datasets import open_dataset
-    from spgeo.evaluation.trajectory import ate_sim3
     from spgeo.vo import OdometryConfig
 
     frames = list(open_dataset(args.dataset, args.data, frames=args.frames))
     odo = OdometryConfig()
     if args.mapping is not None:
         odo = dataclasses.replace(odo, mapping=args.mapping)
+    return frames, odo
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    clip_arguments(ap)
+    ap.add_argument("--label", default="run")
+    args = ap.parse_args()
+
+    from spgeo.apps.vo_run import VORunConfig, run_odometry
+    from spgeo.evaluation.trajectory import ate_sim3
+
+    frames, odo = clip_and_config(args)
     t = time.perf_counter()
     run = run_odometry(frames, VORunConfig(odometry=odo, progress=False))
     res = run.odometry.result()

@@ -285,8 +285,9 @@ class MappingWorker:
     def _recv(self):
         while not self._updates.poll(1.0):
             if self._proc.poll() is not None:
-                raise MappingWorkerError(f"the mapping worker exited (code {self._proc.returncode}; "
-                                         "its error is above, on standard error)")
+                raise MappingWorkerError(f"the mapping worker exited (code "
+                                         f"{self._proc.returncode}; its error is above, on "
+                                         "standard error)")
         try:
             return self._updates.recv()
         except (EOFError, OSError) as exc:

@@ -183,9 +183,10 @@ class Odometry:
                               bool(self.frontend.uses_depth),
                               self._frames[-1].timestamp if self._frames else None)
         timings: Dict[str, float] = {}
-        if self._worker is not None and (self._worker.ready() or self._live.lead(idx) >= MAX_LEAD_FRAMES):
+        if self._update_pending and (self._worker.ready()
+                                     or self._live.lead(idx) >= MAX_LEAD_FRAMES):
             self._sync(timings)
-        if self._worker is not None and self._worker.pending:
+        if self._update_pending:
             self._live.older_map_frames += 1
         if idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
@@ -410,11 +411,12 @@ class Odometry:
         ref = latest
         t = time.perf_counter()
         tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
-        if not tr.ok and self._worker is not None and self._worker.pending:
-            # lost against the map before its update: tracked again after it
-            timings["track"] = time.perf_counter() - t
+        if not tr.ok and self._update_pending:
+            # lost against the map before its update: tracked again after it (the
+            # wait is mapping's time, not tracking's)
+            tracked = time.perf_counter() - t
             self._sync(timings)
-            t = time.perf_counter() - timings["track"]
+            t = time.perf_counter() - tracked
             tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
         relocalised = False
         if not tr.ok:
@@ -433,7 +435,7 @@ class Odometry:
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
         # tracked against an older keyframe: make it a keyframe to re-anchor the map
         if ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest):
-            if ref is latest and self._worker is not None and self._worker.pending:
+            if ref is latest and self._update_pending:
                 tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
             else:
                 res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
@@ -501,11 +503,9 @@ class Odometry:
                                keyframe_index=k, track=track)
         self._backend.add_landmarks(self._map.window_kfs(extra=1), self._map.segment, timings)
         closed = self._close_loop(timings)
-        t = time.perf_counter()
         if self._backend.map(self._map.window_kfs(extra=1), self._map.candidates,
                              self._map.segment, closed, timings):
             self._map.seg_kfs = self._map.seg_kfs[-2:]
-        timings["mapping"] = time.perf_counter() - t
         self._map.candidates.clear()
         self._map.retire_outside_window()
         T_new = self._map.kfs[k].keyframe.T_world_kf
@@ -533,8 +533,8 @@ class Odometry:
         ref, _, median_then = self._map.anchors[idx]
         self._sync(timings)
         t = time.perf_counter()
-        tr2 = track_frame(latest.keyframe, frame.image, self._map.frame_pose(*self._map.anchors[idx]),
-                          tr.brightness, self.config.tracker)
+        T0 = self._map.frame_pose(*self._map.anchors[idx])    # moved with the update
+        tr2 = track_frame(latest.keyframe, frame.image, T0, tr.brightness, self.config.tracker)
         timings["track"] = timings.get("track", 0.0) + time.perf_counter() - t
         if tr2.ok:
             tr = tr2
@@ -564,11 +564,16 @@ class Odometry:
         self._map.candidates.clear()
         self._motion.brightness = np.zeros(2)
 
+    @property
+    def _update_pending(self) -> bool:
+        """Whether a window update is in the worker (live mapping)."""
+        return self._worker is not None and self._worker.pending
+
     def _sync(self, timings: Optional[Dict[str, float]] = None) -> bool:
         """Wait for the pending window update and apply it (:meth:`_apply`);
         its seconds (waiting included) in ``timings["mapping"]``.  Returns
         whether an update was applied."""
-        if self._worker is None or not self._worker.pending:
+        if not self._update_pending:
             return False
         t = time.perf_counter()
         self._apply(self._worker.receive())

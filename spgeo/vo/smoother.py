@@ -63,7 +63,8 @@ from .keyframe import Keyframe, with_shape_values
 from .landmarks import LandmarkMap, add_landmark_factors, read_landmarks
 from .map import MapKeyframe, SupportCandidate
 
-__all__ = ["WindowMapper", "adopt_selection", "choose_support", "MAP_RELATIVE_TOL", "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
+__all__ = ["WindowMapper", "adopt_selection", "choose_support", "MAP_RELATIVE_TOL",
+           "MAP_LAMBDA_MAX", "MAP_LAMBDA_INITIAL"]
 
 log = logging.getLogger(__name__)
 
