@@ -56,7 +56,7 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
 def nearest_rigid(T: np.ndarray) -> np.ndarray:
     """The rigid 4x4 transform nearest ``T`` (its rotation block projected on
     SO(3) by SVD, its translation kept): for a pose composed of poses whose
-    rotations carry rounding (GTSAM's estimates are orthonormal to ~1e-6)."""
+    rotations carry rounding (GTSAM's estimates are orthonormal only up to it)."""
     T = np.array(T, dtype=np.float64)
     U, _, Vt = np.linalg.svd(T[:3, :3])
     R = U @ Vt

@@ -147,8 +147,8 @@ class Keyframe:
     def __getstate__(self) -> dict:
         """Pickled without what is derived from the primitives alone (points,
         level data and lattices: rebuilt on load by the same code, so equal bit
-        for bit); the pixel selection is kept.  A quarter of the bytes (the
-        mapping worker's transfer, :mod:`spgeo.vo.mapping_worker`)."""
+        for bit); the pixel selection is kept: the mapping worker's transfer
+        (:mod:`spgeo.vo.mapping_worker`; sizes in docs/history.md, issue 32)."""
         state = dict(self.__dict__)
         state.update(points=None, _cache={}, _lattice={}, _lattice_points={})
         return state

@@ -3,15 +3,14 @@ landmarks and the window smoother) in a second process, so that tracking goes on
 while the window is solved (docs/design.md §5.1, *Mapping off the tracking path*).
 
 Why a process and not a thread: GTSAM's Python wrapper holds the interpreter lock
-for the whole smoother update (``python scripts/gil_during_solve.py``: a Python
-thread gets 5-8 % of its free progress during a solve), so a mapper thread would
-only take turns with the tracker.
+for the whole smoother update (``python scripts/gil_during_solve.py``; docs/history.md,
+issue 32), so a mapper thread would only take turns with the tracker.
 
 Protocol (one update in flight at a time):
 
 * :meth:`MappingWorker.submit` sends a :class:`MappingJob`: the segment's window
   (keyframe indices, oldest first), the keyframes whose current state the worker
-  has not seen (in practice the new keyframe: about 3.5 MB pickled at 320x240,
+  has not seen (in practice the new keyframe, pickled without its derived data,
   :meth:`Keyframe.__getstate__ <spgeo.vo.tracking.Keyframe.__getstate__>`), the
   supporting frames the mapper will use, the segment and whether the smoother
   restarts.
@@ -197,8 +196,8 @@ class MappingWorker:
         camera: the processing camera.
         config: the run's :class:`OdometryConfig`.
 
-    The process starts here and imports in the background (about a second); the
-    first :meth:`receive` waits for it.  :meth:`close` stops it (also at garbage
+    The process starts here and imports in the background; the first
+    :meth:`receive` waits for it.  :meth:`close` stops it (also at garbage
     collection; at interpreter exit it reads the end of its pipe and exits).
     """
 

@@ -61,8 +61,8 @@ from .tracking import Keyframe, TrackResult, track_frame
 __all__ = ["Odometry", "MAX_LEAD_FRAMES"]
 
 #: live mapping: the most frames tracked while a window update is pending; the next one
-#: waits for it (a 30 Hz camera gives about this many during a ~0.3 s update: an offline
-#: run then tracks as far ahead of its map as a live one; docs/results.md)
+#: waits for it (about what a 30 Hz camera gives during one update on two cores: an
+#: offline run then tracks as far ahead of its map as a live one; docs/results.md)
 MAX_LEAD_FRAMES = 8
 
 log = logging.getLogger(__name__)

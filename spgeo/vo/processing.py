@@ -128,7 +128,7 @@ def checked_frame(frame: Frame, index: int, camera: PinholeCamera, input_camera:
 @contextlib.contextmanager
 def opencv_threads(n: int) -> Iterator[None]:
     """OpenCV limited to ``n`` threads inside the block, its setting restored
-    after (about a microsecond).  :meth:`spgeo.vo.Odometry.track` runs with one:
+    after.  :meth:`spgeo.vo.Odometry.track` runs with one:
     at the processing size OpenCV's thread pool costs more than it gives, and
     the second core maps (docs/results.md, *Real time on two cores*)."""
     import cv2
