@@ -1,0 +1,160 @@
+"""The sequences and variants of the long-run VO benchmark (:mod:`spgeo.evaluation.vo.long_run`).
+
+:data:`SEQUENCES` (``--sequences`` name -> :class:`LongRunSequence`) plays each
+sequence's frames as a :class:`Reordered` view (timestamps = position in the run; a
+palindrome, :func:`spgeo.evaluation.vo.memory.palindrome`, returns to its first frame),
+:data:`VARIANTS` (``--variants`` name -> :class:`~spgeo.apps.vo_run.VORunConfig`
+overrides) and :func:`run_config` gives the configuration of one (sequence, variant).
+What each sequence and variant is: the docstring of :mod:`spgeo.evaluation.vo.long_run`.
+"""
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence as SequenceABC
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from spgeo.evaluation.shared_data import shared_data_root
+from spgeo.evaluation.vo.memory import palindrome
+
+__all__ = ["SEVENSCENES_FRAMES", "SYNTHETIC_LOOP", "Reordered", "LongRunSequence", "SEQUENCES",
+           "VARIANTS", "run_config"]
+
+#: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
+SEVENSCENES_FRAMES = 300
+#: Synthetic loop: distinct poses, pose subsampling, seed and keyframe spacing of
+#: ``scripts/loop_synthetic_experiment.py 80 0 0.03 3`` (docs/results.md).
+SYNTHETIC_LOOP = {"n_unique": 80, "step": 3, "seed": 0, "size": (160, 120)}
+
+
+class Reordered(SequenceABC):
+    """Lazy, random-access view of a frame sequence in the order ``order``:
+    item ``i`` is ``base[order[i]]`` with timestamp ``i``, name ``i``
+    (zero-padded), depth only when ``depth`` (else None), and ground truth
+    ``poses[order[i]]`` when ``poses`` is given (else the frame's own).  Frames
+    are read from ``base`` at each access, so the view holds no image."""
+
+    def __init__(self, base: Sequence, order: Sequence[int], poses: Optional[np.ndarray] = None,
+                 depth: bool = True) -> None:
+        self.base, self.order, self.poses, self.depth = base, list(order), poses, depth
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+    def __getitem__(self, i: int):
+        if not isinstance(i, (int, np.integer)) or not 0 <= i < len(self.order):
+            raise IndexError(i)
+        j = self.order[i]
+        f = self.base[j]
+        gt = f.T_world_cam if self.poses is None else self.poses[j]
+        return replace(f, timestamp=float(i), name=f"{i:06d}", T_world_cam=gt,
+                       depth=f.depth if self.depth else None)
+
+
+def _order(n: int, cap: Optional[int], loop: bool) -> List[int]:
+    """Positions played: ``0..n-1`` (at most ``cap``), or with ``loop`` the
+    palindrome ``0..m-1..0`` of ``m = min(n, (cap + 1) // 2)`` frames."""
+    if not loop:
+        return list(range(min(n, cap) if cap else n))
+    m = min(n, (cap + 1) // 2) if cap else n
+    return list(palindrome(m, 2 * m - 1))
+
+
+def _sevenscenes(cap: Optional[int], depth: bool, loop: bool) -> Reordered:
+    from spgeo.datasets import open_dataset
+
+    path = shared_data_root() / "7scenes_redkitchen_dev"
+    seq = open_dataset("7scenes", path, frames=f"0:{SEVENSCENES_FRAMES}", load_depth=depth)
+    return Reordered(seq, _order(len(seq), cap, loop), depth=depth)
+
+
+def _kitti(cap: Optional[int], depth: bool, loop: bool = False) -> Reordered:
+    """The KITTI clip: camera from P0 of ``calib.txt``, ground truth ``poses.txt``."""
+    import cv2
+
+    from spgeo.camera import PinholeCamera
+    from spgeo.datasets import open_dataset
+    from spgeo.datasets.kitti import read_kitti_calib, read_kitti_poses
+
+    root = shared_data_root() / "kitti_odometry_clip_51"
+    P0 = read_kitti_calib(root / "calib.txt")["P0"]
+    first = sorted((root / "image_l").glob("*.png"))[0]
+    h, w = cv2.imread(str(first), cv2.IMREAD_UNCHANGED).shape[:2]
+    cam = PinholeCamera.from_K(P0[:, :3], w, h)
+    seq = open_dataset("folder", root / "image_l", camera=cam, load_depth=False)
+    poses = np.stack(read_kitti_poses(root / "poses.txt")[:len(seq)])
+    return Reordered(seq, _order(len(seq), cap, loop), poses, depth=False)
+
+
+@functools.lru_cache(maxsize=1)
+def _synthetic_views(n: int) -> Tuple[Any, ...]:
+    """The first ``n`` views of the synthetic loop (:data:`SYNTHETIC_LOOP`), rendered with depth."""
+    from spgeo import synthetic
+
+    p = SYNTHETIC_LOOP
+    cam = synthetic.default_camera(*p["size"])
+    poses = synthetic.make_trajectory(p["n_unique"] * p["step"], p["seed"])[::p["step"]]
+    scene = synthetic.SyntheticScene.generate(p["seed"])
+    return tuple(synthetic.render_frames(scene, cam, poses[:n]))
+
+
+def _synthetic_loop(cap: Optional[int], depth: bool, loop: bool = True) -> Reordered:
+    """The palindrome over the rendered views (rendered once per process)."""
+    order = _order(SYNTHETIC_LOOP["n_unique"], cap, loop)
+    return Reordered(_synthetic_views(max(order) + 1), order, depth=depth)
+
+
+@dataclass(frozen=True)
+class LongRunSequence:
+    """A benchmark sequence.
+
+    Attributes:
+        open: ``open(cap, depth, loop) -> frames`` (a :class:`Reordered`):
+            at most ``cap`` frames (None: all), with sensor depth when ``depth``.
+        loop: played as a palindrome (returns to its first frame).
+        overrides: :class:`~spgeo.apps.vo_run.VORunConfig` overrides of this
+            sequence (dotted names), applied before the variant's.
+    """
+
+    open: Callable[..., Reordered]
+    loop: bool = False
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+
+    def frames(self, cap: Optional[int] = None, depth: bool = False) -> Reordered:
+        """The frames of the sequence (see :attr:`open`)."""
+        return self.open(cap, depth, self.loop)
+
+
+#: ``--sequences`` name -> :class:`LongRunSequence`.
+SEQUENCES: Dict[str, LongRunSequence] = {
+    "7scenes": LongRunSequence(_sevenscenes),
+    "7scenes-palindrome": LongRunSequence(_sevenscenes, loop=True),
+    "kitti": LongRunSequence(_kitti),
+    "synthetic-loop": LongRunSequence(
+        _synthetic_loop, loop=True,
+        overrides={"odometry.resolution": SYNTHETIC_LOOP["size"],
+                   "odometry.keyframe.max_translation": 0.03}),
+}
+
+#: ``--variants`` name -> :class:`~spgeo.apps.vo_run.VORunConfig` overrides (dotted names).
+VARIANTS: Dict[str, Mapping[str, Any]] = {
+    "default": {},
+    "loops": {"odometry.loop_closure.enabled": True},
+    "no-landmarks": {"odometry.landmarks.enabled": False},
+    "no-landmarks+loops": {"odometry.landmarks.enabled": False,
+                           "odometry.loop_closure.enabled": True},
+    "inline": {"odometry.mapping": "inline"},
+}
+
+
+def run_config(sequence: str, variant: str):
+    """The :class:`~spgeo.apps.vo_run.VORunConfig` of one run: no progress bar,
+    the sequence's overrides, then the variant's.  Raises ``KeyError`` for an
+    unknown name, :class:`spgeo.configs.ConfigError` for an unknown field."""
+    from spgeo.apps.vo_run import VORunConfig
+    from spgeo.configs import apply_overrides
+
+    cfg = apply_overrides(VORunConfig(progress=False), dict(SEQUENCES[sequence].overrides))
+    return apply_overrides(cfg, dict(VARIANTS[variant]))
