@@ -19,6 +19,12 @@
   lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
   (decorated with numba's ``njit`` / ``jit`` / ...) may be longer when its docstring has a
   line starting ``Longer than 60 lines because`` that gives the reason.
+* Sizes: no module of ``spgeo/``, ``factors/`` or ``evaluation/`` has more than 600 lines,
+  ``spgeo/vo/odometry.py`` (the per-frame state machine) at most 350.
+* One mapping port: the odometry (``spgeo/vo/odometry.py`` and its read side
+  ``spgeo/vo/readout.py``) names the mapping mode at most twice in code (an attribute
+  ``mapping`` / ``mapping_in_worker`` / ``mapping_schedule``, or the strings ``"live"`` /
+  ``"inline"``; docstrings do not count): live and inline differ in the port only.
 * One key scheme: no module of ``spgeo/`` or ``factors/`` but ``spgeo/graph/keys.py`` makes a
   gtsam key (``gtsam.symbol`` / ``gtsam.Symbol`` / ``gtsam.symbol_shorthand``, also when
   imported by name); every graph takes its keys from :mod:`spgeo.graph.keys`.
@@ -423,6 +429,55 @@ def test_functions_at_most_60_lines_of_code():
     assert not too_long, (f"functions over {MAX_FUNCTION_LINES} lines of code (compiled kernels "
                           f"may say why: a '{LONG_REASON} ...' line in their docstring):\n"
                           + "\n".join(too_long))
+
+
+MAX_MODULE_LINES = 600
+MAX_ODOMETRY_LINES = 350
+ODOMETRY_MODULES = ("spgeo/vo/odometry.py", "spgeo/vo/readout.py")
+MODE_ATTRIBUTES = {"mapping", "mapping_in_worker", "mapping_schedule"}
+MODE_STRINGS = {"live", "inline"}
+
+
+def test_module_sizes():
+    sizes = {p.relative_to(ROOT).as_posix(): len(p.read_text(encoding="utf-8").splitlines())
+             for folder in ("spgeo", "factors", "evaluation") for p in _python_files(folder)}
+    over = [f"{name}: {n}" for name, n in sorted(sizes.items()) if n > MAX_MODULE_LINES]
+    assert not over, f"modules over {MAX_MODULE_LINES} lines:\n" + "\n".join(over)
+    assert sizes["spgeo/vo/odometry.py"] <= MAX_ODOMETRY_LINES
+
+
+def mode_mentions(source: str) -> List[int]:
+    """Lines of ``source`` whose code names the mapping mode (module docstring)."""
+    tree = ast.parse(source)
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                       ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr)
+                  and isinstance(node.body[0].value, ast.Constant)}
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in MODE_ATTRIBUTES:
+            lines.append(node.lineno)
+        elif (isinstance(node, ast.Constant) and node.value in MODE_STRINGS
+              and id(node) not in docstrings):
+            lines.append(node.lineno)
+    return sorted(lines)
+
+
+def test_mode_scanner():
+    source = ('"""live and inline in a docstring do not count"""\n'
+              "a = config.mapping\n"                        # line 2
+              "b = cfg.mapping_in_worker or x == 'live'\n"   # line 3, twice
+              "c = 'inline'\n"                               # line 4
+              "d = config.mapping_lead\n")
+    assert mode_mentions(source) == [2, 3, 3, 4]
+
+
+def test_odometry_names_the_mapping_mode_at_most_twice():
+    found = [f"{name}:{line}" for name in ODOMETRY_MODULES
+             for line in mode_mentions((ROOT / name).read_text(encoding="utf-8"))]
+    assert len(found) <= 2, ("the mapping mode belongs to the mapping port "
+                             "(spgeo/vo/mapping_port.py), not the odometry:\n" + "\n".join(found))
 
 
 def test_key_scanner():

@@ -2,6 +2,7 @@
 worker's protocol gives the inline numbers bit for bit when the tracker waits,
 live mapping stays accurate and says what it did, failures are clear errors."""
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.validation import InputError
 from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
 from spgeo.vo.odometry import MAX_LEAD_FRAMES
+from spgeo.vo.mapping_port import InProcessPort
 from spgeo.vo.mapping_worker import MappingJob, MappingWorker, MappingWorkerError
 
 CAM = synthetic.default_camera(160, 120)
@@ -88,10 +90,14 @@ def test_live_smoother_is_out_of_reach_and_config_checked():
             vo.smoother_estimate()
     with pytest.raises(InputError, match="mapping"):
         OdometryConfig(mapping="threads")
-    # loop closure moves the map the update reads: its back end stays inline
+    with pytest.raises(InputError, match="mapping_schedule"):
+        OdometryConfig(mapping_schedule="soon")
+    with pytest.raises(InputError, match="mapping_lead"):
+        OdometryConfig(mapping_lead=-1)
+    # loop closure runs behind the port (issue 37): live mapping stays live with it
     cfg = OdometryConfig(loop_closure=dataclasses.replace(OdometryConfig().loop_closure,
                                                           enabled=True))
-    assert not cfg.mapping_in_worker and OdometryConfig().mapping_in_worker
+    assert cfg.mapping_in_worker and OdometryConfig().mapping_in_worker
 
 
 def test_worker_failure_is_a_clear_error_and_close_stops_it():
@@ -103,3 +109,59 @@ def test_worker_failure_is_a_clear_error_and_close_stops_it():
     worker.close()
     assert proc.poll() is not None
     worker.close()     # idempotent
+
+
+class _SlowPort(InProcessPort):
+    """The in-process back end, artificially slow: not ready until its update is
+    waited for, and the wait takes a while (a slow worker on a loaded machine)."""
+
+    def _ready(self):
+        return False
+
+    def _receive(self):
+        time.sleep(0.05)
+        return super()._receive()
+
+
+class _FastPort(InProcessPort):
+    """The in-process back end, artificially fast: every update ready at once."""
+
+
+def _run_port(frames, make):
+    fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1), mapping_lead=3)
+    cam = CAM.resized(*cfg.processing_size_for(CAM.size))
+    with Odometry(CAM, cfg, fe, port=make(cam, cfg) if make else None) as vo:
+        for f in frames:
+            vo.track(f)
+        return vo.result(), vo.report()
+
+
+def test_the_fixed_schedule_gives_one_trajectory_whatever_the_timing(frames):
+    """Recorded input (issue 37): an update is applied mapping_lead frames after its
+    keyframe, waited for when not ready, so a slow and a fast back end, in this
+    process or in the worker, give the same trajectory bit for bit; the updates
+    arrive at most mapping_lead frames after their keyframe, and some arrive later
+    than the next frame (the map is live, not inline)."""
+    runs = [_run_port(frames, lambda cam, cfg: _SlowPort(cam, cfg, lead=3)),
+            _run_port(frames, lambda cam, cfg: _FastPort(cam, cfg, lead=3)),
+            _run_port(frames, None)]
+    (res0, rep0), others = runs[0], runs[1:]
+    assert rep0["n_keyframes"] >= 4
+    for res, rep in others:
+        assert np.array_equal(res.poses, res0.poses)
+        assert list(res.statuses) == list(res0.statuses)
+    live = runs[2][1]["mapping_worker"]
+    assert live["latency_frames_max"] == 3 and live["frames_tracked_against_older_map"] > 0
+
+
+def test_the_ready_schedule_applies_updates_as_they_come(frames, inline):
+    """A live camera's schedule: an update also applies when it is ready.  A back
+    end that is always ready at once gives the inline map (latency 0); one that
+    never is gives the fixed schedule's."""
+    res, rep = _run_port(frames, lambda cam, cfg: _FastPort(cam, cfg, lead=3, schedule="ready"))
+    assert np.array_equal(res.poses, inline[0].poses)
+    slow, _ = _run_port(frames, lambda cam, cfg: _SlowPort(cam, cfg, lead=3, schedule="ready"))
+    fixed, _ = _run_port(frames, lambda cam, cfg: _FastPort(cam, cfg, lead=3))
+    assert np.array_equal(slow.poses, fixed.poses)
+    assert not np.array_equal(slow.poses, res.poses)

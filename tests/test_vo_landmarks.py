@@ -128,10 +128,11 @@ def test_projection_factors_vanish_at_truth_and_remembered_landmarks_get_a_prior
 
 def test_landmarks_are_on_by_default():
     """On by default (issue 30: better on 7-Scenes, its palindrome, the synthetic loop
-    and the KITTI clip, docs/results.md); the config stays within 25 top-level fields."""
+    and the KITTI clip, docs/results.md); the config stays within 27 top-level fields
+    (25 before the mapping port's lead and schedule, issue 37)."""
     assert OdometryConfig().landmarks.enabled is True
     assert OdometryConfig().landmarks.match_keyframes == 3
-    assert len(dataclasses.fields(OdometryConfig)) <= 25
+    assert len(dataclasses.fields(OdometryConfig)) <= 27
 
 
 def _palindrome_gap(n_unique, seed, landmarks):

@@ -97,7 +97,7 @@ def test_factor_groups_are_freed_when_they_leave_the_graph(run):
     vo, _, before = run
     gc.collect()
     alive = [g for g in _groups() if g not in before]
-    assert len(alive) == len(vo._backend.mapper._groups) > 0
+    assert len(alive) == len(vo._port.backend.mapper._groups) > 0
 
 
 def test_saved_clouds_equal_the_clouds_of_the_final_state(run, tmp_path):

@@ -22,12 +22,14 @@ from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
 __all__ = ["TrackerConfig", "KeyframeDecisionConfig", "ScaleCheckConfig", "InitConfig",
-           "OdometryConfig", "INIT_METHODS", "MAPPING_MODES"]
+           "OdometryConfig", "INIT_METHODS", "MAPPING_MODES", "MAPPING_SCHEDULES"]
 
 #: how a monocular map's initialisation SfM starts (``InitConfig.method``)
 INIT_METHODS = ("twoview", "tracked")
 #: where the VO's back end runs (``OdometryConfig.mapping``)
 MAPPING_MODES = ("live", "inline")
+#: when live mapping's updates are applied (``OdometryConfig.mapping_schedule``)
+MAPPING_SCHEDULES = ("fixed", "ready")
 
 
 @config_repr
@@ -241,7 +243,7 @@ _ODOMETRY_CHECKS = (
     ("keyframe.max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
     ("scale_check.min_parallax", ">= 0"), ("scale_check.max_change", "> 0"),
     ("keyframe_levels", ">= 1"), ("init.min_parallax_deg", "None or > 0"),
-    ("init.parallax_percentile", "in [0, 100]"))
+    ("init.parallax_percentile", "in [0, 100]"), ("mapping_lead", ">= 0"))
 
 
 @config_repr
@@ -333,9 +335,19 @@ class OdometryConfig:
             :data:`MAPPING_MODES`: ``"live"`` (default) in a worker process
             (:mod:`spgeo.vo.mapping_worker`) while the next frames are tracked
             against the map before the update; ``"inline"`` between two frames,
-            in this process (deterministic; the smoother can be reached).  With
-            loop closure on, mapping is inline (the loop closer moves the map
-            the update reads).
+            in this process (the smoother can be reached).  Both run the same
+            back end (landmarks, loop closure, window update) through the
+            mapping port (:mod:`spgeo.vo.mapping_port`).
+        mapping_lead: live mapping: an update is applied before the frame
+            ``mapping_lead`` frames after its keyframe, waited for when not
+            ready (default 8, about what a 30 Hz camera gives during one update
+            on two cores; docs/results.md).  Frames may apply it earlier
+            (a keyframe decision, a lost frame), the same way on any machine.
+        mapping_schedule: live mapping, one of :data:`MAPPING_SCHEDULES`:
+            ``"fixed"`` (default; recorded input) only the rule above, so the
+            trajectory does not depend on the machine or its load; ``"ready"``
+            (a live camera) also at the first frame that finds the update
+            ready.
     """
 
     resolution: Optional[Tuple[int, int]] = None
@@ -363,12 +375,14 @@ class OdometryConfig:
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
     mapping: str = "live"
+    mapping_lead: int = 8
+    mapping_schedule: str = "fixed"
 
     @property
     def mapping_in_worker(self) -> bool:
         """Whether the back end runs in the mapping worker process (``mapping``
-        ``"live"`` and loop closure off)."""
-        return self.mapping == "live" and not self.loop_closure.enabled
+        ``"live"``)."""
+        return self.mapping == "live"
 
     def __post_init__(self) -> None:
         self._check_size()
@@ -378,6 +392,9 @@ class OdometryConfig:
         if self.mapping not in MAPPING_MODES:
             raise InputError(f"OdometryConfig.mapping must be one of {MAPPING_MODES}, "
                              f"got {self.mapping!r}")
+        if self.mapping_schedule not in MAPPING_SCHEDULES:
+            raise InputError(f"OdometryConfig.mapping_schedule must be one of "
+                             f"{MAPPING_SCHEDULES}, got {self.mapping_schedule!r}")
         if self.primitive_model not in PRIMITIVE_MODELS:
             raise InputError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")

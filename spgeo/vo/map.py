@@ -6,14 +6,17 @@ the supporting frames' smoothed poses, the supporting-frame candidates of the
 newest keyframe, and one :meth:`KeyframeMap.apply_similarity` that moves all of
 it with its keyframes (loop correction).
 
-The map holds state; :class:`spgeo.vo.Odometry` decides (tracking, keyframes,
-mapping) and :class:`spgeo.vo.smoother.WindowMapper` smooths the window, writing
-the supporting frames' poses into :attr:`KeyframeMap.support_pose`.
+The map holds state and makes its own changes (its methods: anchoring frames, new
+keyframes and segments, handing over candidates, applying a back-end update with
+:meth:`KeyframeMap.apply_update`, the one similarity move
+:meth:`KeyframeMap.apply_similarity`); :class:`spgeo.vo.Odometry` decides (tracking,
+keyframes, when to map) and the back end (:mod:`spgeo.vo.backend`, reached through
+:mod:`spgeo.vo.mapping_port`) computes the updates on its own copies.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
+from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -21,6 +24,7 @@ from ..similarity import moved_frame
 from .keyframe_store import KeyframeStore
 from .motion import MotionModel
 from .result import FrameResult, FrameStatus
+from .keyframe import with_shape_values
 from .tracking import Keyframe
 
 __all__ = ["KeyframeMap", "MapKeyframe", "SupportCandidate"]
@@ -139,7 +143,7 @@ class KeyframeMap:
         anchors: frame number -> ``(k, T_kf_frame, median depth of k then)`` of a
             frame tracked against keyframe ``k``.
         support_pose: frame number -> smoothed ``T_world_frame`` of a supporting
-            frame (written by the window smoother).
+            frame (from the back end's updates, :meth:`apply_update`).
         candidates: supporting-frame candidates of the newest keyframe.
     """
 
@@ -169,10 +173,12 @@ class KeyframeMap:
 
     def add(self, kf: MapKeyframe, new_segment: bool = False) -> None:
         """Append keyframe ``kf`` (index :attr:`next_index`) to the map and to the
-        current segment (``new_segment``: as the segment's keyframe 0)."""
+        current segment (``new_segment``: as the segment's keyframe 0); its frame
+        is no longer anchored (a keyframe's pose is its own)."""
         self.kfs[kf.index] = kf
         self.order.append(kf.index)
         self.live.append(kf.index)
+        self.anchors.pop(kf.frame, None)
         if new_segment:
             self.seg_kfs = [kf.index]
         else:
@@ -264,7 +270,55 @@ class KeyframeMap:
                 poses[i] = f.T_world_cam
         return poses, is_kf
 
-    # ------------------------------------------------------------ corrections
+    # ------------------------------------------------------------ changes
+    def anchor(self, frame: int, k: int, T_kf_frame: np.ndarray, median_then: float) -> None:
+        """Frame ``frame`` tracked against keyframe ``k`` at ``T_kf_frame`` (4x4),
+        ``median_then`` the keyframe's median depth then (:meth:`frame_pose`)."""
+        self.anchors[frame] = (k, T_kf_frame, median_then)
+
+    def begin_segment(self) -> None:
+        """A new map segment (re-initialisation): its keyframe 0 comes next
+        (:meth:`add` with ``new_segment``)."""
+        self.segment += 1
+
+    def replace_keyframe(self, k: int, keyframe: Keyframe) -> None:
+        """Live keyframe ``k``'s :class:`Keyframe` becomes ``keyframe`` (e.g. an
+        initialisation's solved keyframe 0)."""
+        self.kfs[k].keyframe = keyframe
+
+    def take_candidates(self) -> List[SupportCandidate]:
+        """The newest keyframe's supporting-frame candidates, handed over (the
+        list starts empty for the next keyframe)."""
+        taken, self.candidates = self.candidates, []
+        return taken
+
+    def apply_update(self, upd, primitive_model: str, motion: Optional[MotionModel]
+                     ) -> Dict[int, Keyframe]:
+        """Apply a back end's :class:`~spgeo.vo.backend.MappingUpdate`: its loop
+        correction first (:meth:`apply_loop_correction`; ``motion`` moved with the
+        newest keyframe unless None), then the refreshed keyframes (the back
+        end's own objects where it sent them, else
+        :func:`~spgeo.vo.keyframe.with_shape_values` of ours: equal numbers), the
+        supporting frames' poses, a window restart (the segment keeps its last
+        two keyframes) and retirement.  Returns keyframe index -> the new
+        :class:`Keyframe` of every live keyframe that changed."""
+        changed: Dict[int, Keyframe] = {}
+        if upd.loop is not None:
+            self.apply_loop_correction(upd.loop, motion)
+            changed.update({k: self.kfs[k].keyframe for k in upd.loop.kf_ids
+                            if not self.kfs[k].retired})
+        for j, (T, th) in sorted(upd.keyframes.items()):
+            mk = self.kfs[j]
+            built = upd.built.get(j)
+            mk.keyframe = (built if built is not None
+                           else with_shape_values(mk.keyframe, th, primitive_model, T))
+            changed[j] = mk.keyframe
+        self.support_pose.update(upd.support_pose)
+        if upd.restarted:
+            self.seg_kfs = self.seg_kfs[-2:]
+        self.retire_outside_window()
+        return {k: kf for k, kf in changed.items() if not self.kfs[k].retired}
+
     def adopt_retracked(self, kf0: MapKeyframe, retracked: Sequence,
                         frames: Sequence[FrameResult]) -> None:
         """An initialisation's re-tracked frames (``retracked``:
@@ -284,47 +338,37 @@ class KeyframeMap:
                 res.status = FrameStatus.LOST
                 self.anchors.pop(r.frame, None)
 
-    def apply_loop_correction(self, corr, motion: MotionModel) -> None:
-        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`
-        (:meth:`apply_similarity`): every keyframe's pose and depths
-        (:meth:`MapKeyframe.correct`), the frames that follow them, ``motion``
-        (anchored to the new keyframe) and the supporting-frame candidates of the
-        previous keyframe (translations in its depth units)."""
-        def move(mk: MapKeyframe) -> np.ndarray:
-            mk.correct(corr.T_world_kf[mk.index], corr.scales[mk.index])
-            return corr.W_new_old[mk.index]
+    def apply_loop_correction(self, corr, motion: Optional[MotionModel]) -> None:
+        """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`: every
+        keyframe's pose and depths (:meth:`MapKeyframe.correct`), then what
+        follows them (:meth:`apply_similarity`; the candidates' translations in
+        the previous keyframe's depth units)."""
+        for k in corr.kf_ids:
+            self.kfs[k].correct(corr.T_world_kf[k], corr.scales[k])
+        s_prev = corr.scales.get(self.seg_kfs[-2], 1.0) if len(self.seg_kfs) >= 2 else 1.0
+        self.apply_similarity(corr.W_new_old, motion, s_prev)
 
-        s_prev = corr.scales.get(self.seg_kfs[-2], 1.0)
-        self.apply_similarity(corr.kf_ids, move, motion, lambda W: s_prev)
-
-    def apply_similarity(self, kf_ids: Iterable[int],
-                         move_keyframe: Callable[[MapKeyframe], np.ndarray],
-                         motion: MotionModel,
-                         candidate_scale: Callable[[Dict[int, np.ndarray]], float]) -> bool:
-        """Move keyframes ``kf_ids`` and what follows them.
-
-        Each keyframe is moved by ``move_keyframe`` (its pose and depths, the
-        caller's arithmetic), which returns its world similarity ``W_new_old``
-        (``S_world_kf(new) @ inv(T_world_kf(old))``, 4x4).  Frames anchored to a
-        keyframe follow it in :meth:`frame_poses` through its pose and median
-        depth; the supporting frames' smoothed poses move by their keyframe's
-        ``W`` (:func:`spgeo.similarity.moved_frame`); when the segment's newest
-        keyframe moved, ``motion``'s poses move by its ``W`` and the
-        candidates' translations (in their keyframe's depth units) are
-        multiplied by ``candidate_scale(W)``.  Returns whether the newest
-        keyframe moved."""
-        W = {k: move_keyframe(self.kfs[k]) for k in kf_ids}
+    def apply_similarity(self, W_new_old: Dict[int, np.ndarray], motion: Optional[MotionModel],
+                         candidate_scale: float) -> None:
+        """The one similarity move of what follows keyframes whose map moved by the
+        world similarities ``W_new_old`` (keyframe index -> 4x4 ``S_world_kf(new) @
+        inv(T_world_kf(old))``; the keyframes themselves are the caller's): frames
+        anchored to a keyframe follow it in :meth:`frame_poses` through its pose
+        and median depth; the supporting frames' smoothed poses move by their
+        keyframe's ``W`` (:func:`spgeo.similarity.moved_frame`); when the
+        segment's newest keyframe moved and ``motion`` is given (else what
+        follows the newest keyframe is left to the caller), ``motion``'s poses
+        move by its ``W`` and the candidates' translations (in its depth units)
+        are multiplied by ``candidate_scale``."""
         sup = self.support_pose
         for f in list(sup):
             k = self.anchors[f][0] if f in self.anchors else None
-            if k in W:
-                sup[f] = moved_frame(W[k], sup[f])
+            if k in W_new_old:
+                sup[f] = moved_frame(W_new_old[k], sup[f])
         newest = self.seg_kfs[-1] if self.seg_kfs else None
-        if newest not in W:
-            return False
-        motion.move(lambda T: moved_frame(W[newest], T))
-        s = candidate_scale(W)
+        if motion is None or newest not in W_new_old:
+            return
+        motion.move(lambda T: moved_frame(W_new_old[newest], T))
         for c in self.candidates:
             c.T_kf_frame = c.T_kf_frame.copy()
-            c.T_kf_frame[:3, 3] *= s
-        return True
+            c.T_kf_frame[:3, 3] *= candidate_scale

@@ -86,16 +86,16 @@ class WindowMapper:
 
     Attributes:
         smoother: the ``gtsam.BatchFixedLagSmoother`` (replaced by :meth:`reset`).
-        support_pose: frame number -> smoothed ``T_world_frame`` of a
-            supporting frame.
         reports: one dict per mapped keyframe (factor counts, seconds, ...).
         refreshed: what the last :meth:`map_keyframe` wrote into its keyframes:
             keyframe index -> ``(T_world_kf, shape values)``, the arguments of
             :func:`~spgeo.vo.keyframe.with_shape_values` (a copy of the
             keyframes, e.g. a mapping worker's caller, applies them to stay
             equal).
-        refreshed_support: frame number -> ``T_world_frame`` written into
-            :attr:`support_pose` by the last :meth:`map_keyframe`.
+        refreshed_support: frame number -> smoothed ``T_world_frame`` of the
+            supporting frames still in the window after the last
+            :meth:`map_keyframe` (the caller's map keeps them,
+            :meth:`spgeo.vo.map.KeyframeMap.apply_update`).
     """
 
     def __init__(self, config: OdometryConfig) -> None:
@@ -103,7 +103,6 @@ class WindowMapper:
         self.smoother = self.new_smoother()
         self._groups: List[PhotometricFactorGroup] = []     # alive while in the smoother
         self._support_frames: List[int] = []
-        self.support_pose: Dict[int, np.ndarray] = {}
         self.reports: List[dict] = []
         self.refreshed: Dict[int, tuple] = {}
         self.refreshed_support: Dict[int, np.ndarray] = {}
@@ -285,7 +284,7 @@ class WindowMapper:
             if est.exists(key):
                 T = est.atPose3(key).matrix()
                 if np.all(np.isfinite(T)):
-                    self.support_pose[f] = self.refreshed_support[f] = T
+                    self.refreshed_support[f] = T
 
 
 def choose_support(candidates: Sequence[SupportCandidate], n_support: int
