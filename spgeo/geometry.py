@@ -12,7 +12,8 @@ from typing import Sequence
 import numpy as np
 
 __all__ = [
-    "check_pose", "check_poses", "invert_pose", "relative_pose", "transform_points", "quat_to_rot",
+    "check_pose", "check_poses", "invert_pose", "nearest_rotation", "relative_pose",
+    "transform_points", "quat_to_rot",
     "rot_to_quat", "pose_from_tum", "pose_to_tum", "rotation_angle_deg", "to_pose3",
     "from_pose3", "so3_exp",
 ]
@@ -53,17 +54,33 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def nearest_rigid(T: np.ndarray) -> np.ndarray:
-    """The rigid 4x4 transform nearest ``T`` (its rotation block projected on
-    SO(3) by SVD, its translation kept): for a pose composed of poses whose
-    rotations carry rounding (GTSAM's estimates are orthonormal only up to it)."""
-    T = np.array(T, dtype=np.float64)
-    U, _, Vt = np.linalg.svd(T[:3, :3])
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation (orthonormal, determinant +1) nearest the 3x3 matrix ``M`` in the
+    Frobenius norm: with the SVD ``M = U S Vt``, ``U @ Vt``, or ``U diag(1, 1, -1) Vt``
+    when ``U @ Vt`` is a reflection.
+
+    The one projection onto SO(3) of spgeo (``tests/test_layering.py`` checks that no
+    other module of ``spgeo/`` or ``factors/`` writes its own): re-orthonormalising a
+    rotation that carries rounding, fitting one to a correlation matrix (Kabsch, an
+    essential matrix's rotation, the mean of rotations).  Keep its floating-point
+    operations as they are: the outputs of the VO, SfM and completion are compared
+    byte for byte across refactors, and a form equal on paper, such as
+    ``U @ diag(1, 1, det(U @ Vt)) @ Vt``, differs in the last bits."""
+    U, _, Vt = np.linalg.svd(M)
     R = U @ Vt
     if np.linalg.det(R) < 0:
         R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return R
+
+
+def nearest_rigid(T: np.ndarray) -> np.ndarray:
+    """The rigid 4x4 transform nearest ``T`` (its rotation block projected on
+    SO(3), :func:`nearest_rotation`, its translation kept): for a pose composed of
+    poses whose rotations carry rounding (GTSAM's estimates are orthonormal only up
+    to it)."""
+    T = np.array(T, dtype=np.float64)
     out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, T[:3, 3]
+    out[:3, :3], out[:3, 3] = nearest_rotation(T[:3, :3]), T[:3, 3]
     return out
 
 

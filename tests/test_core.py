@@ -87,6 +87,42 @@ def test_pose_helpers():
         geo.pose_from_tum([0, 0, 0, 0, 0, 0, 0])
 
 
+def test_nearest_rotation():
+    """A rotation (orthonormal, det +1), the nearest in the Frobenius norm, also for
+    inputs that hold a reflection (where ``U @ Vt`` alone is no rotation)."""
+    rng = np.random.default_rng(3)
+
+    def is_rotation(R):
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        assert abs(np.linalg.det(R) - 1.0) < 1e-12
+
+    # diag(3, 2, -1): U @ Vt is diag(1, 1, -1); the nearest rotation is I (trace 4 vs 2)
+    R = geo.nearest_rotation(np.diag([3.0, 2.0, -1.0]))
+    is_rotation(R)
+    np.testing.assert_allclose(R, np.eye(3), atol=1e-12)
+    flip = np.diag([1.0, 1.0, -1.0])
+    candidates = [geo.so3_exp(rng.normal(size=3) * 3) for _ in range(2000)]
+    for M in [geo.so3_exp(rng.normal(size=3)) + 1e-3 * rng.normal(size=(3, 3)),  # rounding
+              geo.so3_exp(rng.normal(size=3)) @ flip + 0.1 * rng.normal(size=(3, 3)),
+              rng.normal(size=(3, 3)), -rng.normal(size=(3, 3)) @ np.diag([4.0, 2.0, 1.0])]:
+        R = geo.nearest_rotation(M)
+        is_rotation(R)
+        d = np.linalg.norm(M - R)
+        # no random rotation, and no small turn of R, is closer to M
+        assert all(np.linalg.norm(M - C) >= d for C in candidates)
+        for _ in range(200):
+            assert np.linalg.norm(M - geo.so3_exp(rng.normal(size=3) * 1e-3) @ R) >= d
+    # a rotation comes back as itself (to rounding); nearest_rigid keeps the translation
+    R0 = geo.so3_exp([0.3, -0.2, 0.1])
+    np.testing.assert_allclose(geo.nearest_rotation(R0), R0, atol=1e-15)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R0 + 1e-6, [1.0, 2.0, 3.0]
+    Tn = geo.nearest_rigid(T)
+    np.testing.assert_array_equal(Tn[:3, :3], geo.nearest_rotation(T[:3, :3]))
+    np.testing.assert_array_equal(Tn[3], [0, 0, 0, 1])
+    np.testing.assert_array_equal(Tn[:3, 3], [1.0, 2.0, 3.0])
+
+
 # ------------------------------------------------------------------ images
 def test_image_conversions_and_errors(tmp_path):
     u8 = np.full((4, 5, 3), 255, np.uint8)

@@ -28,6 +28,13 @@
 * One key scheme: no module of ``spgeo/`` or ``factors/`` but ``spgeo/graph/keys.py`` makes a
   gtsam key (``gtsam.symbol`` / ``gtsam.Symbol`` / ``gtsam.symbol_shorthand``, also when
   imported by name); every graph takes its keys from :mod:`spgeo.graph.keys`.
+* One rotation projection: no module of ``spgeo/`` or ``factors/`` but ``spgeo/geometry.py``
+  projects a matrix onto a rotation by SVD; all use :func:`spgeo.geometry.nearest_rotation`.
+  A projection is an SVD ``U, _, Vt = ...svd(M)`` whose singular values go unused and whose
+  ``U`` and ``Vt`` (or their transposes) are multiplied together in the same function
+  (``U @ Vt``, ``U @ D @ Vt``, ``np.dot`` / ``np.matmul`` too).  Other SVD uses pass: a
+  null vector (triangulation, ``_, _, vt = ...``), a fit that uses the singular values
+  (Umeyama's scale in :mod:`spgeo.similarity`).
 """
 from __future__ import annotations
 
@@ -50,6 +57,7 @@ LONG_REASON = "Longer than 60 lines because"
 KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc"}
 KEY_MODULE = "spgeo/graph/keys.py"   # the one module that makes gtsam keys
 KEY_MAKERS = {"symbol", "Symbol", "symbol_shorthand"}
+ROTATION_MODULE = "spgeo/geometry.py"   # the one module that projects onto SO(3) by SVD
 
 
 def _python_files(folder: str) -> list[Path]:
@@ -325,6 +333,69 @@ def key_making_lines(source: str) -> List[int]:
     return sorted(lines)
 
 
+# ------------------------------------------------------------------ rotation projection
+def _scope_nodes(scope: ast.AST) -> Iterator[ast.AST]:
+    """The nodes of a function (or module) body, not those of the functions it holds."""
+    todo = list(ast.iter_child_nodes(scope))
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            continue
+        yield node
+        todo.extend(ast.iter_child_nodes(node))
+
+
+def _is_svd_call(node: ast.AST) -> bool:
+    if not isinstance(node, ast.Call):
+        return False
+    f = node.func
+    return ((isinstance(f, ast.Attribute) and f.attr == "svd")
+            or (isinstance(f, ast.Name) and f.id == "svd"))
+
+
+def _matmul_factors(node: ast.AST) -> List[ast.expr]:
+    """The factors of a matrix product ``a @ b @ c`` / ``np.dot(a, b)`` / ``np.matmul(a, b)``
+    (nested products flattened); ``[]`` for anything else."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult):
+        parts = [node.left, node.right]
+    elif (isinstance(node, ast.Call) and len(node.args) == 2 and _decorator_name(node)
+          in ("dot", "matmul")):
+        parts = list(node.args)
+    else:
+        return []
+    return [f for p in parts for f in (_matmul_factors(p) or [p])]
+
+
+def _factor_name(node: ast.expr) -> Optional[str]:
+    """``U`` for ``U`` or ``U.T``; None for other factors."""
+    if isinstance(node, ast.Attribute) and node.attr == "T":
+        node = node.value
+    return node.id if isinstance(node, ast.Name) else None
+
+
+def rotation_projection_lines(source: str) -> List[int]:
+    """Lines of ``source`` whose SVD projects onto a rotation: ``U, S, Vt = ...svd(M)``
+    with ``S`` unused (``_`` or never read) and ``U``, ``Vt`` (or their ``.T``) factors of
+    one matrix product in the same function (module docstring)."""
+    tree = ast.parse(source)
+    lines = set()
+    for scope in [tree] + [n for n in ast.walk(tree)
+                           if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]:
+        nodes = list(_scope_nodes(scope))
+        read = {n.id for n in nodes if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+        products = [{_factor_name(f) for f in _matmul_factors(n)} for n in nodes]
+        for node in nodes:
+            if not (isinstance(node, ast.Assign) and _is_svd_call(node.value)
+                    and len(node.targets) == 1 and isinstance(node.targets[0], ast.Tuple)
+                    and len(node.targets[0].elts) == 3
+                    and all(isinstance(e, ast.Name) for e in node.targets[0].elts)):
+                continue
+            u, s, vt = (e.id for e in node.targets[0].elts)
+            if (s == "_" or s not in read) and any({u, vt} <= p for p in products):
+                lines.add(node.lineno)
+    return sorted(lines)
+
+
 # ------------------------------------------------------------------ tests
 def test_core_file_list_is_sane():
     files = {p.relative_to(ROOT).as_posix() for p in core_files()}
@@ -500,3 +571,48 @@ def test_one_key_scheme():
     assert (ROOT / KEY_MODULE).exists()
     assert not offenders, (f"gtsam keys are made only in {KEY_MODULE} (one key scheme; "
                            "use its functions):\n" + "\n".join(offenders))
+
+
+def test_rotation_projection_scanner():
+    source = ('"""np.linalg.svd(M) in a docstring does not count"""\n'
+              "import numpy as np\n"
+              "def rigid(T):\n"
+              "    U, _, Vt = np.linalg.svd(T[:3, :3])\n"                       # line 4
+              "    R = U @ Vt\n"
+              "    if np.linalg.det(R) < 0:\n"
+              "        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt\n"
+              "    return R\n"
+              "def by_det(R):\n"
+              "    U, _, Vt = np.linalg.svd(R)\n"                               # line 10
+              "    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt\n"
+              "def kabsch(f1, f2):\n"
+              "    U, _, Vt = np.linalg.svd(f1.T @ f2)\n"                       # line 13
+              "    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])\n"
+              "    return Vt.T @ D @ U.T\n"
+              "def closest(m):\n"
+              "    u, s, vt = svd(m)\n"                                         # line 17
+              "    return np.dot(u, vt)\n"
+              "def null_vector(A):\n"
+              "    _, _, vt = np.linalg.svd(A)\n"
+              "    return vt[-1]\n"
+              "def umeyama(xd, xs):\n"
+              "    U, D, Vt = np.linalg.svd(xd.T @ xs)\n"
+              "    R = U @ np.diag([1.0, 1.0, 1.0]) @ Vt\n"
+              "    return R, D.sum()\n"
+              "def apart(M):\n"
+              "    U, _, Vt = np.linalg.svd(M)\n"
+              "    def inner(Vt):\n"
+              "        return U @ Vt\n"
+              "    return U @ M, Vt\n")
+    assert rotation_projection_lines(source) == [4, 10, 13, 17]
+
+
+def test_one_rotation_projection():
+    files = [p for folder in ("spgeo", "factors") for p in _python_files(folder)
+             if p != ROOT / ROTATION_MODULE]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 for line in rotation_projection_lines(path.read_text(encoding="utf-8"))]
+    assert rotation_projection_lines((ROOT / ROTATION_MODULE).read_text(encoding="utf-8"))
+    assert not offenders, (f"projections onto a rotation by SVD are made only in "
+                           f"{ROTATION_MODULE} (use spgeo.geometry.nearest_rotation):\n"
+                           + "\n".join(offenders))

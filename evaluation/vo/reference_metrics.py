@@ -43,9 +43,9 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
+from spgeo.geometry import nearest_rotation
 from spgeo.similarity import sim3_parts, umeyama
 from spgeo.trajectory import Trajectory
-from spgeo.twoview.geometry import orthonormalise
 
 from spgeo.evaluation.pose_metrics import relative_pose_errors, rotation_error_deg
 from spgeo.evaluation.trajectory import AteResult, ate_sim3, default_max_time_diff
@@ -218,7 +218,7 @@ def orientation_error(est, ref, max_time_diff: Optional[float] = None) -> Orient
     constant rotation.
 
     ``R_align`` = the rotation nearest (SVD projection,
-    :func:`spgeo.twoview.geometry.orthonormalise`) to ``sum_i R_B,i R_A,i^T``: the
+    :func:`spgeo.geometry.nearest_rotation`) to ``sum_i R_B,i R_A,i^T``: the
     chordal L2 mean, which minimises ``sum_i ||R_align R_A,i - R_B,i||_F^2``.  Then per
     frame the angle (degrees) between ``R_align R_A,i`` and ``R_B,i``.  Only the
     rotation blocks are used (positions and scale do not enter).  Association:
@@ -230,7 +230,7 @@ def orientation_error(est, ref, max_time_diff: Optional[float] = None) -> Orient
         nan = float("nan")
         return OrientationError(0, nan, nan, nan)
     Ra, Rb = pairs.poses_a[idx, :3, :3], pairs.poses_b[idx, :3, :3]
-    R_align = orthonormalise(np.einsum("nij,nkj->ik", Rb, Ra))
+    R_align = nearest_rotation(np.einsum("nij,nkj->ik", Rb, Ra))
     angles = np.array([rotation_error_deg(R_align @ a, b) for a, b in zip(Ra, Rb)],
                       dtype=np.float64)
     mean, median, mx = _stats(angles)

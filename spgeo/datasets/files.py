@@ -18,6 +18,7 @@ from typing import Dict, Optional, Sequence, Union
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..geometry import nearest_rigid as _nearest_rigid
 from ..images import load_image, read_raw_image
 from ..validation import InputError, check_input_file
 
@@ -137,7 +138,8 @@ def read_camera_json(path: PathLike) -> PinholeCamera:
 
 
 def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.ndarray:
-    """Project an almost-rigid 4x4 matrix onto SE(3) (SVD of the rotation block).
+    """Project an almost-rigid 4x4 matrix onto SE(3) (:func:`spgeo.geometry.nearest_rigid`,
+    after checking it is almost rigid).
 
     Data-set poses are often stored with a few 1e-4 of rotation error (7-Scenes);
     :class:`~spgeo.frame.Frame` requires 1e-5.  Raises ``ValueError`` when the
@@ -151,11 +153,7 @@ def nearest_rigid(T: np.ndarray, name: str = "pose", tol: float = 1e-2) -> np.nd
             or np.abs(T[3] - [0, 0, 0, 1]).max() > tol):
         raise InputError(f"{name}: not a rigid transform (rotation not orthonormal or last row "
                          "not [0 0 0 1])")
-    U, _, Vt = np.linalg.svd(R)
-    out = np.eye(4)
-    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    out[:3, 3] = T[:3, 3]
-    return out
+    return _nearest_rigid(T)
 
 
 def read_pose_file(path: PathLike, dataset: str, read_matrix) -> Optional[np.ndarray]:

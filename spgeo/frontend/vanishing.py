@@ -33,6 +33,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_repr
+from ..geometry import nearest_rotation
 from .lines import LineSegments
 
 __all__ = ["VanishingConfig", "VanishingResult", "estimate_vanishing_directions",
@@ -211,12 +212,6 @@ def _separated(d: np.ndarray, existing: list, min_sep: float) -> bool:
     return all(abs(float(d @ e)) < np.cos(np.radians(min_sep)) for e in existing)
 
 
-def _closest_rotation(m: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    return r
-
-
 def _greedy(s: _Search, active: np.ndarray, existing: list, k: int) -> list:
     """Up to ``k`` directions found one after the other by pair RANSAC on the
     ``active`` segments, each removing its inliers; stops at the first one
@@ -265,7 +260,7 @@ def _manhattan_ransac(s: _Search, active: np.ndarray) -> Optional[np.ndarray]:
             inl = s.inliers(frame[i][None], active)[0]
             rows.append(_refine(s.lines[inl], s.length[inl], frame[i]) if inl.sum() >= 2
                         else frame[i])
-        frame = _closest_rotation(np.stack(rows).T).T
+        frame = nearest_rotation(np.stack(rows).T).T
     return frame
 
 

@@ -19,8 +19,9 @@ from typing import List, Optional
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..geometry import nearest_rotation
 from .config import FeatureOptions, TwoViewConfig
-from .geometry import orthonormalise, positive_depth, refine_sampson, sampson_px
+from .geometry import positive_depth, refine_sampson, sampson_px
 
 __all__ = [
     "colmap_camera", "quiet_colmap", "opencv_features", "ratio_matches",
@@ -237,7 +238,7 @@ def opencv_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray, config: 
 
     best = None
     for R, t in candidates:
-        s0 = score(orthonormalise(R), t)
+        s0 = score(nearest_rotation(R), t)
         if config.refine and s0[1] >= 8:
             Rr, tr = refine_sampson(cam, s0[3], s0[4], x1[s0[2]], x2[s0[2]], thr)
             s1 = score(Rr, tr)
@@ -283,7 +284,7 @@ def pycolmap_geometry(cam: PinholeCamera, x1: np.ndarray, x2: np.ndarray,
     if pose is None:
         return None, None, inl, "COLMAP returned no relative pose"
     M = np.asarray(pose.matrix(), np.float64)  # 3x4, x_cam2 = R x_cam1 + t
-    R, t = orthonormalise(M[:, :3]), M[:, 3]
+    R, t = nearest_rotation(M[:, :3]), M[:, 3]
     if not np.all(np.isfinite(M)) or np.linalg.norm(t) < 1e-12:
         return None, None, inl, "panoramic"
     return R, t, inl, ""

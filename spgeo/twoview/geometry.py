@@ -13,11 +13,11 @@ from typing import Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry import so3_exp
+from ..geometry import nearest_rotation, so3_exp
 
 __all__ = [
     "bearings", "parallax_angles_deg", "kabsch", "rotation_only_fit", "pose_from_tgt_ref",
-    "orthonormalise", "undistort_points", "skew", "sampson_px", "tangent_basis", "pose_std_deg",
+    "undistort_points", "skew", "sampson_px", "tangent_basis", "pose_std_deg",
     "refine_sampson", "positive_depth",
 ]
 
@@ -42,10 +42,10 @@ def parallax_angles_deg(camera: PinholeCamera, pts_ref: np.ndarray, pts_tgt: np.
 
 
 def kabsch(f1: np.ndarray, f2: np.ndarray) -> np.ndarray:
-    """Rotation ``R`` minimising ``sum |f2 - R f1|^2`` over unit rays."""
-    U, _, Vt = np.linalg.svd(f1.T @ f2)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T
+    """Rotation ``R`` minimising ``sum |f2 - R f1|^2`` over unit rays: the rotation
+    nearest ``sum f2 f1^T`` (:func:`~spgeo.geometry.nearest_rotation` of its transpose
+    ``f1^T f2``, transposed back into a C-ordered array)."""
+    return nearest_rotation(f1.T @ f2).T.copy()
 
 
 def rotation_only_fit(camera: PinholeCamera, pts_ref: np.ndarray, pts_tgt: np.ndarray,
@@ -81,15 +81,6 @@ def pose_from_tgt_ref(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(c)
     T[:3, 3] = c / n if n > 0 else c
     return T
-
-
-def orthonormalise(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation (SVD projection, det +1) of a 3x3 matrix."""
-    U, _, Vt = np.linalg.svd(R)
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1, 1, -1]) @ Vt
-    return R
 
 
 def undistort_points(camera: PinholeCamera, pts: np.ndarray) -> np.ndarray:
@@ -189,7 +180,7 @@ def refine_sampson(camera: PinholeCamera, R0: np.ndarray, t0: np.ndarray, x1: np
     if not sol.success and sol.status <= 0:
         return R0, t0
     R, t = unpack(sol.x)
-    return orthonormalise(R), t
+    return nearest_rotation(R), t
 
 
 def positive_depth(cam: PinholeCamera, R: np.ndarray, t: np.ndarray, x1: np.ndarray,

@@ -32,7 +32,7 @@ import numpy as np
 
 import gtsam
 
-from ..geometry import check_pose, invert_pose
+from ..geometry import check_pose, invert_pose, nearest_rotation
 from ..images import Pyramid
 from .config import TrackerConfig
 from .keyframe import Keyframe
@@ -232,8 +232,7 @@ def constant_velocity_guess(T_world_prev: np.ndarray,
     T_pp = check_pose(np.asarray(T_world_prevprev, dtype=np.float64), "T_world_prevprev")
     T = T_p @ (invert_pose(T_pp) @ T_p)
     # re-orthonormalise the rotation (products accumulate rounding)
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    T[:3, :3] = U @ Vt
+    T[:3, :3] = nearest_rotation(T[:3, :3])
     return T
 
 
