@@ -7,9 +7,10 @@ front-end) takes the oldest waiting frame whenever it is free and waits for the 
 when none is.  No thread: arrivals are computed from the clock, so the interpreter lock
 cannot delay them.  Reports frames dropped, the most frames ever waiting (the ring a capture
 thread would need to drop none: run with a large ``--buffers``), the run's ATE on the frames processed and the mapping
-worker's report.
+worker's report.  A live camera runs with ``--schedule ready`` (``spgeo vo --dataset camera``
+does; checkouts before issue 37 have no schedule: leave it out there).
 
-    python3 scripts/paced_camera.py [--data DIR] [--frames 0:300] [--rate 30] [--buffers 4]
+    python3 scripts/paced_camera.py [--data DIR] [--frames 0:300] [--rate 30] [--buffers 4] [--schedule ready]
 """
 from __future__ import annotations
 

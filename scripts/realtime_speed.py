@@ -30,18 +30,22 @@ import numpy as np
 
 
 def clip_arguments(ap: argparse.ArgumentParser) -> None:
-    """``--data``, ``--dataset``, ``--frames`` (the clip) and ``--mapping``
-    (also :mod:`paced_camera`'s)."""
+    """``--data``, ``--dataset``, ``--frames`` (the clip), ``--mapping`` and
+    ``--schedule`` (also :mod:`paced_camera`'s)."""
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent
                                           / "shared/data/7scenes_redkitchen_dev"))
     ap.add_argument("--dataset", default="7scenes")
     ap.add_argument("--frames", default="0:300")
     ap.add_argument("--mapping", default=None, help="OdometryConfig.mapping (default: the default)")
+    ap.add_argument("--schedule", default=None,
+                    help="OdometryConfig.mapping_schedule (default: the default; checkouts "
+                         "before issue 37 have none)")
 
 
 def clip_and_config(args: argparse.Namespace):
     """``(frames decoded in memory, OdometryConfig)`` of :func:`clip_arguments`'
-    values (``mapping`` set only when given: older checkouts have no such field)."""
+    values (``mapping`` and ``mapping_schedule`` set only when given: older checkouts
+    have no such fields)."""
     from spgeo.datasets import open_dataset
     from spgeo.vo import OdometryConfig
 
@@ -49,6 +53,8 @@ def clip_and_config(args: argparse.Namespace):
     odo = OdometryConfig()
     if args.mapping is not None:
         odo = dataclasses.replace(odo, mapping=args.mapping)
+    if args.schedule is not None:
+        odo = dataclasses.replace(odo, mapping_schedule=args.schedule)
     return frames, odo
 
 

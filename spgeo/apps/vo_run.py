@@ -37,6 +37,7 @@ after the Sim(3) alignment.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import Counter
@@ -421,7 +422,10 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
         reader_options: further reader-config fields (e.g. ``calibration="fr1"``)
             or ``given_camera`` (:func:`~spgeo.datasets.open_dataset`).
 
-    The run's ``intrinsics`` (``report.json``) is the reader's ``intrinsics``.
+    The run's ``intrinsics`` (``report.json``) is the reader's ``intrinsics``.  A live
+    camera (``"camera"``) runs with ``OdometryConfig.mapping_schedule="ready"`` (its
+    input already depends on timing: updates are applied as soon as they are ready);
+    recorded input keeps the configured schedule (default ``"fixed"``: deterministic).
 
     With a monocular front-end the data set is opened with ``load_depth=False``
     (no depth file is read).  Raises ``FileNotFoundError`` / ``ValueError``
@@ -440,6 +444,9 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     if opts["load_depth"] is False and uses_depth:
         raise ValueError("the front-end uses depth: the data set must be read with depth")
     seq = open_dataset(kind, path, frames=frames, **opts)
+    if kind == "camera":      # input already timed by the camera: the fewest stalls
+        config = dataclasses.replace(config, odometry=dataclasses.replace(
+            config.odometry, mapping_schedule="ready"))
     n = len(seq) if hasattr(seq, "__len__") else None      # a live camera has no length
     if n == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")

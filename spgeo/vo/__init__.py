@@ -1,12 +1,17 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives.
 
-:class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`;
-its map initialisation, :mod:`spgeo.vo.initialisation`; its keyframe map,
-:mod:`spgeo.vo.map`; its motion model, :mod:`spgeo.vo.motion`), its options
-(:mod:`spgeo.vo.config`), frame-to-keyframe tracking (:mod:`spgeo.vo.tracking`), rendering of primitives into new keyframes
-(:mod:`spgeo.vo.rendering`), the fixed-lag window smoother
-(:mod:`spgeo.vo.smoother`; its keyframes: :mod:`spgeo.vo.map`; its graph's keys
-and builders: :mod:`spgeo.graph`) and the results (:mod:`spgeo.vo.result`).
+:class:`Odometry` (the per-frame state machine, :mod:`spgeo.vo.odometry`; what a caller
+reads of a run, :mod:`spgeo.vo.readout`) and its options (:mod:`spgeo.vo.config`) drive:
+
+* tracking: :mod:`spgeo.vo.frame_tracker`, :mod:`spgeo.vo.tracking`,
+  :mod:`spgeo.vo.motion`, :mod:`spgeo.vo.initialisation`;
+* keyframes and the map: :mod:`spgeo.vo.keyframing`, :mod:`spgeo.vo.rendering`,
+  :mod:`spgeo.vo.map`;
+* mapping, behind one port (:mod:`spgeo.vo.mapping_port`): the back end
+  (:mod:`spgeo.vo.backend`: landmarks, loop closure, the fixed-lag window smoother
+  :mod:`spgeo.vo.smoother`; its graph's keys and builders: :mod:`spgeo.graph`), in this
+  process or in the worker (:mod:`spgeo.vo.mapping_worker`);
+* results: :mod:`spgeo.vo.result`.
 """
 from ..primitive_models import PRIMITIVE_MODELS
 from .config import InitConfig, KeyframeDecisionConfig, OdometryConfig, ScaleCheckConfig, TrackerConfig

@@ -20,6 +20,7 @@ from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..geometry import nearest_rigid
 from ..similarity import moved_frame
 from .keyframe_store import KeyframeStore
 from .motion import MotionModel
@@ -358,8 +359,10 @@ class KeyframeMap:
         keyframe's ``W`` (:func:`spgeo.similarity.moved_frame`); when the
         segment's newest keyframe moved and ``motion`` is given (else what
         follows the newest keyframe is left to the caller), ``motion``'s poses
-        move by its ``W`` and the candidates' translations (in its depth units)
-        are multiplied by ``candidate_scale``."""
+        move by its ``W`` (made exactly rigid again,
+        :func:`~spgeo.geometry.nearest_rigid`: the tracker starts from them) and
+        the candidates' translations (in its depth units) are multiplied by
+        ``candidate_scale``."""
         sup = self.support_pose
         for f in list(sup):
             k = self.anchors[f][0] if f in self.anchors else None
@@ -368,7 +371,7 @@ class KeyframeMap:
         newest = self.seg_kfs[-1] if self.seg_kfs else None
         if motion is None or newest not in W_new_old:
             return
-        motion.move(lambda T: moved_frame(W_new_old[newest], T))
+        motion.move(lambda T: nearest_rigid(moved_frame(W_new_old[newest], T)))
         for c in self.candidates:
             c.T_kf_frame = c.T_kf_frame.copy()
             c.T_kf_frame[:3, 3] *= candidate_scale
