@@ -1,5 +1,6 @@
-"""Mapping off the tracking path (issue 32, :mod:`spgeo.vo.mapping_worker`): the
-worker's protocol gives the inline numbers bit for bit when the tracker waits,
+"""The mapping port (issues 32 and 37, :mod:`spgeo.vo.mapping_port`,
+:mod:`spgeo.vo.mapping_worker`): the worker's protocol gives the inline numbers bit for
+bit when the tracker waits, the fixed schedule gives one trajectory whatever the timing,
 live mapping stays accurate and says what it did, failures are clear errors."""
 import dataclasses
 import time
@@ -98,6 +99,22 @@ def test_live_smoother_is_out_of_reach_and_config_checked():
     cfg = OdometryConfig(loop_closure=dataclasses.replace(OdometryConfig().loop_closure,
                                                           enabled=True))
     assert cfg.mapping_in_worker and OdometryConfig().mapping_in_worker
+
+
+def test_worker_imports_the_callers_spgeo_from_any_directory(tmp_path, monkeypatch):
+    """Run from a folder holding another ``spgeo`` (e.g. another checkout), the worker
+    still imports the one its caller imported (it answers the job, here with the
+    back end's own error, instead of dying on the other package)."""
+    (tmp_path / "spgeo").mkdir()
+    (tmp_path / "spgeo" / "__init__.py").write_text("raise ImportError('the wrong spgeo')\n")
+    monkeypatch.chdir(tmp_path)
+    worker = MappingWorker(CAM, OdometryConfig())
+    try:
+        worker.submit(MappingJob(window=[1], keyframes=[], candidates=[], segment=0))
+        with pytest.raises(MappingWorkerError, match=r"without keyframes \[1\]"):
+            worker.receive()
+    finally:
+        worker.close()
 
 
 def test_worker_failure_is_a_clear_error_and_close_stops_it():

@@ -237,7 +237,13 @@ class MappingPort:
         return {}
 
     def close(self) -> None:
-        """Stop the back end's process, if any (a pending update is dropped)."""
+        """Stop the back end's process, if any; a pending update is dropped (the
+        map stays as it is and readable); idempotent."""
+        self._close()
+        self.record.pending = None
+
+    def _close(self) -> None:
+        """Stop what runs the back end (nothing in this process)."""
 
     def _submit(self, job: MappingJob) -> None:
         raise NotImplementedError
@@ -289,7 +295,7 @@ class WorkerPort(MappingPort):
     def report(self) -> dict:
         return {"mapping_worker": self.record.report()}
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.worker.close()
 
     def _submit(self, job: MappingJob) -> None:

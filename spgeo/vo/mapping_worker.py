@@ -13,7 +13,8 @@ data, :meth:`Keyframe.__getstate__ <spgeo.vo.tracking.Keyframe.__getstate__>`); 
 worker runs :meth:`WindowBackend.run <spgeo.vo.backend.WindowBackend.run>` on its own
 copies of the window's keyframes and answers the
 :class:`~spgeo.vo.backend.MappingUpdate`, which :meth:`MappingWorker.receive` returns.
-The worker is a fresh interpreter (``python -c``, the parent's ``sys.path``; no fork
+The worker is a fresh interpreter (``python -P -c``, the parent's ``sys.path``: it
+imports the modules the parent imported; no fork
 of a threaded parent, and unlike ``multiprocessing``'s ``spawn`` it does not import
 the caller's main script), talking over two pipes with
 :class:`multiprocessing.connection.Connection` (pickle).
@@ -100,11 +101,15 @@ class MappingWorker:
         upd_r, upd_w = os.pipe()
         code = (f"from {__name__} import _worker_main; _worker_main({job_r}, {upd_w})")
         env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([p for p in sys.path if p]
+        # this process's import path, in order ('' is the directory it was read in); -P:
+        # no working directory in front of it, so the worker imports the spgeo this
+        # process imported even when the caller runs from another checkout
+        env["PYTHONPATH"] = os.pathsep.join([p or os.getcwd() for p in sys.path]
                                             + [env.get("PYTHONPATH", "")])
         try:
-            self._proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(job_r, upd_w),
-                                          stdin=subprocess.DEVNULL, env=env)
+            self._proc = subprocess.Popen([sys.executable, "-P", "-c", code],
+                                          pass_fds=(job_r, upd_w), stdin=subprocess.DEVNULL,
+                                          env=env)
         finally:
             os.close(job_r)
             os.close(upd_w)
