@@ -58,6 +58,8 @@ def test_ground_truth_depth_fuses_onto_the_surface(scene_frames, ground_truth, t
     assert m.completeness > 0.97, m
     colours = np.asarray(res.mesh.vertex_colors)
     assert colours.shape == (len(res.vertices), 3) and colours.std() > 0.02
+    for c in (colours, np.asarray(res.cloud.colors)):     # plots take them as they are
+        assert 0.0 <= c.min() and c.max() <= 1.0
     paths = res.write(tmp_path / "map")
     import open3d as o3d
 

@@ -117,8 +117,8 @@ class FusionResult:
     """The fused map (world frame of the poses, their unit).
 
     Attributes:
-        mesh: ``open3d.geometry.TriangleMesh`` (vertex colours and normals).
-        cloud: ``open3d.geometry.PointCloud`` (coloured, with normals).
+        mesh: ``open3d.geometry.TriangleMesh`` (vertex colours in [0, 1] and normals).
+        cloud: ``open3d.geometry.PointCloud`` (colours in [0, 1], with normals).
         voxel_size, sdf_trunc, depth_max: the values used.
         n_views: views integrated.
     """
@@ -261,10 +261,21 @@ def fuse_views(views: Iterable[FusionView], config: FusionConfig = FusionConfig(
     mesh = grid.extract_triangle_mesh(weight_threshold=weight).to_legacy()
     mesh.compute_vertex_normals()
     cloud = grid.extract_point_cloud(weight_threshold=weight).to_legacy()
+    _clip_colours(mesh, cloud)
     log.info("TSDF fusion of %d views (voxel %.4g, truncation %.4g): %d vertices, %d "
              "triangles, %d points", n, params[0], params[1], len(mesh.vertices),
              len(mesh.triangles), len(cloud.points))
     return FusionResult(mesh, cloud, *params, n)
+
+
+def _clip_colours(mesh, cloud) -> None:
+    """The TSDF's weighted colour averages clipped to [0, 1] in place: rounding takes them
+    past 1 on some CPUs (plots refuse them; open3d warns when it writes them as bytes,
+    which clamps them the same way, so the files do not change)."""
+    import open3d as o3d
+
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.clip(np.asarray(mesh.vertex_colors), 0, 1))
+    cloud.colors = o3d.utility.Vector3dVector(np.clip(np.asarray(cloud.colors), 0, 1))
 
 
 def odometry_views(odometry) -> Iterator[FusionView]:

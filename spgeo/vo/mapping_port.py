@@ -29,7 +29,6 @@ segment, or a call that reads the map.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import time
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -49,8 +48,6 @@ from .tracking import Keyframe
 
 __all__ = ["MappingPort", "InProcessPort", "WorkerPort", "PendingJob", "MappingRecord",
            "LiveMapping", "make_port"]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -152,7 +149,10 @@ class MappingPort:
         leaving it, oldest first; the new keyframe last, made at frame
         ``n_frames``) with the previous keyframe's supporting-frame
         ``candidates``: the keyframes whose :class:`Keyframe` the back end has not
-        seen go as copies (without cached mapping pixels)."""
+        seen go as copies (without cached mapping pixels).  Raises
+        ``RuntimeError`` when an update is still pending (one at a time)."""
+        if self.pending:
+            raise RuntimeError("MappingPort.send: an update is still pending (apply it first)")
         for kf in window:
             adopt_selection(kf, self.config)
         send = [dataclasses.replace(kf, map_pixels=None) for kf in window

@@ -338,8 +338,9 @@ class Odometry(OdometryReadout):
         if not self._port.pending:
             return False
         seconds = self._port.apply_pending(self._map, self._motion, len(self._frames))
-        for key, sec in seconds.items() if timings is not None else ():
-            timings[key] = timings.get(key, 0.0) + sec
+        if timings is not None:
+            for key, sec in seconds.items():
+                timings[key] = timings.get(key, 0.0) + sec
         return True
 
 def _result(frame: Frame, idx: int, T_world_cam: np.ndarray, status: FrameStatus,
