@@ -24,7 +24,7 @@ import numpy as np
 from spgeo.evaluation.jobs import THREAD_ENV, Job, write_atomic
 from spgeo.evaluation.vo.long_run_sequences import SEQUENCES, run_config
 
-__all__ = ["end_pose_error", "scale_drift", "run_metrics", "run_one", "base_row", "child_main",
+__all__ = ["end_pose_error", "scale_drift", "kitti_errors", "run_metrics", "run_one", "base_row", "child_main",
            "run_subprocess", "make_jobs"]
 
 
@@ -68,6 +68,29 @@ def scale_drift(run, depth_frames) -> Tuple[Optional[float], Optional[str]]:
     return float(ratios[-1] / ratios[0]), source
 
 
+def kitti_errors(run, ate) -> Dict[str, Any]:
+    """KITTI's relative errors of ``run`` (:mod:`spgeo.evaluation.kitti_metrics`:
+    ``t_rel_pct``, ``r_rel_deg_per_100m`` and the segment ``kitti_lengths``) against its
+    ground truth at the Sim(3) scale of ``ate`` (its per-frame
+    :class:`~spgeo.evaluation.trajectory.AteResult`); lost frames end no segment.  All
+    None without ground truth for every frame, without ``ate`` or when no segment fits."""
+    from spgeo.evaluation.kitti_metrics import kitti_relative_errors
+    from spgeo.trajectory import FrameStatus
+
+    none = {"t_rel_pct": None, "r_rel_deg_per_100m": None, "kitti_lengths": None}
+    res, gt = run.result(), run.gt_poses
+    if ate is None or len(gt) != len(res) or any(g is None for g in gt):
+        return none
+    est = np.array(res.poses, dtype=float)
+    est[np.array([s is FrameStatus.LOST for s in res.statuses], dtype=bool)] = np.nan
+    try:
+        k = kitti_relative_errors(est, np.array(gt, dtype=float), ate.scale)
+    except ValueError:
+        return none
+    return {"t_rel_pct": k.t_rel_pct, "r_rel_deg_per_100m": k.r_rel_deg_per_100m,
+            "kitti_lengths": list(k.lengths)}
+
+
 def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, Any]:
     """The row fields of a finished run: ``run`` (:class:`~spgeo.apps.vo_run.VORun`),
     ``ate`` (its :meth:`~spgeo.apps.vo_run.VORun.ate`), ``report`` (its saved
@@ -90,6 +113,7 @@ def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, 
         "scale_drift": drift, "scale_drift_from": drift_from,
         "end_err_m": end_m, "end_err_deg": end_deg, "fps": run.fps,
         "peak_rss_mb": (report.get("run") or {}).get("memory", {}).get("peak_rss_mb"),
+        **kitti_errors(run, per),
     }
 
 

@@ -18,7 +18,8 @@ TABLE: Tuple[Tuple[str, str, int], ...] = (
     ("sequence", "sequence", 0), ("variant", "variant", 0), ("frames", "frames", 0),
     ("tracked", "tracked", 0), ("lost", "lost", 0), ("skipped", "skipped", 0),
     ("KFs", "keyframes", 0), ("ATE m", "ate_m", 4), ("ATE %", "ate_pct", 2),
-    ("KF ATE m", "kf_ate_m", 4), ("loops acc.", "loops_accepted", 0),
+    ("KF ATE m", "kf_ate_m", 4), ("t_rel %", "t_rel_pct", 2),
+    ("r_rel deg/100m", "r_rel_deg_per_100m", 2), ("loops acc.", "loops_accepted", 0),
     ("loops rej.", "loops_rejected", 0), ("scale drift", "scale_drift", 3),
     ("end err m", "end_err_m", 4), ("end err deg", "end_err_deg", 2), ("FPS", "fps", 1),
     ("peak RSS MiB", "peak_rss_mb", 0), ("run s", "run_s", 1),
@@ -43,7 +44,10 @@ _NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres, frames flagged lost exclud
          "estimated keyframe baseline), 1 = none. End err: first-to-last relative pose against the "
          "ground truth's after the Sim(3) scale (palindromes: the true one is the identity; target "
          "<= 0.02 m and 1 deg). FPS: frames / wall time of the run loop. Peak RSS: report.json "
-         "run.memory of the run's own process.")
+         "run.memory of the run's own process. t_rel / r_rel: KITTI's relative errors over path "
+         "segments (the devkit's definition, spgeo.evaluation.kitti_metrics) at the ATE's Sim(3) "
+         "scale, over 100-800 m or, on a shorter path, 10-80 % of it (the KITTI clip: 5.2-41.6 m; "
+         "each row's kitti_lengths in long_run.json).")
 
 
 _REFERENCE_NOTE = ("Against COLMAP (--reference colmap; COLMAP's reconstruction of the same "
