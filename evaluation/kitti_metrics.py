@@ -107,10 +107,9 @@ def kitti_relative_errors(est_poses: np.ndarray, gt_poses: np.ndarray, scale: fl
     errs: Dict[float, list] = {L: [] for L in lengths}
     for i in range(0, len(gt), step):
         for L in lengths:
-            beyond = np.nonzero(dist[i:] > dist[i] + L)[0]
-            if beyond.size == 0 or not ok[i] or not ok[i + beyond[0]]:
+            j = int(np.searchsorted(dist, dist[i] + L, side="right"))   # first beyond L
+            if j == len(gt) or not ok[i] or not ok[j]:
                 continue
-            j = i + beyond[0]
             E = invert_pose(invert_pose(est[i]) @ est[j]) @ (invert_pose(gt[i]) @ gt[j])
             errs[L].append((np.linalg.norm(E[:3, 3]) / L, _rotation_angle(E[:3, :3]) / L))
     return _summarised(errs, lengths)

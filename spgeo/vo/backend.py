@@ -191,8 +191,7 @@ class WindowBackend:
                 self.landmarks.apply_similarity(corr.W_new_old)
                 self.landmarks.reobserve(kfs[-1].index)
             s_prev = corr.scales.get(kfs[-2].index, 1.0)
-            candidates = [dataclasses.replace(c, T_kf_frame=_scaled(c.T_kf_frame, s_prev))
-                          for c in candidates]
+            candidates = [c.scaled(s_prev) for c in candidates]
         timings["loop"] = time.perf_counter() - t
         return corr, candidates
 
@@ -244,10 +243,3 @@ class WindowBackend:
     def landmarks_report(self) -> Optional[dict]:
         """:meth:`LandmarkMap.report` (None without landmarks)."""
         return None if self.landmarks is None else self.landmarks.report()
-
-
-def _scaled(T: np.ndarray, s: float) -> np.ndarray:
-    """A copy of 4x4 ``T`` with its translation multiplied by ``s``."""
-    T = np.array(T, dtype=float)
-    T[:3, 3] *= s
-    return T

@@ -119,6 +119,13 @@ class SupportCandidate:
     T_kf_frame: np.ndarray
     brightness: np.ndarray
 
+    def scaled(self, s: float) -> "SupportCandidate":
+        """This candidate with its translation multiplied by ``s`` (its keyframe's
+        depth units changed by ``s``), a copy."""
+        T = np.array(self.T_kf_frame, dtype=float)
+        T[:3, 3] *= s
+        return SupportCandidate(self.frame, self.image, T, self.brightness)
+
 
 #: a frame's anchor: (keyframe index, T_kf_frame, the keyframe's median depth then)
 Anchor = Tuple[int, np.ndarray, float]
@@ -372,6 +379,4 @@ class KeyframeMap:
         if motion is None or newest not in W_new_old:
             return
         motion.move(lambda T: nearest_rigid(moved_frame(W_new_old[newest], T)))
-        for c in self.candidates:
-            c.T_kf_frame = c.T_kf_frame.copy()
-            c.T_kf_frame[:3, 3] *= candidate_scale
+        self.candidates = [c.scaled(candidate_scale) for c in self.candidates]

@@ -47,7 +47,7 @@ from .smoother import adopt_selection, choose_support
 from .tracking import Keyframe
 
 __all__ = ["MappingPort", "InProcessPort", "WorkerPort", "PendingJob", "MappingRecord",
-           "LiveMapping", "make_port"]
+           "make_port"]
 
 
 @dataclass(frozen=True)
@@ -113,10 +113,6 @@ class MappingRecord:
                 "latency_frames_max": int(max(lat)) if lat else None,
                 "worker_seconds": dict(self.seconds),
                 "worker_peak_rss_mib": self.peak_rss_mib}
-
-
-#: the name of :class:`MappingRecord` before the mapping port (issue 37)
-LiveMapping = MappingRecord
 
 
 class MappingPort:
