@@ -14,10 +14,9 @@ worker runs :meth:`WindowBackend.run <spgeo.vo.backend.WindowBackend.run>` on it
 copies of the window's keyframes and answers the
 :class:`~spgeo.vo.backend.MappingUpdate`, which :meth:`MappingWorker.receive` returns.
 The worker is a fresh interpreter (``python -P -c``, the parent's ``sys.path``: it
-imports the modules the parent imported; no fork
-of a threaded parent, and unlike ``multiprocessing``'s ``spawn`` it does not import
-the caller's main script), talking over two pipes with
-:class:`multiprocessing.connection.Connection` (pickle).
+imports the modules the parent imported; no fork of a threaded parent, and unlike
+``multiprocessing``'s ``spawn`` it does not import the caller's main script), talking
+over two pipes with :class:`multiprocessing.connection.Connection` (pickle).
 """
 from __future__ import annotations
 
