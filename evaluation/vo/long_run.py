@@ -2,7 +2,8 @@
 
 One fresh process per (sequence, variant) run.
 
-    spgeo eval vo_long_run --out DIR [--sequences 7scenes,7scenes-palindrome,kitti,synthetic-loop]
+    spgeo eval vo_long_run --out DIR [--sequences 7scenes,7scenes-palindrome,kitti,synthetic-loop,
+                                             road-straight,road-block]
         [--variants default,loops] [--frames N] [--timeout SECONDS] [--reference colmap]
 
 Sequences (:data:`SEQUENCES`; all with ground truth, timestamps = position in
@@ -20,7 +21,10 @@ the run):
   subsampled poses of :func:`spgeo.synthetic.make_trajectory` rendered at the
   size of :data:`SYNTHETIC_LOOP`, played forward and back to the first pose,
   with the keyframe spacing of that experiment (``odometry.keyframe.max_translation``,
-  scene units).
+  scene units);
+* ``road-straight``, ``road-block``: the synthetic roads of :mod:`spgeo.synthetic.road`
+  (500 frames, 600 m straight ahead at 1.2 m per frame; 725 frames round a block, a stop
+  and four corners, back to the start) at 504x153, 8-bit grey as KITTI's images.
 
 ``--frames N`` caps each sequence at ``N`` frames; a palindrome is then made of
 its first half (rounded up), so it still returns to its start.
@@ -31,8 +35,10 @@ after the sequence's own; ``default`` (none), ``loops``
 (``odometry.loop_closure.enabled``) and ``no-landmarks``
 (``odometry.landmarks.enabled=False``: the window-only map) and
 ``no-landmarks+loops`` (the window-only map with loop closure: where nothing else
-remembers the start, so loops are sought) and ``inline`` (the back end between two
-frames instead of the live mapping worker).  Adding a variant is one entry there.
+remembers the start, so loops are sought), ``inline`` (the back end between two
+frames instead of the live mapping worker) and ``no-feature-check``
+(``odometry.feature_retry.min_agreement=None``: a pose refused for its photometric
+cost is lost, as before issue 38).  Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through

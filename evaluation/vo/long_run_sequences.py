@@ -106,6 +106,31 @@ def _synthetic_loop(cap: Optional[int], depth: bool, loop: bool = True) -> Reord
     return Reordered(_synthetic_views(max(order) + 1), order, depth=depth)
 
 
+@functools.lru_cache(maxsize=1)
+def _road_views(kind: str, n: int) -> Tuple[Any, ...]:
+    """The first ``n`` frames of a synthetic road (:mod:`spgeo.synthetic.road`,
+    ``kind`` "straight" or "block") at :func:`~spgeo.synthetic.street_camera`'s
+    504 px, rendered once per process and kept as 8-bit grey (KITTI's images;
+    about 77 kB a frame)."""
+    from spgeo import synthetic
+    from spgeo.synthetic.road import block_loop, straight_street
+
+    road = straight_street() if kind == "straight" else block_loop()
+    poses = road.drive()[:n]
+    frames = synthetic.render_frames(road.scene, synthetic.street_camera(), poses, supersample=2)
+    return tuple(replace(f, image=np.round(255 * np.clip(f.image.mean(axis=2), 0, 1)).astype(
+        np.uint8), depth=None) for f in frames)
+
+
+def _road(kind: str, total: int) -> Callable[..., Reordered]:
+    """``open`` of a synthetic road of ``total`` frames (never a palindrome:
+    the block loop returns to its start by itself)."""
+    def open_road(cap: Optional[int], depth: bool, loop: bool = False) -> Reordered:
+        order = _order(total, cap, False)
+        return Reordered(_road_views(kind, max(order) + 1), order, depth=False)
+    return open_road
+
+
 @dataclass(frozen=True)
 class LongRunSequence:
     """A benchmark sequence.
@@ -136,6 +161,8 @@ SEQUENCES: Dict[str, LongRunSequence] = {
         _synthetic_loop, loop=True,
         overrides={"odometry.resolution": SYNTHETIC_LOOP["size"],
                    "odometry.keyframe.max_translation": 0.03}),
+    "road-straight": LongRunSequence(_road("straight", 500)),
+    "road-block": LongRunSequence(_road("block", 725)),
 }
 
 #: ``--variants`` name -> :class:`~spgeo.apps.vo_run.VORunConfig` overrides (dotted names).
@@ -146,6 +173,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "no-landmarks+loops": {"odometry.landmarks.enabled": False,
                            "odometry.loop_closure.enabled": True},
     "inline": {"odometry.mapping": "inline"},
+    "no-feature-check": {"odometry.feature_retry.min_agreement": None},
 }
 
 

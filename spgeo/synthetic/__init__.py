@@ -36,6 +36,7 @@ from .poses import (camera_rotation, default_camera, look_at, make_forward_traje
                     make_trajectory, make_view_set, orbit_views)
 from .scene import SyntheticScene
 from .sequence import render_frames, write_tum_sequence
+from .road import RoadScene, block_loop, straight_street
 from .street import STREET_SIZE, street_camera, street_drive, street_scene
 
 __all__ = [
@@ -44,5 +45,5 @@ __all__ = [
     "BoxSpec", "CylinderSpec", "SphereSpec", "PanelSpec", "RenderedView", "SyntheticScene",
     "default_camera", "look_at", "camera_rotation", "make_trajectory", "orbit_views",
     "make_view_set", "render_frames", "write_tum_sequence", "STREET_SIZE", "street_scene",
-    "street_camera", "street_drive",
+    "street_camera", "street_drive", "RoadScene", "straight_street", "block_loop",
 ]

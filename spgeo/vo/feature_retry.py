@@ -1,5 +1,6 @@
 """Feature-based pose of a frame against a keyframe: the tracker's retry after a
-photometric failure under large inter-frame motion.
+photometric failure under large inter-frame motion, and its check of a
+photometric pose the cost alone would refuse.
 
 Photometric tracking converges only from a pose within its basin (a few
 pixels at the coarsest level).  When the motion model's guess is outside it
@@ -7,6 +8,12 @@ pixels at the coarsest level).  When the motion model's guess is outside it
 lifted to 3-D with the keyframe's primitive depth, are matched with the
 frame's, and a RANSAC PnP gives a pose in the map's scale that the
 photometric tracker then refines (docs/design.md §5).
+
+The same matches judge a photometric pose (:meth:`FeaturePose.support`): under
+fast forward motion past high-contrast texture at grazing angles (a street's
+facades) the photometric cost of the right pose exceeds the tracker's
+``max_relative_cost`` one or two frames after a keyframe, while the pose still
+reprojects the matched features as well as the PnP pose does (issue 38).
 """
 from __future__ import annotations
 
@@ -23,7 +30,7 @@ from ..primitives import PrimitiveSet
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
-__all__ = ["FeatureRetryConfig", "FeatureRetry"]
+__all__ = ["FeatureRetryConfig", "FeaturePose", "FeatureRetry"]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +49,11 @@ class FeatureRetryConfig:
         reprojection_px: RANSAC inlier threshold (pixels of the frame's
             image, default 2.0).
         ransac_iterations: RANSAC iteration cap (default 500).
+        min_agreement: a photometric pose refused only for its cost
+            (``"high_cost"``) is kept when it reprojects at least this share of
+            the PnP pose's inlier count within ``reprojection_px`` (and at
+            least ``min_inliers``); >= 0, default 0.8 (docs/results.md, issue
+            38); None: never kept (the tracker before issue 38).
     """
 
     enabled: bool = True
@@ -49,11 +61,53 @@ class FeatureRetryConfig:
     min_inliers: int = 25
     reprojection_px: float = 2.0
     ransac_iterations: int = 500
+    min_agreement: Optional[float] = 0.8
 
     def __post_init__(self) -> None:
-        if self.min_inliers < 4 or not self.reprojection_px > 0 or self.ransac_iterations < 1:
-            raise ValueError("FeatureRetryConfig: need min_inliers >= 4, reprojection_px > 0 and "
-                             f"ransac_iterations >= 1, got {self}")
+        if (self.min_inliers < 4 or not self.reprojection_px > 0 or self.ransac_iterations < 1
+                or not (self.min_agreement is None or self.min_agreement >= 0)):
+            raise ValueError("FeatureRetryConfig: need min_inliers >= 4, reprojection_px > 0, "
+                             f"ransac_iterations >= 1 and min_agreement >= 0, got {self}")
+
+
+@dataclass
+class FeaturePose:
+    """A frame's PnP pose against a keyframe and the matches it came from.
+
+    Attributes:
+        T_world_frame: the PnP camera-to-world pose (4, 4).
+        inliers: its RANSAC inlier count.
+        points_world: (M, 3) world points of the matched keyframe features
+            (lifted with the keyframe's primitive depth; map units).
+        pixels: (M, 2) the matched frame features (pixels of the frame).
+    """
+
+    T_world_frame: np.ndarray
+    inliers: int
+    points_world: np.ndarray
+    pixels: np.ndarray
+
+    def support(self, T_world_frame: np.ndarray, camera: PinholeCamera, tol_px: float) -> int:
+        """How many matches the pose ``T_world_frame`` reprojects within
+        ``tol_px`` pixels (points behind the camera count as misses)."""
+        T_frame_world = invert_pose(np.asarray(T_world_frame, dtype=np.float64))
+        X = self.points_world @ T_frame_world[:3, :3].T + T_frame_world[:3, 3]
+        front = X[:, 2] > 1e-9
+        z = np.where(front, X[:, 2], 1.0)
+        u = camera.fx * X[:, 0] / z + camera.cx
+        v = camera.fy * X[:, 1] / z + camera.cy
+        err = np.hypot(u - self.pixels[:, 0], v - self.pixels[:, 1])
+        return int(np.count_nonzero(front & (err <= tol_px)))
+
+    def agrees(self, T_world_frame: np.ndarray, camera: PinholeCamera,
+               config: "FeatureRetryConfig") -> bool:
+        """Whether ``T_world_frame`` reprojects at least ``config.min_agreement``
+        of :attr:`inliers` (and ``config.min_inliers``) within ``reprojection_px``
+        (never with ``min_agreement`` None)."""
+        if config.min_agreement is None:
+            return False
+        n = self.support(T_world_frame, camera, config.reprojection_px)
+        return n >= config.min_inliers and n >= config.min_agreement * self.inliers
 
 
 @dataclass
@@ -111,7 +165,13 @@ class FeatureRetry:
 
     def guess(self, key: int, kf_image: np.ndarray, primitives: PrimitiveSet,
               T_world_kf: np.ndarray, image: np.ndarray) -> Optional[np.ndarray]:
-        """Camera-to-world pose of ``image`` from PnP on the keyframe's features.
+        """``T_world_frame`` of :meth:`pose` (arguments there), or None."""
+        found = self.pose(key, kf_image, primitives, T_world_kf, image)
+        return None if found is None else found.T_world_frame
+
+    def pose(self, key: int, kf_image: np.ndarray, primitives: PrimitiveSet,
+             T_world_kf: np.ndarray, image: np.ndarray) -> Optional[FeaturePose]:
+        """The PnP pose of ``image`` on the keyframe's features.
 
         Args:
             key: the keyframe's cache key (its features are recomputed when
@@ -122,7 +182,7 @@ class FeatureRetry:
             T_world_kf: the keyframe's camera-to-world pose.
             image: the frame (size of ``camera``).
         Returns:
-            ``T_world_frame`` (4, 4), or None with too few PnP inliers.
+            :class:`FeaturePose`, or None with too few PnP inliers.
         """
         import cv2
 
@@ -150,4 +210,8 @@ class FeatureRetry:
         T_frame_kf[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(T_frame_kf)):
             return None
-        return np.asarray(T_world_kf, dtype=np.float64) @ invert_pose(T_frame_kf)
+        T_world_kf = np.asarray(T_world_kf, dtype=np.float64)
+        X = kf.points[pairs[:, 0]]
+        return FeaturePose(T_world_kf @ invert_pose(T_frame_kf), n_in,
+                           X @ T_world_kf[:3, :3].T + T_world_kf[:3, 3],
+                           np.asarray(pts[pairs[:, 1]], dtype=np.float64))

@@ -8,6 +8,7 @@ for a :class:`~spgeo.vo.tracking.TrackResult` and decides what follows.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Optional, Sequence, Tuple
 
 import numpy as np
@@ -45,11 +46,17 @@ class FrameTracker:
         """``image`` tracked against ``kf`` from the motion model's guesses
         (constant velocity, then the last good pose), then (``retry``: ``kf``'s
         map keyframe, with ``feature_retry.enabled``) the feature-based PnP pose;
-        the first ``ok`` result, else the one of lowest photometric cost."""
+        the first ``ok`` result, else the one of lowest photometric cost.  A
+        result refused only for its cost (``"high_cost"``) is ``ok`` when the
+        PnP pose's matches agree with it (:meth:`FeaturePose.agrees`)."""
         guesses = self.motion.guesses()
+        found: list = []
         if retry is not None and self.config.feature_retry.enabled:
-            guesses.append(lambda: self._retry.guess(retry.index, retry.image, kf.primitives,
-                                                     kf.T_world_kf, image))
+            def feature_guess() -> Optional[np.ndarray]:
+                found.append(self._retry.pose(retry.index, retry.image, kf.primitives,
+                                              kf.T_world_kf, image))
+                return None if found[-1] is None else found[-1].T_world_frame
+            guesses.append(feature_guess)
         tr = None
         for guess in guesses:
             T0 = guess()
@@ -60,6 +67,10 @@ class FrameTracker:
                 tr = tr2
             if tr.ok:
                 break
+        if (tr is not None and tr.reason == "high_cost" and found and found[-1] is not None
+                and found[-1].agrees(tr.T_world_frame, self._retry.camera,
+                                                self.config.feature_retry)):
+            tr = dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
         return tr
 
     def relocalise(self, older: Sequence[MapKeyframe], image: np.ndarray

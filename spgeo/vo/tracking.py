@@ -88,6 +88,9 @@ class TrackResult:
             pyramid (``TrackerConfig.decision_iterations``); ``T_world_frame``
             and ``brightness`` include them, ``cost`` and
             ``photometric_cost`` are the finest level's before them.
+        feature_checked: ``"ok"`` although ``relative_cost`` exceeds
+            ``TrackerConfig.max_relative_cost``, because feature matches
+            agree with the pose (:meth:`spgeo.vo.frame_tracker.FrameTracker.track`).
     """
 
     T_world_frame: np.ndarray
@@ -104,6 +107,7 @@ class TrackResult:
     report: List[dict]
     decision_stride: int = 1
     decision_steps: int = 0
+    feature_checked: bool = False
 
     @property
     def ok(self) -> bool:
