@@ -1,9 +1,10 @@
 """Depth completion on the real sample frames: 7-Scenes, TUM fr1_desk and ICL-NUIM.
 
 For every frame, ``n_points`` (150) sparse depths are taken from the sensor
-depth at FAST keypoints of the colour image
+depth at FAST keypoints of the colour image spread by a grid
 (:func:`spgeo.evaluation.completion.void.keypoint_sparse_depth`, no added noise, seed =
-frame index), completed by each method and scored against the same depth with
+frame index; ``--regime corners``: the strongest corners, clustered on texture as a
+SLAM front-end's points are; ``--regime uniform``: uniform random pixels with depth), completed by each method and scored against the same depth with
 the VOID protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
 iRMSE in 1/km, means over frames).  Data sets (``/work/shared/data`` layout):
 7-Scenes redkitchen frames 0-299 every 10th (depth not registered to colour:
@@ -37,7 +38,7 @@ best of the three baselines on that data set (positive: better).
 Run::
 
     spgeo eval completion_real [--root DIR] [--datasets 7scenes,tum,icl] [--out DIR]
-        [--depth-model NAME|PATH] [--no-choose]
+        [--depth-model NAME|PATH] [--no-choose] [--regime grid|corners|uniform]
         [--workers N | --address ADDR]      (one job per data set, on Ray)
 """
 from __future__ import annotations
@@ -60,7 +61,7 @@ from spgeo.evaluation.references.depth_completion import (colorization_completio
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
 
-from .void import METRIC_KEYS, keypoint_sparse_depth, void_metrics
+from .void import METRIC_KEYS, keypoint_sparse_depth, uniform_sparse_depth, void_metrics
 
 __all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames",
            "RealCompletionResult", "run_dataset", "run_completion_real", "build_parser", "run",
@@ -173,17 +174,32 @@ class RealCompletionResult:
                 "agreement": self.agreement}
 
 
+#: sparse regimes (``--regime``): ``grid``: FAST keypoints spread by a grid (the
+#: strongest per cell); ``corners``: the strongest FAST corners, clustered on
+#: texture; ``uniform``: pixels drawn uniformly among those with depth.
+REGIMES = ("grid", "corners", "uniform")
+
+
 def sparse_frames(ds, n_points: int = 150, seed: int = 0, desc: str = "completion",
-                  progress: bool = True) -> Iterator[Tuple[object, np.ndarray, np.ndarray]]:
+                  progress: bool = True, regime: str = "grid"
+                  ) -> Iterator[Tuple[object, np.ndarray, np.ndarray]]:
     """``(frame, reference depth, sparse depth)`` for every frame of ``ds``: the
     reference is the frame's depth (NaN -> 0), the sparse input ``n_points``
-    keypoint depths from it without added noise, seed ``seed + index``."""
+    depths from it without added noise, seed ``seed + index``, at the pixels of
+    ``regime`` (:data:`REGIMES`; ``ValueError`` for another)."""
     from tqdm import tqdm
 
+    if regime not in REGIMES:
+        raise ValueError(f"unknown sparse regime {regime!r}; choose from {', '.join(REGIMES)}")
     for i in tqdm(range(len(ds)), desc=desc, disable=not progress):
         f = ds[i]
         gt = np.nan_to_num(f.depth, nan=0.0)
-        yield f, gt, keypoint_sparse_depth(f.image, gt, n_points, rel_noise=0.0, seed=seed + i)
+        if regime == "uniform":
+            sparse = uniform_sparse_depth(gt, n_points, seed=seed + i)
+        else:
+            sparse = keypoint_sparse_depth(f.image, gt, n_points, rel_noise=0.0, seed=seed + i,
+                                           spread=regime == "grid")
+        yield f, gt, sparse
 
 
 def _frontend_names() -> List[str]:
@@ -221,10 +237,11 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
                 methods: Sequence[str] = SCALE_METHODS,
                 baselines: Optional[Sequence[str]] = None,
                 progress: bool = True, choose: bool = True,
-                depth_model: Optional[str] = None) -> RealCompletionResult:
+                depth_model: Optional[str] = None, regime: str = "grid") -> RealCompletionResult:
     """Evaluate all methods on one data set of :data:`DATASETS`.
 
-    ``frames`` overrides the data set's selection; ``choose`` adds the
+    ``frames`` overrides the data set's selection; ``regime`` places the
+    sparse points (:data:`REGIMES`, :func:`sparse_frames`); ``choose`` adds the
     held-out-choice rows, ``depth_model`` (a name or path for
     :func:`spgeo.frontend.metric_depth_from_cache`) the network rows (module
     docstring).  Raises ``FileNotFoundError`` when its folder (or the model) is
@@ -252,7 +269,8 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
         row["seconds"].append(float(secs))
 
     names: List[str] = []
-    for f, gt, sparse in sparse_frames(ds, n_points, seed, f"{name} completion", progress):
+    for f, gt, sparse in sparse_frames(ds, n_points, seed, f"{name} completion", progress,
+                                       regime):
         names.append(f.name)
         for fe, front in built.items():
             t0 = time.perf_counter()
@@ -371,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--frames", default=None, help="override the frame selection A:B:S")
     ap.add_argument("--points", type=int, default=150, help="sparse points per frame (150)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--regime", choices=REGIMES, default="grid",
+                    help="where the sparse points are: grid-spread FAST keypoints (default), the "
+                         "strongest FAST corners (clustered) or uniform random pixels")
     ap.add_argument("--frontends", default=None,
                     help="comma-separated front-ends (default: classical, manhattan if "
                          "present, depth oracle)")
@@ -431,7 +452,7 @@ def run(args: argparse.Namespace) -> int:
     res = run_completion_real(root, names, runner, frames=args.frames, n_points=args.points,
                               seed=args.seed, frontends=fes, baselines=bls, config=config,
                               choose=not args.no_choose, depth_model=args.depth_model,
-                              progress=runner.backend == "local")
+                              progress=runner.backend == "local", regime=args.regime)
     text = "\n\n".join(r.table() for r in res.values())
     print(text)
     if args.out:

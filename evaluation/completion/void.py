@@ -37,6 +37,7 @@ from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basi
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
     "write_void_depth", "void_metrics", "VOIDResult", "run_void", "keypoint_sparse_depth",
+    "uniform_sparse_depth",
     "write_synthetic_void", "METHOD_NAMES", "make_method", "build_parser", "run", "main",
 ]
 
@@ -195,8 +196,8 @@ def run_void(root: PathLike, split: Union[str, int] = "150",
 
 # ----------------------------------------------------------------- sparse sampling
 def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 150,
-                          rel_noise: float = 0.01, seed: int = 0, fast_threshold: int = 10
-                          ) -> np.ndarray:
+                          rel_noise: float = 0.01, seed: int = 0, fast_threshold: int = 10,
+                          spread: bool = True) -> np.ndarray:
     """Sparse depth at image keypoints, the way VIO gives it (VOID's points are
     tracked corners).
 
@@ -204,7 +205,8 @@ def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 
     spread over the image by keeping the strongest corner per grid cell
     (cells sized for about ``2 * n_points`` cells), then the ``n_points``
     strongest of those (more from the remaining corners if too few cells are
-    occupied).  Depths get multiplicative Gaussian noise
+    occupied); with ``spread=False`` simply the ``n_points`` strongest corners,
+    which cluster on texture (the held-out regime of issue 39).  Depths get multiplicative Gaussian noise
     ``d * (1 + rel_noise * N(0, 1))``.  The FAST threshold is lowered (to 5,
     then 1) when too few corners are found.  Deterministic in ``seed``.
 
@@ -243,6 +245,8 @@ def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 
     _, first = np.unique(flat, return_index=True)
     first = np.sort(first)
     flat, resp = flat[first], resp[first]
+    if not spread:
+        return _with_noise(flat[:n_points], depth, rel_noise, seed)
     cell = max(1.0, np.sqrt(h * w / (2.0 * n_points)))
     cu = ((flat % w) / cell).astype(np.int64)
     cv_ = ((flat // w) / cell).astype(np.int64)
@@ -256,12 +260,32 @@ def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 
     if chosen.size < n_points:
         log.debug("keypoint_sparse_depth: only %d keypoints with depth (asked %d)", chosen.size,
                   n_points)
-    sel = flat[chosen]
+    return _with_noise(flat[chosen], depth, rel_noise, seed)
+
+
+def _with_noise(sel: np.ndarray, depth: np.ndarray, rel_noise: float, seed: int) -> np.ndarray:
+    """(H, W) sparse map: ``depth`` at the flat pixel indices ``sel`` times
+    ``1 + rel_noise * N(0, 1)`` (at least 1 mm), 0 elsewhere."""
     rng = np.random.default_rng(seed)
-    out = np.zeros(h * w)
+    out = np.zeros(depth.size)
     d = depth.reshape(-1)[sel]
     out[sel] = np.maximum(d * (1.0 + rel_noise * rng.standard_normal(sel.size)), 1e-3)
-    return out.reshape(h, w)
+    return out.reshape(depth.shape)
+
+
+def uniform_sparse_depth(depth: np.ndarray, n_points: int = 150, rel_noise: float = 0.0,
+                         seed: int = 0) -> np.ndarray:
+    """Sparse depth at ``n_points`` pixels drawn uniformly among those with
+    valid depth (finite, > 0), deterministic in ``seed``; noise as
+    :func:`keypoint_sparse_depth`.  Returns (H, W) metres, 0 = missing; raises
+    ``ValueError`` when no pixel has depth or ``n_points < 1``."""
+    depth = np.asarray(depth, dtype=np.float64)
+    valid = np.flatnonzero(np.isfinite(depth.reshape(-1)) & (depth.reshape(-1) > 0))
+    if valid.size == 0 or int(n_points) < 1:
+        raise ValueError(f"uniform_sparse_depth: {valid.size} valid pixels, n_points {n_points}")
+    rng = np.random.default_rng([int(seed), 39])
+    sel = rng.choice(valid, size=min(int(n_points), valid.size), replace=False)
+    return _with_noise(np.sort(sel), depth, rel_noise, seed)
 
 
 # ----------------------------------------------------------------- synthetic writer
