@@ -84,3 +84,19 @@ def test_completion_strata_partition_and_errors(root, capsys):
             assert 0 < r["spgeo_mm"] < 2000 and 0 < r["linear_mm"] < 2000
     assert main(["--datasets", "tum", "--root", str(root / "none")]) == 2
     assert "completion_strata: error:" in capsys.readouterr().err
+
+
+def test_regimes_place_the_points_differently(root):
+    """``--regime``: the same frame's 150 points differ between the grid, the
+    strongest corners and uniform pixels, and linear interpolation is scored on
+    each; an unknown regime is refused by name."""
+    ds = cr.open_sample("tum", root, "0:1")
+    masks = {r: next(cr.sparse_frames(ds, 150, 0, progress=False, regime=r))[2] > 0
+             for r in cr.REGIMES}
+    assert all(m.sum() == 150 for m in masks.values())
+    assert (masks["grid"] != masks["corners"]).any() and (masks["grid"] != masks["uniform"]).any()
+    with pytest.raises(ValueError, match="regime"):
+        next(cr.sparse_frames(ds, 150, 0, progress=False, regime="spiral"))
+    rc = cr.main(["--root", str(root), "--datasets", "tum", "--frames", "0:1", "--regime",
+                  "corners", "--frontends", "classical", "--baselines", "linear", "--no-choose"])
+    assert rc == 0

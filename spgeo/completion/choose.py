@@ -10,12 +10,7 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    deterministic): a held-out point's nearest training point is about a
    point spacing away or more, as far as the pixels between the sparse
    points are from them, so a candidate that only reproduces its inputs at
-   their pixels (interpolation at clustered corners) gains nothing.  With
-   ``block=None`` the side is chosen per image (:func:`gap_matched_block`):
-   the one of :data:`BLOCK_SIDES` whose held-out points lie, at the median,
-   as far from the kept points as the image's pixels lie from the points
-   (issue 39: points clustered on texture leave gaps much wider than their
-   mean spacing).
+   their pixels (interpolation at clustered corners) gains nothing.
 2. **held-out errors** — every candidate is fitted ``folds`` times, each time
    on all points but one fold, and read at the held-out fold's pixels; each
    point thus gets one held-out prediction per candidate, and an error
@@ -47,17 +42,13 @@ import numpy as np
 
 from ..configs import config_repr
 
-__all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "BLOCK_SIDES", "fold_ids",
-           "heldout_distances", "gap_distances", "gap_matched_block", "heldout_log_errors",
+__all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_errors",
            "region_labels", "region_scores", "choose_by_heldout", "rank_agreement"]
 
 log = logging.getLogger(__name__)
 
 #: ``fit(uv (K, 2), depth (K,) metres) -> (H, W) metres``, finite and > 0.
 Candidate = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-#: block sides (mean point spacings) :func:`gap_matched_block` chooses among
-BLOCK_SIDES = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 
 
 @config_repr
@@ -70,9 +61,7 @@ class ChooseConfig:
         seed: seed of the fold permutation.
         block: side of the held-out image blocks in mean point spacings
             (``sqrt(H W / P)`` pixels; > 0).  Small values hold out single
-            points.  None: per image, the side whose held-out points are as
-            far from the kept ones as the pixels are from the points
-            (:func:`gap_matched_block`).
+            points.
         prior_points: weight, in points, of the cell's score in a region's
             score and of the global score in a cell's (>= 0; 0: a region with
             a held-out point decides by its points alone).
@@ -81,14 +70,14 @@ class ChooseConfig:
 
     folds: int = 5
     seed: int = 0
-    block: Optional[float] = 2.0
+    block: float = 2.0
     prior_points: float = 10.0
     grid: Tuple[int, int] = (4, 3)
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
             raise ValueError(f"ChooseConfig: folds must be an integer >= 2, got {self.folds}")
-        if self.block is not None and not (np.isfinite(self.block) and self.block > 0):
+        if not (np.isfinite(self.block) and self.block > 0):
             raise ValueError(f"ChooseConfig: block must be > 0, got {self.block}")
         if not (np.isfinite(self.prior_points) and self.prior_points >= 0):
             raise ValueError(f"ChooseConfig: prior_points must be >= 0, got {self.prior_points}")
@@ -168,50 +157,6 @@ def fold_ids(uv: np.ndarray, shape: Tuple[int, int], folds: int, block: float = 
     of_block = np.empty(uniq.size, np.int64)
     of_block[perm] = np.arange(uniq.size) % int(folds)
     return of_block[inv.reshape(-1)]
-
-
-def heldout_distances(uv: np.ndarray, folds: np.ndarray) -> np.ndarray:
-    """(P,) pixels from each point to the nearest point of another fold (the
-    nearest point its held-out prediction is fitted on; inf when none)."""
-    from scipy.spatial import cKDTree
-
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    out = np.full(uv.shape[0], np.inf)
-    for f in np.unique(folds):
-        held, kept = folds == f, folds != f
-        if kept.any():
-            out[held] = cKDTree(uv[kept]).query(uv[held])[0]
-    return out
-
-
-def gap_distances(uv: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
-    """(H W,) pixels from every pixel to its nearest point (the gaps to fill)."""
-    import cv2
-
-    h, w = int(shape[0]), int(shape[1])
-    free = np.full((h, w), 255, np.uint8)
-    uv = np.asarray(uv).reshape(-1, 2).astype(np.int64)
-    free[uv[:, 1], uv[:, 0]] = 0
-    return cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).reshape(-1)
-
-
-def gap_matched_block(uv: np.ndarray, shape: Tuple[int, int], folds: int, seed: int = 0
-                      ) -> float:
-    """The block side of :func:`fold_ids` (in mean point spacings) whose held-out
-    points lie as far from the kept ones as the image's pixels lie from the
-    points: among :data:`BLOCK_SIDES`, the one whose median
-    :func:`heldout_distances` is nearest, in log, to the median of
-    :func:`gap_distances`.  Uniform points give about one spacing; points
-    clustered on texture, whose gaps are wide, larger blocks."""
-    target = float(np.median(gap_distances(uv, shape)))
-    best, best_cost = BLOCK_SIDES[0], np.inf
-    for side in BLOCK_SIDES:
-        d = heldout_distances(uv, fold_ids(uv, shape, folds, side, seed))
-        d = d[np.isfinite(d)]
-        cost = abs(np.log(max(float(np.median(d)), 0.5) / max(target, 0.5))) if d.size else np.inf
-        if cost < best_cost:
-            best, best_cost = side, cost
-    return float(best)
 
 
 def heldout_log_errors(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
@@ -335,9 +280,7 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
     labels = np.asarray(labels)
     _check_choice_inputs(candidates, uv, depth, labels, config)
     names = tuple(candidates)
-    block = config.block if config.block is not None else gap_matched_block(
-        uv, labels.shape, config.folds, config.seed)
-    folds = fold_ids(uv, labels.shape, config.folds, block, config.seed)
+    folds = fold_ids(uv, labels.shape, config.folds, config.block, config.seed)
     err = heldout_log_errors(candidates, uv, depth, folds)
     regions, cell = region_labels(labels, config.grid)
     scores = region_scores(err, regions[uv[:, 1], uv[:, 0]], cell, config.prior_points)
