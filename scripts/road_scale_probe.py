@@ -27,8 +27,8 @@ from spgeo.vo.tracking import track_frame
 
 
 def _scale_errors(road, kf, T_world_cam):
-    """Per primitive: (pixel count, log-scale error about the keyframe's median,
-    median true depth m); and the map units per metre."""
+    """``({primitive id: (log-scale error about the keyframe's median, median true
+    depth m)} for primitives of at least 50 pixels with truth, map units per metre)``."""
     pr = kf.primitives
     c = pr.camera
     G = road.scene.render_depth(PinholeCamera(c.fx, c.fy, c.cx, c.cy, c.width, c.height),

@@ -41,7 +41,8 @@ def test_block_loop_stops_turns_and_returns():
     poses = road.drive()
     steps = _steps(poses)
     assert np.count_nonzero(steps == 0) == STOP_FRAMES
-    assert steps.max() == pytest.approx(1.2) and np.min(steps[steps > 0]) == pytest.approx(0.6, abs=1e-3)
+    assert steps.max() == pytest.approx(1.2)
+    assert np.min(steps[steps > 0]) == pytest.approx(0.6, abs=1e-3)
     assert np.linalg.norm(poses[-1, :3, 3] - poses[0, :3, 3]) < 1.2
     fwd = poses[:, :2, 2]
     yaw = np.unwrap(np.arctan2(fwd[:, 1], fwd[:, 0]))

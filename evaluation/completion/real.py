@@ -4,8 +4,9 @@ For every frame, ``n_points`` (150) sparse depths are taken from the sensor
 depth at FAST keypoints of the colour image spread by a grid
 (:func:`spgeo.evaluation.completion.void.keypoint_sparse_depth`, no added noise, seed =
 frame index; ``--regime corners``: the strongest corners, clustered on texture as a
-SLAM front-end's points are; ``--regime uniform``: uniform random pixels with depth), completed by each method and scored against the same depth with
-the VOID protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
+SLAM front-end's points are; ``--regime uniform``: uniform random pixels with
+depth), completed by each method and scored against the same depth with the VOID
+protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
 iRMSE in 1/km, means over frames).  Data sets (``/work/shared/data`` layout):
 7-Scenes redkitchen frames 0-299 every 10th (depth not registered to colour:
 approximate), the 9 TUM fr1_desk frames (undistorted), the 5 ICL-NUIM frames.

@@ -206,9 +206,9 @@ def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 
     (cells sized for about ``2 * n_points`` cells), then the ``n_points``
     strongest of those (more from the remaining corners if too few cells are
     occupied); with ``spread=False`` simply the ``n_points`` strongest corners,
-    which cluster on texture (the held-out regime of issue 39).  Depths get multiplicative Gaussian noise
-    ``d * (1 + rel_noise * N(0, 1))``.  The FAST threshold is lowered (to 5,
-    then 1) when too few corners are found.  Deterministic in ``seed``.
+    which cluster on texture (the held-out regime of issue 39).  Depths get
+    multiplicative Gaussian noise ``d * (1 + rel_noise * N(0, 1))``.  The FAST
+    threshold is lowered (to 5, then 1) when too few corners are found.  Deterministic in ``seed``.
 
     Returns (H, W) float64 metres, 0 = missing.
     """

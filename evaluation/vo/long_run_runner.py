@@ -24,8 +24,8 @@ import numpy as np
 from spgeo.evaluation.jobs import THREAD_ENV, Job, write_atomic
 from spgeo.evaluation.vo.long_run_sequences import SEQUENCES, run_config
 
-__all__ = ["end_pose_error", "scale_drift", "kitti_errors", "run_metrics", "run_one", "base_row", "child_main",
-           "run_subprocess", "make_jobs"]
+__all__ = ["end_pose_error", "scale_drift", "kitti_errors", "run_metrics", "run_one", "base_row",
+           "child_main", "run_subprocess", "make_jobs"]
 
 
 def end_pose_error(run, ate) -> Tuple[Optional[float], Optional[float]]:

@@ -76,8 +76,8 @@ class RoadPath:
         step = np.diff(s)
         yaw = start_yaw + np.r_[0.0, np.cumsum(0.5 * (k[1:] + k[:-1]) * step)]
         head = np.stack([np.cos(yaw), np.sin(yaw)], 1)
-        xy = np.asarray(start_xy, float) + np.r_[np.zeros((1, 2)),
-                                                 np.cumsum(0.5 * (head[1:] + head[:-1]) * step[:, None], 0)]
+        moves = 0.5 * (head[1:] + head[:-1]) * step[:, None]
+        xy = np.asarray(start_xy, float) + np.r_[np.zeros((1, 2)), np.cumsum(moves, 0)]
         return cls(s, xy, yaw)
 
     @classmethod
@@ -175,13 +175,14 @@ def block_loop(step: float = 1.2, corner_step: float = 0.6, seed: int = 0) -> Ro
     pieces[-1] = (straight / 2, 0.0)
     path = RoadPath.from_curvature((centre, 0.0), np.pi / 2, pieces)
     starts = straight / 2 + np.arange(4) * (quarter + straight)
-    speeds, s = [], 0.0
+    speeds, s, stopped = [], 0.0, False
     while s < path.s[-1] - step:
         near = np.min(np.abs(np.r_[starts, starts + quarter] - s))
         inside = np.any((s > starts) & (s < starts + quarter))
         v = corner_step if inside else float(np.interp(near, [0.0, 10.0], [corner_step, step]))
-        if not speeds.count(0.0) and s >= starts[1] - 5.0:
+        if not stopped and s >= starts[1] - 5.0:
             speeds += [0.0] * STOP_FRAMES
+            stopped = True
         speeds.append(v)
         s += v
     objects = [BoxSpec((0.0, 0.0, 12.0), (block, block, 24.0), 0.0)]

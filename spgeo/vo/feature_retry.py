@@ -25,7 +25,7 @@ import numpy as np
 
 from ..configs import config_repr
 from ..camera import PinholeCamera
-from ..geometry import invert_pose
+from ..geometry import invert_pose, transform_points
 from ..primitives import PrimitiveSet
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
@@ -90,14 +90,10 @@ class FeaturePose:
     def support(self, T_world_frame: np.ndarray, camera: PinholeCamera, tol_px: float) -> int:
         """How many matches the pose ``T_world_frame`` reprojects within
         ``tol_px`` pixels (points behind the camera count as misses)."""
-        T_frame_world = invert_pose(np.asarray(T_world_frame, dtype=np.float64))
-        X = self.points_world @ T_frame_world[:3, :3].T + T_frame_world[:3, 3]
-        front = X[:, 2] > 1e-9
-        z = np.where(front, X[:, 2], 1.0)
-        u = camera.fx * X[:, 0] / z + camera.cx
-        v = camera.fy * X[:, 1] / z + camera.cy
-        err = np.hypot(u - self.pixels[:, 0], v - self.pixels[:, 1])
-        return int(np.count_nonzero(front & (err <= tol_px)))
+        uv, z = camera.project(transform_points(
+            invert_pose(np.asarray(T_world_frame, dtype=np.float64)), self.points_world))
+        return int(np.count_nonzero((z > 0) & (np.linalg.norm(uv - self.pixels, axis=1)
+                                                <= tol_px)))
 
     def agrees(self, T_world_frame: np.ndarray, camera: PinholeCamera,
                config: "FeatureRetryConfig") -> bool:
@@ -211,7 +207,6 @@ class FeatureRetry:
         if not np.all(np.isfinite(T_frame_kf)):
             return None
         T_world_kf = np.asarray(T_world_kf, dtype=np.float64)
-        X = kf.points[pairs[:, 0]]
         return FeaturePose(T_world_kf @ invert_pose(T_frame_kf), n_in,
-                           X @ T_world_kf[:3, :3].T + T_world_kf[:3, 3],
+                           transform_points(T_world_kf, kf.points[pairs[:, 0]]),
                            np.asarray(pts[pairs[:, 1]], dtype=np.float64))

@@ -16,7 +16,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..geometry import rotation_angle_deg
 from .config import OdometryConfig
-from .feature_retry import FeatureRetry
+from .feature_retry import FeaturePose, FeatureRetry
 from .map import MapKeyframe
 from .motion import MotionModel
 from .tracking import Keyframe, TrackResult, track_frame
@@ -50,12 +50,13 @@ class FrameTracker:
         result refused only for its cost (``"high_cost"``) is ``ok`` when the
         PnP pose's matches agree with it (:meth:`FeaturePose.agrees`)."""
         guesses = self.motion.guesses()
-        found: list = []
+        pnp: Optional[FeaturePose] = None
         if retry is not None and self.config.feature_retry.enabled:
             def feature_guess() -> Optional[np.ndarray]:
-                found.append(self._retry.pose(retry.index, retry.image, kf.primitives,
-                                              kf.T_world_kf, image))
-                return None if found[-1] is None else found[-1].T_world_frame
+                nonlocal pnp
+                pnp = self._retry.pose(retry.index, retry.image, kf.primitives, kf.T_world_kf,
+                                       image)
+                return None if pnp is None else pnp.T_world_frame
             guesses.append(feature_guess)
         tr = None
         for guess in guesses:
@@ -67,9 +68,8 @@ class FrameTracker:
                 tr = tr2
             if tr.ok:
                 break
-        if (tr is not None and tr.reason == "high_cost" and found and found[-1] is not None
-                and found[-1].agrees(tr.T_world_frame, self._retry.camera,
-                                                self.config.feature_retry)):
+        if (tr is not None and tr.reason == "high_cost" and pnp is not None
+                and pnp.agrees(tr.T_world_frame, self._retry.camera, self.config.feature_retry)):
             tr = dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
         return tr
 
