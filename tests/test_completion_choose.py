@@ -15,7 +15,7 @@ from spgeo import synthetic
 from spgeo.completion import CompletionConfig, complete_depth
 from spgeo.completion.baselines import ip_basic_completion, linear_interpolation_completion
 from spgeo.completion.choose import (ChooseConfig, choose_by_heldout, fold_ids, rank_agreement,
-                                     region_labels, region_scores)
+                                     region_labels, region_scores, blend_weights)
 from spgeo.completion.network import align_network_depth
 from spgeo.evaluation.completion.void import (keypoint_sparse_depth, uniform_sparse_depth,
                                               void_metrics)
@@ -82,6 +82,28 @@ def test_choose_by_heldout_picks_the_right_candidate_per_region():
         choose_by_heldout(cands, uv[:3], d[:3], labels)
     with pytest.raises(ValueError, match="outside"):
         choose_by_heldout(cands, uv + [w, 0], d, labels)
+
+
+def test_a_blend_cancels_opposite_errors_and_pure_candidates_stay_pure():
+    """Two candidates 10 % too far and 10 % too near everywhere: their even
+    log-blend is exact and is chosen over both; with ``blend_step=1`` only
+    pure candidates exist; the weights cover the simplex, pure ones first."""
+    h, w = 40, 60
+    truth = 2.0 + np.linspace(0, 1, w)[None, :] * np.ones((h, 1))
+    rng = np.random.default_rng(1)
+    uv = np.stack([rng.integers(0, w, 60), rng.integers(0, h, 60)], 1)
+    d = truth[uv[:, 1], uv[:, 0]]
+    cands = {"far": lambda p, q: truth * 1.1, "near": lambda p, q: truth / 1.1}
+    ch = choose_by_heldout(cands, uv, d, -np.ones((h, w), int))
+    np.testing.assert_allclose(ch.region_weights, 0.5)
+    np.testing.assert_allclose(ch.depth, truth)
+    pure = choose_by_heldout(cands, uv, d, -np.ones((h, w), int), ChooseConfig(blend_step=1.0))
+    assert set(np.unique(pure.region_weights)) == {0.0, 1.0}
+    wts = blend_weights(3, 0.25)
+    assert wts.shape == (15, 3) and np.allclose(wts.sum(1), 1.0) and wts.min() >= 0
+    np.testing.assert_array_equal(wts[:3], np.eye(3))
+    with pytest.raises(ValueError, match="blend_step"):
+        ChooseConfig(blend_step=0.3)
 
 
 def test_config_checks():
@@ -307,8 +329,10 @@ def test_right_prior_is_chosen_across_gaps_where_interpolation_wins_at_corners(k
         assert ch.region_counts()["right"] == ch.region_winner.size    # ... and chosen
         assert ch.region_counts()["wrong"] == 0
         agr = rank_agreement(ch, truth)
-        assert agr["region_agreement"] == 1.0 and agr["chosen_log_error"] == pytest.approx(
-            agr["oracle_log_error"]) and agr["spearman"] > 0
+        # the right prior dominates every region; a blend with interpolation
+        # may shave its 3 % noise at the points but stays near the oracle
+        assert agr["region_agreement"] == 1.0 and agr["spearman"] > 0
+        assert agr["chosen_log_error"] <= 1.15 * agr["oracle_log_error"]
         # single held-out corners: interpolation looks almost as good as the right prior
         points = choose_by_heldout(cands, uv, d, -np.ones((h, w), int), ChooseConfig(block=0.01))
         ratio = points.heldout_error[0] / points.heldout_error[1]

@@ -88,15 +88,21 @@ def test_completion_strata_partition_and_errors(root, capsys):
 
 def test_regimes_place_the_points_differently(root):
     """``--regime``: the same frame's 150 points differ between the grid, the
-    strongest corners and uniform pixels, and linear interpolation is scored on
-    each; an unknown regime is refused by name."""
+    strongest corners, uniform pixels and KLT tracks, and linear interpolation
+    is scored on each; an unknown regime is refused by name, tracks without
+    their sequence too; the last frame is tracked backwards."""
     ds = cr.open_sample("tum", root, "0:1")
-    masks = {r: next(cr.sparse_frames(ds, 150, 0, progress=False, regime=r))[2] > 0
+    seq = cr.open_sample("tum", root, "0:")
+    masks = {r: next(cr.sparse_frames(ds, 150, 0, progress=False, regime=r, sequence=seq))[2] > 0
              for r in cr.REGIMES}
     assert all(m.sum() == 150 for m in masks.values())
-    assert (masks["grid"] != masks["corners"]).any() and (masks["grid"] != masks["uniform"]).any()
+    assert all((masks["grid"] != masks[r]).any() for r in ("corners", "uniform", "tracks"))
     with pytest.raises(ValueError, match="regime"):
         next(cr.sparse_frames(ds, 150, 0, progress=False, regime="spiral"))
+    with pytest.raises(ValueError, match="sequence"):
+        next(cr.sparse_frames(ds, 150, 0, progress=False, regime="tracks"))
+    assert cr._neighbours(seq, seq.frame_numbers[-1], 3) == [len(seq) - 2, len(seq) - 3,
+                                                            len(seq) - 4]
     rc = cr.main(["--root", str(root), "--datasets", "tum", "--frames", "0:1", "--regime",
                   "corners", "--frontends", "classical", "--baselines", "linear", "--no-choose"])
     assert rc == 0

@@ -62,7 +62,8 @@ from spgeo.evaluation.references.depth_completion import (colorization_completio
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
 
-from .void import METRIC_KEYS, keypoint_sparse_depth, uniform_sparse_depth, void_metrics
+from .sparse_points import keypoint_sparse_depth, track_sparse_depth, uniform_sparse_depth
+from .void import METRIC_KEYS, void_metrics
 
 __all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames",
            "RealCompletionResult", "run_dataset", "run_completion_real", "build_parser", "run",
@@ -177,30 +178,56 @@ class RealCompletionResult:
 
 #: sparse regimes (``--regime``): ``grid``: FAST keypoints spread by a grid (the
 #: strongest per cell); ``corners``: the strongest FAST corners, clustered on
-#: texture; ``uniform``: pixels drawn uniformly among those with depth.
-REGIMES = ("grid", "corners", "uniform")
+#: texture; ``uniform``: pixels drawn uniformly among those with depth;
+#: ``tracks``: corners a KLT tracker keeps over the next :data:`TRACK_FRAMES`
+#: frames (data sets of consecutive frames only, :data:`CONSECUTIVE`).
+REGIMES = ("grid", "corners", "uniform", "tracks")
+#: frames a ``tracks`` point is tracked through.
+TRACK_FRAMES = 4
+#: data sets whose frames are consecutive video frames (``tracks`` runs on these).
+CONSECUTIVE = ("7scenes", "tum")
 
 
 def sparse_frames(ds, n_points: int = 150, seed: int = 0, desc: str = "completion",
-                  progress: bool = True, regime: str = "grid"
+                  progress: bool = True, regime: str = "grid", sequence=None
                   ) -> Iterator[Tuple[object, np.ndarray, np.ndarray]]:
     """``(frame, reference depth, sparse depth)`` for every frame of ``ds``: the
     reference is the frame's depth (NaN -> 0), the sparse input ``n_points``
     depths from it without added noise, seed ``seed + index``, at the pixels of
-    ``regime`` (:data:`REGIMES`; ``ValueError`` for another)."""
+    ``regime`` (:data:`REGIMES`; ``ValueError`` for another).  ``tracks``
+    needs ``sequence``: the consecutive frames ``ds`` was selected from (a
+    ``FrameSequence`` with ``frame_numbers``); a frame's points are tracked
+    through the :data:`TRACK_FRAMES` frames after it (before it at the end)."""
     from tqdm import tqdm
 
     if regime not in REGIMES:
         raise ValueError(f"unknown sparse regime {regime!r}; choose from {', '.join(REGIMES)}")
+    if regime == "tracks" and sequence is None:
+        raise ValueError("sparse regime 'tracks' needs the frames' sequence")
     for i in tqdm(range(len(ds)), desc=desc, disable=not progress):
         f = ds[i]
         gt = np.nan_to_num(f.depth, nan=0.0)
         if regime == "uniform":
             sparse = uniform_sparse_depth(gt, n_points, seed=seed + i)
+        elif regime == "tracks":
+            near = _neighbours(sequence, ds.frame_numbers[i], TRACK_FRAMES)
+            sparse = track_sparse_depth([f.image] + [sequence[j].image for j in near], gt,
+                                        n_points, seed=seed + i)
         else:
             sparse = keypoint_sparse_depth(f.image, gt, n_points, rel_noise=0.0, seed=seed + i,
                                            spread=regime == "grid")
         yield f, gt, sparse
+
+
+def _neighbours(sequence, number: int, k: int) -> List[int]:
+    """Positions in ``sequence`` of the ``k`` frames after frame ``number``
+    (the ``k`` before it, nearest first, when fewer follow)."""
+    nums = list(sequence.frame_numbers)
+    if number not in nums:
+        raise ValueError(f"frame {number} is not in the sequence {sequence!r}")
+    p = nums.index(number)
+    after = list(range(p + 1, min(p + 1 + k, len(nums))))
+    return after if len(after) == k else list(range(p - 1, max(p - 1 - k, -1), -1))
 
 
 def _frontend_names() -> List[str]:
@@ -251,6 +278,12 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
     from spgeo.frontend import FrontEndConfig, make_frontend, metric_depth_from_cache
 
     ds = open_sample(name, root, frames)
+    sequence = None
+    if regime == "tracks":
+        if name not in CONSECUTIVE:
+            raise ValueError(f"{name}: its frames are not consecutive; the 'tracks' regime runs "
+                             f"on {', '.join(CONSECUTIVE)}")
+        sequence = open_sample(name, root, "0:")
     fes = list(frontends) if frontends is not None else _frontend_names()
     fe_cfg = FrontEndConfig(working_size=working_size_for(ds.camera, config.working_width))
     built = {fe: make_frontend(fe, fe_cfg) for fe in fes}
@@ -271,7 +304,7 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
 
     names: List[str] = []
     for f, gt, sparse in sparse_frames(ds, n_points, seed, f"{name} completion", progress,
-                                       regime):
+                                       regime, sequence):
         names.append(f.name)
         for fe, front in built.items():
             t0 = time.perf_counter()

@@ -27,12 +27,13 @@ from spgeo.completion import CompletionConfig, complete_depth
 from spgeo.datasets.files import PathLike
 from spgeo.datasets.void import (VOID_LIST_KINDS, VOID_SPLITS, VOIDDataset, VOIDSample,
                                  check_void_split, read_void_depth, write_void_depth)
-from spgeo.images import to_float_image, to_gray
 
 from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
                                                           linear_interpolation_completion)
+
+from .sparse_points import keypoint_sparse_depth, uniform_sparse_depth
 
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
@@ -192,100 +193,6 @@ def run_void(root: PathLike, split: Union[str, int] = "150",
             for k in METRIC_KEYS:
                 per[m][k][i] = met[k]
     return VOIDResult(str(split), subset, names, per, secs)
-
-
-# ----------------------------------------------------------------- sparse sampling
-def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 150,
-                          rel_noise: float = 0.01, seed: int = 0, fast_threshold: int = 10,
-                          spread: bool = True) -> np.ndarray:
-    """Sparse depth at image keypoints, the way VIO gives it (VOID's points are
-    tracked corners).
-
-    FAST corners (OpenCV, non-maximum suppression) with valid depth are
-    spread over the image by keeping the strongest corner per grid cell
-    (cells sized for about ``2 * n_points`` cells), then the ``n_points``
-    strongest of those (more from the remaining corners if too few cells are
-    occupied); with ``spread=False`` simply the ``n_points`` strongest corners,
-    which cluster on texture (the held-out regime of issue 39).  Depths get
-    multiplicative Gaussian noise ``d * (1 + rel_noise * N(0, 1))``.  The FAST
-    threshold is lowered (to 5, then 1) when too few corners are found.  Deterministic in ``seed``.
-
-    Returns (H, W) float64 metres, 0 = missing.
-    """
-    img = to_float_image(image)
-    grey = np.rint(255 * (to_gray(img) if img.ndim == 3 else img)).astype(np.uint8)
-    depth = np.asarray(depth, dtype=np.float64)
-    if depth.shape != grey.shape:
-        raise ValueError(f"depth shape {depth.shape} != image shape {grey.shape}")
-    if int(n_points) < 1:
-        raise ValueError(f"n_points must be >= 1, got {n_points}")
-    if rel_noise < 0 or not np.isfinite(rel_noise):
-        raise ValueError(f"rel_noise must be finite and >= 0, got {rel_noise}")
-    h, w = grey.shape
-    ok = np.isfinite(depth) & (depth > 0)
-    u = v = resp = np.zeros(0)
-    for thr in sorted({int(fast_threshold), 5, 1}, reverse=True):
-        det = cv2.FastFeatureDetector_create(threshold=thr, nonmaxSuppression=True)
-        kps = det.detect(grey, None)
-        if kps:
-            pts = np.array([kp.pt for kp in kps])
-            resp = np.array([kp.response for kp in kps])
-            u = np.clip(np.rint(pts[:, 0]), 0, w - 1).astype(np.int64)
-            v = np.clip(np.rint(pts[:, 1]), 0, h - 1).astype(np.int64)
-            keep = ok[v, u]
-            u, v, resp = u[keep], v[keep], resp[keep]
-        if u.size >= n_points:
-            break
-    if u.size == 0:
-        raise ValueError("keypoint_sparse_depth: no keypoint with valid depth")
-    # unique pixels, strongest first (stable on ties: raster order)
-    flat = v * w + u
-    order = np.lexsort((flat, -resp))
-    flat, resp = flat[order], resp[order]
-    _, first = np.unique(flat, return_index=True)
-    first = np.sort(first)
-    flat, resp = flat[first], resp[first]
-    if not spread:
-        return _with_noise(flat[:n_points], depth, rel_noise, seed)
-    cell = max(1.0, np.sqrt(h * w / (2.0 * n_points)))
-    cu = ((flat % w) / cell).astype(np.int64)
-    cv_ = ((flat // w) / cell).astype(np.int64)
-    cid = cv_ * (int(w / cell) + 1) + cu
-    _, best = np.unique(cid, return_index=True)  # first = strongest per cell
-    best = np.sort(best)
-    chosen = best[:n_points]
-    if chosen.size < n_points:
-        rest = np.setdiff1d(np.arange(flat.size), chosen, assume_unique=True)
-        chosen = np.concatenate([chosen, rest[:n_points - chosen.size]])
-    if chosen.size < n_points:
-        log.debug("keypoint_sparse_depth: only %d keypoints with depth (asked %d)", chosen.size,
-                  n_points)
-    return _with_noise(flat[chosen], depth, rel_noise, seed)
-
-
-def _with_noise(sel: np.ndarray, depth: np.ndarray, rel_noise: float, seed: int) -> np.ndarray:
-    """(H, W) sparse map: ``depth`` at the flat pixel indices ``sel`` times
-    ``1 + rel_noise * N(0, 1)`` (at least 1 mm), 0 elsewhere."""
-    rng = np.random.default_rng(seed)
-    out = np.zeros(depth.size)
-    d = depth.reshape(-1)[sel]
-    out[sel] = np.maximum(d * (1.0 + rel_noise * rng.standard_normal(sel.size)), 1e-3)
-    return out.reshape(depth.shape)
-
-
-def uniform_sparse_depth(depth: np.ndarray, n_points: int = 150, rel_noise: float = 0.0,
-                         seed: int = 0) -> np.ndarray:
-    """Sparse depth at ``n_points`` pixels drawn uniformly among those with
-    valid depth (finite, > 0), deterministic in ``seed``; noise as
-    :func:`keypoint_sparse_depth`.  Returns (H, W) metres, 0 = missing; raises
-    ``ValueError`` when no pixel has depth or ``n_points < 1``."""
-    depth = np.asarray(depth, dtype=np.float64)
-    valid = np.flatnonzero(np.isfinite(depth.reshape(-1)) & (depth.reshape(-1) > 0))
-    if valid.size == 0 or int(n_points) < 1:
-        raise ValueError(f"uniform_sparse_depth: {valid.size} valid pixels, n_points {n_points}")
-    rng = np.random.default_rng([int(seed), 39])
-    sel = rng.choice(valid, size=min(int(n_points), valid.size), replace=False)
-    return _with_noise(np.sort(sel), depth, rel_noise, seed)
 
 
 # ----------------------------------------------------------------- synthetic writer

@@ -11,20 +11,27 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    point spacing away or more, as far as the pixels between the sparse
    points are from them, so a candidate that only reproduces its inputs at
    their pixels (interpolation at clustered corners) gains nothing.
-2. **held-out errors** — every candidate is fitted ``folds`` times, each time
-   on all points but one fold, and read at the held-out fold's pixels; each
-   point thus gets one held-out prediction per candidate, and an error
-   ``|log prediction - log depth|`` (:func:`heldout_log_errors`).
-3. **regions** — the image is cut into regions (the primitives; pixels of no
-   primitive form one region per image cell).  A region's score of a
-   candidate is the mean held-out error of the points inside it, shrunk
-   towards the score of its image cell with the weight of ``prior_points``
-   points, and the cell's score towards the global mean in the same way
+2. **held-out residuals** — every candidate is fitted ``folds`` times, each
+   time on all points but one fold, and read at the held-out fold's pixels;
+   each point thus gets one held-out prediction per candidate, and a
+   residual ``log prediction - log depth`` (:func:`heldout_log_residuals`).
+3. **blends** — the hypotheses are the log-linear blends
+   ``exp(sum_c w_c log D_c)`` of the candidates' maps with weights ``w`` on
+   the simplex in steps of ``blend_step`` (:func:`blend_weights`; the pure
+   candidates are its corners, ``blend_step=1`` leaves only them); a blend's
+   held-out error at a point is ``|sum_c w_c r_c|`` of the candidates'
+   residuals there.  Errors of different candidates partly cancel, so a blend
+   often beats each of its parts.
+4. **regions** — the image is cut into regions (the primitives; pixels of no
+   primitive form one region per image cell).  A region's score of a blend is
+   the mean held-out error of the points inside it, shrunk towards the score
+   of its image cell with the weight of ``prior_points`` points, and the
+   cell's score towards the global mean in the same way
    (:func:`region_scores`): a region with many points decides by itself, one
    with few or none follows its cell, a cell with few follows the image.
-4. **winner** — per region the candidate of the lowest score; the candidates
-   are refitted on all points (kept in ``HeldoutChoice.maps`` for
-   :func:`rank_agreement`) and each pixel takes its region's winner
+5. **winner** — per region the blend of the lowest score; the candidates are
+   refitted on all points (kept in ``HeldoutChoice.maps`` for
+   :func:`rank_agreement`) and each pixel takes its region's blend of them
    (:func:`choose_by_heldout`).
 
 Candidates are callables ``fit(uv, depth) -> (H, W)`` metres (finite and > 0
@@ -42,8 +49,9 @@ import numpy as np
 
 from ..configs import config_repr
 
-__all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_errors",
-           "region_labels", "region_scores", "choose_by_heldout", "rank_agreement"]
+__all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_residuals",
+           "blend_weights", "region_labels", "region_scores", "choose_by_heldout",
+           "rank_agreement"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +74,8 @@ class ChooseConfig:
             score and of the global score in a cell's (>= 0; 0: a region with
             a held-out point decides by its points alone).
         grid: (columns, rows) of the image cells (each >= 1).
+        blend_step: step of the blend weights on the simplex (``1 / blend_step``
+            a whole number >= 1; 1.0: the pure candidates only).
     """
 
     folds: int = 5
@@ -73,6 +83,7 @@ class ChooseConfig:
     block: float = 2.0
     prior_points: float = 10.0
     grid: Tuple[int, int] = (4, 3)
+    blend_step: float = 0.25
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
@@ -83,6 +94,10 @@ class ChooseConfig:
             raise ValueError(f"ChooseConfig: prior_points must be >= 0, got {self.prior_points}")
         if len(self.grid) != 2 or min(int(g) for g in self.grid) < 1:
             raise ValueError(f"ChooseConfig: grid must be two integers >= 1, got {self.grid}")
+        n = 1.0 / self.blend_step if np.isfinite(self.blend_step) and self.blend_step > 0 else 0
+        if not (n >= 1 and abs(n - round(n)) < 1e-9):
+            raise ValueError(f"ChooseConfig: 1 / blend_step must be a whole number >= 1, "
+                             f"got blend_step {self.blend_step}")
 
 
 @dataclass
@@ -90,10 +105,13 @@ class HeldoutChoice:
     """Result of :func:`choose_by_heldout`.
 
     Attributes:
-        depth: (H, W) metres, each pixel from its region's winner fitted on all points.
+        depth: (H, W) metres, each pixel its region's blend of the candidates
+            fitted on all points.
         names: the C candidate names, in the order of the indices below.
-        winner: (H, W) int16 index into ``names`` of the candidate each pixel took.
-        region_winner: (R,) index into ``names`` per region of ``regions``.
+        winner: (H, W) int16 index into ``names`` of the candidate of the
+            largest weight in each pixel's blend.
+        region_winner: (R,) the same per region of ``regions``.
+        region_weights: (R, C) blend weights per region (rows sum to 1).
         heldout_error: (C,) mean held-out ``|log error|`` of each candidate over
             all points (the global score).
         point_errors: (C, P) held-out ``|log error|`` per candidate and point.
@@ -106,6 +124,7 @@ class HeldoutChoice:
     names: Tuple[str, ...]
     winner: np.ndarray
     region_winner: np.ndarray
+    region_weights: np.ndarray
     heldout_error: np.ndarray
     point_errors: np.ndarray
     folds: np.ndarray
@@ -113,12 +132,12 @@ class HeldoutChoice:
     maps: Dict[str, np.ndarray]
 
     def pixel_counts(self) -> Dict[str, int]:
-        """Pixels taken from each candidate (name -> count)."""
+        """Pixels whose blend weighs each candidate most (name -> count)."""
         c = np.bincount(self.winner.ravel(), minlength=len(self.names))
         return {n: int(c[i]) for i, n in enumerate(self.names)}
 
     def region_counts(self) -> Dict[str, int]:
-        """Regions won by each candidate (name -> count)."""
+        """Regions whose blend weighs each candidate most (name -> count)."""
         c = np.bincount(self.region_winner, minlength=len(self.names))
         return {n: int(c[i]) for i, n in enumerate(self.names)}
 
@@ -159,33 +178,56 @@ def fold_ids(uv: np.ndarray, shape: Tuple[int, int], folds: int, block: float = 
     return of_block[inv.reshape(-1)]
 
 
-def heldout_log_errors(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
-                       folds: np.ndarray) -> np.ndarray:
-    """(C, P) ``|log(prediction) - log(depth)|`` of each candidate at each point,
+def heldout_log_residuals(candidates: Mapping[str, Candidate], uv: np.ndarray,
+                          depth: np.ndarray, folds: np.ndarray) -> np.ndarray:
+    """(C, P) ``log(prediction) - log(depth)`` of each candidate at each point,
     the prediction fitted on the points of the other folds.
 
     Args:
-        candidates: name -> :data:`Candidate` (C of them, dict order kept).
+        candidates: name -> :data:`Candidate` (C of them, dict order kept);
+            each is fitted once per fold.
         uv: (P, 2) integer-valued pixel coordinates (u, v) inside the maps.
         depth: (P,) metres > 0.
         folds: (P,) fold per point (:func:`fold_ids`).
     Returns:
-        (C, P) float64; ``inf`` where a prediction is not finite and > 0.
+        (C, P) float64; NaN where a prediction is not finite and > 0.
     """
     uv = np.asarray(uv).reshape(-1, 2)
     u, v = uv[:, 0].astype(np.int64), uv[:, 1].astype(np.int64)
     logd = np.log(np.asarray(depth, dtype=np.float64))
-    err = np.full((len(candidates), uv.shape[0]), np.inf)
+    res = np.full((len(candidates), uv.shape[0]), np.nan)
     for f in np.unique(folds):
         test = folds == f
         train = ~test
         for c, fit in enumerate(candidates.values()):
             pred = np.asarray(fit(uv[train], depth[train]), dtype=np.float64)[v[test], u[test]]
             ok = np.isfinite(pred) & (pred > 0)
-            e = np.full(pred.shape, np.inf)
-            e[ok] = np.abs(np.log(pred[ok]) - logd[test][ok])
-            err[c, test] = e
-    return err
+            r = np.full(pred.shape, np.nan)
+            r[ok] = np.log(pred[ok]) - logd[test][ok]
+            res[c, test] = r
+    return res
+
+
+def blend_weights(n_candidates: int, step: float = 0.1) -> np.ndarray:
+    """(K, C) weights on the simplex in steps of ``step``: every row >= 0,
+    summing to 1; the C pure candidates first (in candidate order), then the
+    mixtures, so that ties favour a pure candidate and the first one.
+
+    Args:
+        n_candidates: C >= 1.
+        step: ``1 / step`` a whole number >= 1.
+    Returns:
+        (K, C) float64 with ``K = binomial(1 / step + C - 1, C - 1)``.
+    """
+    import itertools
+
+    n = int(round(1.0 / step))
+    c = int(n_candidates)
+    rows = [w for w in itertools.product(range(n + 1), repeat=c) if sum(w) == n]
+    w = np.array(rows, dtype=np.float64).reshape(-1, c) / n
+    pure = np.flatnonzero(w.max(1) == 1.0)
+    pure = pure[np.argsort(w[pure].argmax(1))]
+    return np.concatenate([w[pure], w[w.max(1) < 1.0]])
 
 
 def region_labels(labels: np.ndarray, grid: Tuple[int, int]) -> Tuple[np.ndarray, np.ndarray]:
@@ -220,9 +262,11 @@ def _shrunk(err: np.ndarray, group: np.ndarray, n_groups: int, prior: np.ndarray
             weight: float) -> np.ndarray:
     """(C, G) ``(sum of err in group + weight * prior) / (count + weight)``;
     ``prior`` (C, G); groups without points and ``weight`` 0 take the prior."""
-    c = err.shape[0]
-    tot = np.stack([np.bincount(group, err[i], n_groups) for i in range(c)]) if c else \
-        np.zeros((0, n_groups))
+    from scipy.sparse import csr_matrix
+
+    onehot = csr_matrix((np.ones(group.size), (np.arange(group.size), group)),
+                        shape=(group.size, n_groups))
+    tot = np.asarray((onehot.T @ err.T).T).reshape(err.shape[0], n_groups)
     cnt = np.bincount(group, minlength=n_groups)[None, :].astype(np.float64)
     den = cnt + weight
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -259,7 +303,8 @@ def region_scores(err: np.ndarray, point_region: np.ndarray, cell: np.ndarray,
 def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth: np.ndarray,
                       labels: np.ndarray, config: ChooseConfig = ChooseConfig(),
                       fitted: Optional[Mapping[str, np.ndarray]] = None) -> HeldoutChoice:
-    """Per region, the candidate of the lowest held-out error (module docstring).
+    """Per region, the blend of the candidates of the lowest held-out error
+    (module docstring).
 
     Args:
         candidates: name -> :data:`Candidate` (at least one); the first wins ties.
@@ -281,24 +326,36 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
     _check_choice_inputs(candidates, uv, depth, labels, config)
     names = tuple(candidates)
     folds = fold_ids(uv, labels.shape, config.folds, config.block, config.seed)
-    err = heldout_log_errors(candidates, uv, depth, folds)
+    res = heldout_log_residuals(candidates, uv, depth, folds)
     regions, cell = region_labels(labels, config.grid)
-    scores = region_scores(err, regions[uv[:, 1], uv[:, 0]], cell, config.prior_points)
-    region_winner = np.argmin(scores, 0).astype(np.int16)
-    winner = region_winner[regions]
+    blends = blend_weights(len(names), config.blend_step)
+    scores = region_scores(np.abs(blends @ _worst_filled(res)), regions[uv[:, 1], uv[:, 0]],
+                           cell, config.prior_points)
+    weights = blends[np.argmin(scores, 0)]                          # (R, C)
     maps = dict(fitted or {})
-    out = np.full(labels.shape, np.nan)
+    log_depth = np.zeros(labels.shape)
     for c, name in enumerate(names):
         if name not in maps:
             maps[name] = np.asarray(candidates[name](uv, depth), dtype=np.float64)
-        sel = winner == c
-        out[sel] = np.asarray(maps[name], dtype=np.float64)[sel]
-    glob = np.where(np.isfinite(err), err, np.nan)
+        if weights[:, c].any():
+            log_depth += weights[:, c][regions] * np.log(maps[name])
+    region_winner = np.argmax(weights, 1).astype(np.int16)
+    err = np.abs(res)
     with np.errstate(invalid="ignore"):
-        heldout = np.nanmean(glob, 1) if glob.size else np.zeros(len(names))
+        heldout = np.nanmean(err, 1) if err.size else np.zeros(len(names))
     log.debug("held-out choice: errors %s", dict(zip(names, np.round(heldout, 4))))
-    return HeldoutChoice(out, names, winner, region_winner, heldout, err, folds, regions,
-                         {n: maps[n] for n in names})
+    return HeldoutChoice(np.exp(log_depth), names, region_winner[regions], region_winner,
+                         weights, heldout, np.where(np.isfinite(err), err, np.inf), folds,
+                         regions, {n: maps[n] for n in names})
+
+
+def _worst_filled(res: np.ndarray) -> np.ndarray:
+    """(C, P) residuals with each non-finite entry replaced by the largest
+    finite ``|residual|`` of that point (a candidate that cannot predict a
+    point is the worst there; 0 when none can)."""
+    fin = np.isfinite(res)
+    worst = np.where(fin, np.abs(res), -np.inf).max(0, initial=0.0)
+    return np.where(fin, res, worst[None, :])
 
 
 def _check_choice_inputs(candidates, uv, depth, labels, config) -> None:
@@ -329,10 +386,10 @@ def rank_agreement(choice: HeldoutChoice, reference: np.ndarray) -> Dict[str, fl
         held-out error (``heldout_error``) with the dense mean ``|log error|``
         (NaN for fewer than two candidates or ties everywhere);
         ``region_agreement``: fraction of the referenced pixels whose region's
-        winner is the candidate of the lowest dense mean ``|log error|`` in
-        that region; ``oracle_log_error`` / ``chosen_log_error``: the dense
-        mean ``|log error|`` of the per-region dense-best candidates and of
-        the choice.
+        blend weighs most the candidate of the lowest dense mean ``|log
+        error|`` in that region; ``oracle_log_error`` / ``chosen_log_error``:
+        the dense mean ``|log error|`` of the per-region dense-best pure
+        candidates and of the choice (``choice.depth``).
     """
     ref = np.asarray(reference, dtype=np.float64)
     ok = np.isfinite(ref) & (ref > 0)
@@ -346,7 +403,7 @@ def rank_agreement(choice: HeldoutChoice, reference: np.ndarray) -> Dict[str, fl
     best = np.argmin(per_region, 0)
     has = cnt > 0
     agree = float(cnt[has & (best == choice.region_winner)].sum() / max(cnt.sum(), 1.0))
-    chosen = dense[choice.region_winner[reg], np.arange(reg.size)]
+    chosen = np.abs(np.log(np.maximum(choice.depth[ok], 1e-9)) - logr)
     return {"spearman": _spearman(choice.heldout_error, dense.mean(1)),
             "region_agreement": agree,
             "oracle_log_error": float(per_region.min(0).sum() / max(cnt.sum(), 1.0)),

@@ -231,15 +231,16 @@ def _working_image(image: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
     return img
 
 
-def _plane_model(image, prims, uv, camera, point, prim, point_d, s, counts, kept, config,
+def _plane_model(work, prims, uv, camera, point, prim, point_d, s, counts, kept, config,
                  point_w):
-    """``shape_model="plane"``: (kept subset with fitted shapes, kept indices, modes)."""
+    """``shape_model="plane"``: (kept subset with fitted shapes, kept indices, modes);
+    ``work`` is :func:`_working_image`."""
     n = len(prims)
     s_ok = np.full(n, np.nan)
     s_ok[kept] = s[kept]
     pix = working_pixels(uv, camera, prims.camera)[point]
     if config.method == "graph":
-        fit = solve_planes_graph(prims, _working_image(image, prims), prim, pix, point_d, s_ok,
+        fit = solve_planes_graph(prims, work, prim, pix, point_d, s_ok,
                                  point_w, prior=config.plane_prior,
                                  coupling=config.plane_coupling,
                                  prior_flat=config.plane_prior_flat)
@@ -254,7 +255,7 @@ def _plane_model(image, prims, uv, camera, point, prim, point_d, s, counts, kept
     fit = fit_primitive_planes(prims, prim, pix, point_d, s_ok, counts, config.plane_min_points,
                                config.plane_prior, config.plane_huber, hypotheses=hyp)
     if config.lend_edge_threshold is not None and config.lend_rounds > 0:
-        fit = lend_across_weak_edges(prims, fit, _working_image(image, prims),
+        fit = lend_across_weak_edges(prims, fit, work,
                                      config.lend_edge_threshold,
                                      config.lend_rounds)
     kept = np.flatnonzero(fit.mode != MODE_NONE)
@@ -355,11 +356,13 @@ class _Completed:
 
 def _primitive_completion(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
                           camera: PinholeCamera, config: CompletionConfig,
-                          quiet: bool = False) -> _Completed:
+                          quiet: bool = False, work: Optional[np.ndarray] = None) -> _Completed:
     """Steps 1-6 of the module docstring from the points ``uv`` (P, 2) / ``sd`` (P,)
-    metres; ``quiet`` logs the fallback at debug level (held-out folds)."""
+    metres; ``quiet`` logs the fallback at debug level (held-out folds); ``work``:
+    :func:`_working_image` of ``image`` when already made (the folds share it)."""
     t0 = time.perf_counter()
-    fit = _fit_scales(image, prims, uv, sd, camera, config)
+    work = _working_image(image, prims) if work is None else work
+    fit = _fit_scales(work, prims, uv, sd, camera, config)
     t_sc = time.perf_counter()
     dmap = fit.sub.depth_map() if fit.kept.size else np.full(prims.camera.shape, np.nan)
     covered = np.isfinite(dmap)
@@ -421,9 +424,10 @@ def _heldout_choice(image, prims, uv, sd, camera, config, model, primitive_depth
     if labels.shape != camera.shape:
         labels = cv2.resize(labels, camera.size, interpolation=cv2.INTER_NEAREST)
     net = network_depth(model, image) if model is not None else None
+    work = _working_image(image, prims)
     fns = {
         "primitives": lambda p, d: _primitive_completion(image, prims, p, d, camera, config,
-                                                         quiet=True).depth,
+                                                         quiet=True, work=work).depth,
         "linear": lambda p, d: linear_interpolation_completion(_sparse_map(p, d, camera)),
         "ip_basic": lambda p, d: ip_basic_completion(_sparse_map(p, d, camera)),
         "colorization": lambda p, d: colorization_completion(image, _sparse_map(p, d, camera)),
@@ -469,11 +473,11 @@ class _ScaleFit:
     solver: Dict[str, float]
 
 
-def _fit_scales(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
+def _fit_scales(work: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.ndarray,
                 camera: PinholeCamera, config: CompletionConfig) -> _ScaleFit:
     """Steps 1-2 of the module docstring: log-scales by ``config.method`` (median,
     joint or graph), primitives without support dropped, then the planar shapes
-    of ``shape_model="plane"``."""
+    of ``shape_model="plane"``; ``work`` is :func:`_working_image`."""
     n = len(prims)
     point, prim, ldep = sparse_point_assignments(prims, uv, camera) if n else (
         np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -486,7 +490,7 @@ def _fit_scales(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.n
                                            config.huber_k, config.max_iterations)
     point_w = np.ones(point.size)
     if config.method == "graph" and point.size:
-        g = solve_log_scales_graph(prims, _working_image(image, prims), prim, ldep, sd[point],
+        g = solve_log_scales_graph(prims, work, prim, ldep, sd[point],
                                    s_med, coupling=config.graph_coupling)
         s, point_w = g.log_scales, g.point_weights
         solver = {"coupled_pairs": float(g.n_edges)}
@@ -495,7 +499,7 @@ def _fit_scales(image: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.n
         kept = np.flatnonzero((counts >= config.min_points) & np.isfinite(s))
     modes = np.full(kept.size, MODE_SCALE, np.int8)
     if config.shape_model == "plane" and n:
-        sub, kept, modes = _plane_model(image, prims, uv, camera, point, prim, sd[point], s,
+        sub, kept, modes = _plane_model(work, prims, uv, camera, point, prim, sd[point], s,
                                         counts, kept, config, point_w)
     else:
         sub = prims.subset(kept).with_log_scales(s[kept])

@@ -57,19 +57,26 @@ def linear_fill(uv: np.ndarray, values: np.ndarray, shape: Tuple[int, int],
     from scipy.interpolate import LinearNDInterpolator
 
     h, w = shape
-    out = np.full(h * w, np.nan)
+    out = np.full((h, w), np.nan)
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     values = np.asarray(values, dtype=np.float64).reshape(-1)
-    q = np.flatnonzero(np.ones(h * w, bool) if query is None else np.asarray(query, bool).ravel())
-    if uv.shape[0] < 3 or q.size == 0:
-        return out.reshape(h, w)
+    if uv.shape[0] < 3:
+        return out
+    # only pixels in the points' bounding box can lie in their convex hull
+    u0, v0 = (max(0, int(np.ceil(uv[:, i].min()))) for i in (0, 1))
+    u1, v1 = min(w, int(np.floor(uv[:, 0].max())) + 1), min(h, int(np.floor(uv[:, 1].max())) + 1)
+    box = np.zeros((max(v1 - v0, 0), max(u1 - u0, 0)), bool)
+    box[...] = True if query is None else np.asarray(query, bool)[v0:v1, u0:u1]
+    bv, bu = np.nonzero(box)
+    if bv.size == 0:
+        return out
     try:
         interp = LinearNDInterpolator(uv, values)
     except Exception as exc:  # qhull errors: all points collinear / coincident
         log.debug("linear_fill: triangulation failed (%s)", exc)
-        return out.reshape(h, w)
-    out[q] = interp(np.stack([q % w, q // w], 1).astype(np.float64))
-    return out.reshape(h, w)
+        return out
+    out[bv + v0, bu + u0] = interp(np.stack([bu + u0, bv + v0], 1).astype(np.float64))
+    return out
 
 
 def upsample(depth_w: np.ndarray, conf_w: np.ndarray, camera: PinholeCamera
