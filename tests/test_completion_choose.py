@@ -220,7 +220,7 @@ def test_right_network_is_chosen_and_wins_wrong_one_is_rejected(rooms):
         prims = make_frontend("classical").primify(view.rgb, cam)
         right = _FixedDepth(1.3 * np.nan_to_num(view.depth, nan=1.0))
         wrong = _FixedDepth(np.nan_to_num(other.depth, nan=1.0))
-        for cand in ("network:global", "network:primitive"):      # the default, another
+        for cand in ("network:interp", "network:global", "network:primitive"):  # default first
             cfg = CompletionConfig(candidates=("primitives", "linear", "ip_basic", cand))
             res = complete_depth(view.rgb, sp, cam, prims, cfg, depth_model=right)
             assert res.choice.pixel_counts()[cand] > 0.9 * gt.size

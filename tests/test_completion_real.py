@@ -30,7 +30,7 @@ def test_run_dataset_rows_metrics_and_gains(root):
                          "spgeo classical choose=heldout"}
     won = res.winners["spgeo classical choose=heldout"]
     assert set(won) == {"primitives", "linear", "ip_basic"} and sum(won.values()) > 0
-    assert "regions won" in res.table()
+    assert "weighs each candidate most" in res.table() and "(regime 'grid')" in res.table()
     for v in mean.values():
         assert 0 < v["mae_mm"] < 1000 and 0 < v["imae_per_km"] < 1000 and v["seconds"] > 0
     g = res.gains()

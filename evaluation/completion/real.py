@@ -2,11 +2,12 @@
 
 For every frame, ``n_points`` (150) sparse depths are taken from the sensor
 depth at FAST keypoints of the colour image spread by a grid
-(:func:`spgeo.evaluation.completion.void.keypoint_sparse_depth`, no added noise, seed =
-frame index; ``--regime corners``: the strongest corners, clustered on texture as a
-SLAM front-end's points are; ``--regime uniform``: uniform random pixels with
-depth), completed by each method and scored against the same depth with the VOID
-protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
+(:func:`spgeo.evaluation.completion.sparse_points.keypoint_sparse_depth`, no added
+noise, seed = frame index; ``--regime corners``: the strongest corners, clustered on
+texture as a SLAM front-end's points are; ``--regime uniform``: uniform random pixels
+with depth; ``--regime tracks``: corners a KLT tracker keeps through the next four
+frames, on 7-Scenes and TUM only, whose frames are consecutive), completed by each
+method and scored against the same depth with the VOID protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
 iRMSE in 1/km, means over frames).  Data sets (``/work/shared/data`` layout):
 7-Scenes redkitchen frames 0-299 every 10th (depth not registered to colour:
 approximate), the 9 TUM fr1_desk frames (undistorted), the 5 ICL-NUIM frames.
@@ -39,7 +40,7 @@ best of the three baselines on that data set (positive: better).
 Run::
 
     spgeo eval completion_real [--root DIR] [--datasets 7scenes,tum,icl] [--out DIR]
-        [--depth-model NAME|PATH] [--no-choose] [--regime grid|corners|uniform]
+        [--depth-model NAME|PATH] [--no-choose] [--regime grid|corners|uniform|tracks]
         [--workers N | --address ADDR]      (one job per data set, on Ray)
 """
 from __future__ import annotations
@@ -107,6 +108,7 @@ class RealCompletionResult:
     not_run: Dict[str, str] = field(default_factory=dict)
     winners: Dict[str, Dict[str, int]] = field(default_factory=dict)
     agreement: Dict[str, Dict[str, List[float]]] = field(default_factory=dict)
+    regime: str = "grid"
 
     def mean(self) -> Dict[str, Dict[str, float]]:
         return {m: {k: float(np.nanmean(v[k])) for k in (*METRIC_KEYS, "seconds")}
@@ -125,8 +127,8 @@ class RealCompletionResult:
 
     def table(self) -> str:
         mean, gains = self.mean(), self.gains()
-        rows = [f"**{self.dataset}**: {len(self.frames)} frames, {self.n_points} sparse points at "
-                "FAST keypoints; reference = sensor depth in (0.2, 5.0) m",
+        rows = [f"**{self.dataset}**: {len(self.frames)} frames, {self.n_points} sparse points "
+                f"(regime {self.regime!r}); reference = sensor depth in (0.2, 5.0) m",
                 "",
                 "| method | MAE [mm] | RMSE [mm] | iMAE [1/km] | iRMSE [1/km] | s/frame "
                 "| MAE gain | iMAE gain |",
@@ -147,8 +149,9 @@ class RealCompletionResult:
         if not self.agreement:
             return ""
         rows = ["", "", "held-out score vs dense error (means over frames; log errors x 1000):",
-                "", "| row | Spearman (candidates) | pixels whose region took its dense-best "
-                "| chosen dense log error | per-region dense-best (oracle) |",
+                "", "| row | Spearman (candidates) | pixels whose region's dominant "
+                "candidate is its dense-best | chosen dense log error "
+                "| per-region dense-best (oracle) |",
                 "|---|---:|---:|---:|---:|"]
         for m, a in self.agreement.items():
             rows.append(f"| {m} | {np.nanmean(a['spearman']):.2f} "
@@ -163,7 +166,7 @@ class RealCompletionResult:
         if not self.winners:
             return ""
         names = sorted({c for w in self.winners.values() for c in w})
-        rows = ["", "", "regions won (summed over frames):", "",
+        rows = ["", "", "regions whose blend weighs each candidate most (summed over frames):", "",
                 "| row | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
         for m, w in self.winners.items():
             rows.append(f"| {m} | " + " | ".join(str(w.get(c, 0)) for c in names) + " |")
@@ -171,6 +174,7 @@ class RealCompletionResult:
 
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "frames": self.frames, "n_points": self.n_points,
+                "regime": self.regime,
                 "mean": self.mean(), "gain_vs_best_baseline": self.gains(),
                 "per_frame": self.per_frame, "not_run": self.not_run, "winners": self.winners,
                 "agreement": self.agreement}
@@ -322,7 +326,7 @@ def run_dataset(name: str, root: Optional[Path] = None, frames: Optional[str] = 
             add(b, pred, gt, time.perf_counter() - t0)
     not_run = {} if "manhattan" in fes or frontends is not None else {
         "spgeo manhattan": "front-end 'manhattan' not in spgeo.frontend.FRONTENDS"}
-    return RealCompletionResult(name, names, per, n_points, not_run, winners, agreement)
+    return RealCompletionResult(name, names, per, n_points, not_run, winners, agreement, regime)
 
 
 def _primitive_rows(f, gt, sparse, prims, fe, t_fe, config, methods, shape_models, add):
@@ -398,6 +402,12 @@ def run_completion_real(root: Optional[Path] = None, datasets: Sequence[str] = t
     unknown = [d for d in datasets if d not in DATASETS]
     if unknown:
         raise ValueError(f"unknown data set(s) {unknown}; choose from {sorted(DATASETS)}")
+    if kwargs.get("regime") == "tracks":
+        skipped = [d for d in datasets if d not in CONSECUTIVE]
+        if skipped:
+            log.warning("%s: frames not consecutive, no 'tracks' regime; skipped",
+                        ", ".join(skipped))
+        datasets = [d for d in datasets if d in CONSECUTIVE]
     jobs = [Job(name, _dataset_job, (name, root, kwargs)) for name in datasets]
     out: Dict[str, RealCompletionResult] = {}
     for row in run_jobs(jobs, runner or RunnerConfig(progress=False, desc="completion_real")):

@@ -244,7 +244,8 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
     from ..completion import CompletionConfig, complete_depth
     from ..completion.baselines import ip_basic_completion, linear_interpolation_completion
     from ..evaluation.references.depth_completion import oracle_frontend
-    from ..evaluation.completion.void import keypoint_sparse_depth, void_metrics
+    from ..evaluation.completion.sparse_points import keypoint_sparse_depth
+    from ..evaluation.completion.void import void_metrics
 
     lines = [f"{'scene':12s} {'method':28s} {'MAE mm':>8s} {'RMSE mm':>8s} {'iMAE':>7s} "
              f"{'iRMSE':>7s}"]

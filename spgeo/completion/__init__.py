@@ -15,7 +15,8 @@ Modules, one job each:
 * :mod:`~spgeo.completion.fill`: hole filling, resampling and the residual
   correction.
 * :mod:`~spgeo.completion.choose`: the default ``choose="heldout"``: per
-  region, the depth source with the lowest error on held-out sparse points.
+  region, the blend of the depth sources with the lowest error on held-out
+  sparse points.
 * :mod:`~spgeo.completion.network`: a metric-depth network's depth aligned to
   the sparse points (a candidate of the choice).
 * :mod:`~spgeo.completion.baselines`: linear interpolation, IP-Basic and the

@@ -411,7 +411,8 @@ def rank_agreement(choice: HeldoutChoice, reference: np.ndarray) -> Dict[str, fl
 
 
 def _spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman rank correlation of two (C,) vectors (average ranks for ties); NaN when undefined."""
+    """Spearman rank correlation of two (C,) vectors (average ranks for ties); NaN when
+    undefined."""
     from scipy.stats import spearmanr
 
     if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:

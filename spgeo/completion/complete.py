@@ -56,10 +56,10 @@ sparse depth fixes one log-scale per primitive:
    candidate among ``config.candidates`` (linear interpolation, IP-Basic, the
    colorization fill of :mod:`spgeo.completion.baselines`, and, with a depth
    model, its metric depth aligned to the points,
-   :mod:`spgeo.completion.network`); per primitive the candidate with the
-   lowest error on held-out sparse points is taken, refitted on all points
-   (:mod:`spgeo.completion.choose`; ``CompletionResult.choice`` records
-   which won where).
+   :mod:`spgeo.completion.network`); per primitive the log-linear blend of
+   the candidates with the lowest error on held-out sparse points is taken,
+   the candidates refitted on all points (:mod:`spgeo.completion.choose`;
+   ``CompletionResult.choice`` records the blend weights per region).
 
 **Monocular + sparse only.**  The sparse depth is never given to the
 front-end.  Front-ends whose normal estimator reads dense depth (``"depth"``,
@@ -110,8 +110,8 @@ class CompletionResult:
             finite and > 0 everywhere.
         confidence: (H, W) uint8 coverage code of the primitive completion
             (steps 1-6): 2 = a primitive with sparse support, 1 = linear
-            interpolation, 0 = nearest value; where the held-out choice took
-            another candidate, ``choice.winner`` says which.
+            interpolation, 0 = nearest value; where the held-out choice
+            blended in other candidates, ``choice.region_weights`` says how.
         primitives: the kept primitives with their fitted ``log_scales`` (at
             the front-end's working resolution).
         log_scales: (N_kept,) fitted log-scales (log metres at each anchor).
@@ -133,8 +133,9 @@ class CompletionResult:
         modes: (N_kept,) how each kept primitive got its depth
             (:data:`spgeo.completion.planes.MODE_SCALE` / ``MODE_PLANE`` /
             ``MODE_LENT``); all ``MODE_SCALE`` for ``shape_model="scale"``.
-        choice: ``choose="heldout"``: the held-out choice (which candidate
-            won each region and pixel, their held-out errors); None otherwise
+        choice: ``choose="heldout"``: the held-out choice (the blend of each
+            region, the candidate it weighs most per pixel, their held-out
+            errors); None otherwise
             (or when there were too few points to hold any out).
     """
 

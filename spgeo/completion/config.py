@@ -77,8 +77,8 @@ class CompletionConfig:
         residual_clip: step 6's largest correction in log units (>= 0; 0 or
             None: off).  Default 0.05 (docs/results.md says why).
         choose: ``"none"`` (the primitive completion alone) or ``"heldout"``
-            (step 7: per region, the candidate of ``candidates`` with the
-            lowest error on held-out sparse points, :mod:`spgeo.completion.choose`).
+            (step 7: per region, the blend of ``candidates`` with the lowest
+            error on held-out sparse points, :mod:`spgeo.completion.choose`).
         candidates: names of :data:`CANDIDATES` for ``"heldout"``; the first
             wins ties; ``"network:*"`` ones are skipped when no depth model is given.
         heldout: :class:`~spgeo.completion.choose.ChooseConfig` (folds, seed,
@@ -109,8 +109,7 @@ class CompletionConfig:
     plane_prior_flat: float = 1e-4
     residual_clip: Optional[float] = 0.05
     choose: str = "heldout"
-    candidates: Tuple[str, ...] = ("primitives", "linear", "ip_basic", "network:global",
-                                   "network:primitive")
+    candidates: Tuple[str, ...] = ("primitives", "linear", "ip_basic", "network:interp")
     heldout: ChooseConfig = field(default_factory=ChooseConfig)
     depth_model: Optional[str] = None
     network_min_points: int = 3
