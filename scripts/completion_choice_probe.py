@@ -62,33 +62,30 @@ RULES = ("region", "blend0.25", "blend0.1", "image-pick", "image-blend", "bands"
 
 # ----------------------------------------------------------------- the cache
 def _candidates(image, prims, cam, labels, net, config):
-    """name -> fit(uv, depth) -> (H, W) metres (the module docstring's candidates)."""
-    from spgeo.completion.baselines import ip_basic_completion, linear_interpolation_completion
-    from spgeo.completion.complete import _primitive_completion, _sparse_map, _working_image
+    """name -> fit(uv, depth) -> (H, W) metres: the library's candidates
+    (:func:`spgeo.completion.complete.candidate_fits`, the network's named
+    ``net:<alignment>``) and ``prim_resid`` (module docstring)."""
+    from spgeo.completion.complete import _working_image, candidate_fits
     from spgeo.completion.fill import scattered_fill
-    from spgeo.completion.network import ALIGNMENTS, align_network_depth
 
-    work = _working_image(image, prims)
+    fits = candidate_fits(image, prims, cam, config, _working_image(image, prims), labels, net)
     last: Dict[bytes, np.ndarray] = {}
 
-    def prim(p, d):
+    def prim(p, d):        # one fit per fold shared by "primitives" and "prim_resid"
         key = p.tobytes() + d.tobytes()
         if key not in last:
             last.clear()
-            last[key] = _primitive_completion(image, prims, p.astype(np.float64), d, cam,
-                                              config, quiet=True, work=work).depth
+            last[key] = fits["primitives"](p, d)
         return last[key]
 
     def prim_resid(p, d):
         m, q = prim(p, d), p.astype(np.int64)
         return m * np.exp(scattered_fill(q, np.log(d) - np.log(m[q[:, 1], q[:, 0]]), m.shape))
 
-    out = {"primitives": prim, "prim_resid": prim_resid,
-           "linear": lambda p, d: linear_interpolation_completion(_sparse_map(p, d, cam)),
-           "ip_basic": lambda p, d: ip_basic_completion(_sparse_map(p, d, cam))}
-    for a in ALIGNMENTS:
-        out["net:" + a] = (lambda p, d, a=a: align_network_depth(net, p, d, a, labels,
-                                                                 config.network_min_points))
+    out = {"primitives": prim, "prim_resid": prim_resid, "linear": fits["linear"],
+           "ip_basic": fits["ip_basic"]}
+    out.update({"net:" + k.split(":", 1)[1]: f for k, f in fits.items()
+                if k.startswith("network:")})
     return out
 
 

@@ -7,10 +7,11 @@ noise, seed = frame index; ``--regime corners``: the strongest corners, clustere
 texture as a SLAM front-end's points are; ``--regime uniform``: uniform random pixels
 with depth; ``--regime tracks``: corners a KLT tracker keeps through the next four
 frames, on 7-Scenes and TUM only, whose frames are consecutive), completed by each
-method and scored against the same depth with the VOID protocol (ground truth in (0.2, 5.0) m; MAE / RMSE in mm, iMAE /
-iRMSE in 1/km, means over frames).  Data sets (``/work/shared/data`` layout):
-7-Scenes redkitchen frames 0-299 every 10th (depth not registered to colour:
-approximate), the 9 TUM fr1_desk frames (undistorted), the 5 ICL-NUIM frames.
+method and scored against the same depth with the VOID protocol (ground truth in
+(0.2, 5.0) m; MAE / RMSE in mm, iMAE / iRMSE in 1/km, means over frames).  Data sets
+(``/work/shared/data`` layout): 7-Scenes redkitchen frames 0-299 every 10th (depth not
+registered to colour: approximate), the 9 TUM fr1_desk frames (undistorted), the 5
+ICL-NUIM frames.
 
 Rows:
 
@@ -435,7 +436,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--regime", choices=REGIMES, default="grid",
                     help="where the sparse points are: grid-spread FAST keypoints (default), the "
-                         "strongest FAST corners (clustered) or uniform random pixels")
+                         "strongest FAST corners (clustered), uniform random pixels, or corners "
+                         "KLT-tracked through the next frames (7scenes and tum only)")
     ap.add_argument("--frontends", default=None,
                     help="comma-separated front-ends (default: classical, manhattan if "
                          "present, depth oracle)")

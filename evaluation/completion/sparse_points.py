@@ -27,6 +27,12 @@ __all__ = ["keypoint_sparse_depth", "uniform_sparse_depth", "track_sparse_depth"
 log = logging.getLogger(__name__)
 
 
+def _grey8(image: np.ndarray) -> np.ndarray:
+    """uint8 grey of an RGB / grey image (any dtype :func:`to_float_image` takes)."""
+    img = to_float_image(image)
+    return np.rint(255 * (to_gray(img) if img.ndim == 3 else img)).astype(np.uint8)
+
+
 def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 150,
                           rel_noise: float = 0.01, seed: int = 0, fast_threshold: int = 10,
                           spread: bool = True) -> np.ndarray:
@@ -40,12 +46,12 @@ def keypoint_sparse_depth(image: np.ndarray, depth: np.ndarray, n_points: int = 
     occupied); with ``spread=False`` simply the ``n_points`` strongest corners,
     which cluster on texture (the held-out regime of issue 39).  Depths get
     multiplicative Gaussian noise ``d * (1 + rel_noise * N(0, 1))``.  The FAST
-    threshold is lowered (to 5, then 1) when too few corners are found.  Deterministic in ``seed``.
+    threshold is lowered (to 5, then 1) when too few corners are found.
+    Deterministic in ``seed``.
 
     Returns (H, W) float64 metres, 0 = missing.
     """
-    img = to_float_image(image)
-    grey = np.rint(255 * (to_gray(img) if img.ndim == 3 else img)).astype(np.uint8)
+    grey = _grey8(image)
     depth = np.asarray(depth, dtype=np.float64)
     if depth.shape != grey.shape:
         raise ValueError(f"depth shape {depth.shape} != image shape {grey.shape}")
@@ -118,12 +124,6 @@ def uniform_sparse_depth(depth: np.ndarray, n_points: int = 150, rel_noise: floa
     rng = np.random.default_rng([int(seed), 39])
     sel = rng.choice(valid, size=min(int(n_points), valid.size), replace=False)
     return _with_noise(np.sort(sel), depth, rel_noise, seed)
-
-
-def _grey8(image: np.ndarray) -> np.ndarray:
-    """uint8 grey of an RGB / grey image (any dtype :func:`to_float_image` takes)."""
-    img = to_float_image(image)
-    return np.rint(255 * (to_gray(img) if img.ndim == 3 else img)).astype(np.uint8)
 
 
 def track_sparse_depth(images: Sequence[np.ndarray], depth: np.ndarray, n_points: int = 150,

@@ -208,7 +208,7 @@ def heldout_log_residuals(candidates: Mapping[str, Candidate], uv: np.ndarray,
     return res
 
 
-def blend_weights(n_candidates: int, step: float = 0.1) -> np.ndarray:
+def blend_weights(n_candidates: int, step: float = 0.25) -> np.ndarray:
     """(K, C) weights on the simplex in steps of ``step``: every row >= 0,
     summing to 1; the C pure candidates first (in candidate order), then the
     mixtures, so that ties favour a pure candidate and the first one.

@@ -84,7 +84,7 @@ from ..camera import PinholeCamera
 from ..images import to_float_image
 from ..primitives import PrimitiveSet
 from ..validation import check_camera, check_sparse_depth
-from .choose import HeldoutChoice, choose_by_heldout
+from .choose import Candidate, HeldoutChoice, choose_by_heldout
 from .config import CompletionConfig
 from .fill import fill_holes, resample_sparse, residual_correction, upsample
 from .graph import solve_log_scales_graph, solve_planes_graph
@@ -95,7 +95,7 @@ from .scales import (flat_primitives, grouped_median, solve_log_scales_joint,
 if TYPE_CHECKING:  # pragma: no cover
     from ..frontend import PrimitiveFrontEnd
 
-__all__ = ["CompletionResult", "complete_depth", "working_size_for"]
+__all__ = ["CompletionResult", "complete_depth", "working_size_for", "candidate_fits"]
 
 log = logging.getLogger(__name__)
 
@@ -324,11 +324,13 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
     model = _depth_model(depth_model if depth_model is not None else config.depth_model, config)
     prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
     t_fe = time.perf_counter()
-    done = _primitive_completion(image, prims, uv, sd, camera, config)
+    work = _working_image(image, prims)
+    done = _primitive_completion(image, prims, uv, sd, camera, config, work=work)
     t_fi = time.perf_counter()
     choice = None
     if config.choose == "heldout":
-        choice = _heldout_choice(image, prims, uv, sd, camera, config, model, done.depth)
+        choice = _heldout_choice(image, prims, uv, sd, camera, config, model, done.depth,
+                                 work)
     fit = done.fit
     res = CompletionResult(
         depth=choice.depth if choice is not None else done.depth, confidence=done.confidence,
@@ -408,14 +410,13 @@ def _depth_model(spec, config: CompletionConfig):
     return metric_depth_from_cache(spec)
 
 
-def _heldout_choice(image, prims, uv, sd, camera, config, model, primitive_depth):
+def _heldout_choice(image, prims, uv, sd, camera, config, model, primitive_depth, work):
     """Step 7: :func:`spgeo.completion.choose.choose_by_heldout` over
-    ``config.candidates``; None when there are fewer than two points per fold."""
+    ``config.candidates``; None when there are fewer than two points per fold.
+    ``work`` is :func:`_working_image`."""
     import cv2
 
-    from .baselines import colorization_completion, ip_basic_completion, \
-        linear_interpolation_completion
-    from .network import align_network_depth, network_depth
+    from .network import network_depth
 
     if sd.size < 2 * config.heldout.folds:
         log.info("completion: %d points are too few for %d held-out folds; no choice",
@@ -425,25 +426,38 @@ def _heldout_choice(image, prims, uv, sd, camera, config, model, primitive_depth
     if labels.shape != camera.shape:
         labels = cv2.resize(labels, camera.size, interpolation=cv2.INTER_NEAREST)
     net = network_depth(model, image) if model is not None else None
-    work = _working_image(image, prims)
-    fns = {
+    fits = candidate_fits(image, prims, camera, config, work, labels, net)
+    cands = {name: fits[name] for name in config.candidates if name in fits}
+    return choose_by_heldout(cands, uv, sd, labels, config.heldout,
+                             fitted={"primitives": primitive_depth})
+
+
+def candidate_fits(image: np.ndarray, prims: PrimitiveSet, camera: PinholeCamera,
+                   config: CompletionConfig, work: np.ndarray, labels: np.ndarray,
+                   net: Optional[np.ndarray] = None) -> Dict[str, Candidate]:
+    """Every candidate of :data:`~spgeo.completion.config.CANDIDATES` that can
+    run, as :data:`spgeo.completion.choose.Candidate` s ``fit(uv, depth) ->
+    (H, W)`` metres at ``camera``'s size: ``"primitives"`` (steps 1-6 with
+    ``config``), ``"linear"``, ``"ip_basic"``, ``"colorization"``, and with
+    ``net`` ((H, W) metres, :func:`spgeo.completion.network.network_depth`) one
+    ``"network:<alignment>"`` per alignment, those of ``"primitive"`` per
+    region of ``labels`` ((H, W) int).  ``work`` is :func:`_working_image`."""
+    from .baselines import colorization_completion, ip_basic_completion, \
+        linear_interpolation_completion
+    from .network import ALIGNMENTS, align_network_depth
+
+    fits = {
         "primitives": lambda p, d: _primitive_completion(image, prims, p, d, camera, config,
                                                          quiet=True, work=work).depth,
         "linear": lambda p, d: linear_interpolation_completion(_sparse_map(p, d, camera)),
         "ip_basic": lambda p, d: ip_basic_completion(_sparse_map(p, d, camera)),
         "colorization": lambda p, d: colorization_completion(image, _sparse_map(p, d, camera)),
     }
-    cands = {}
-    for name in config.candidates:
-        if name.startswith("network:"):
-            if net is not None:
-                mode = name.split(":", 1)[1]
-                cands[name] = (lambda p, d, m=mode: align_network_depth(
-                    net, p, d, m, labels, config.network_min_points))
-        else:
-            cands[name] = fns[name]
-    return choose_by_heldout(cands, uv, sd, labels, config.heldout,
-                             fitted={"primitives": primitive_depth})
+    if net is not None:
+        for mode in ALIGNMENTS:
+            fits[f"network:{mode}"] = (lambda p, d, m=mode: align_network_depth(
+                net, p, d, m, labels, config.network_min_points))
+    return fits
 
 
 def _checked_inputs(image, sparse_depth, camera, config):
