@@ -124,13 +124,13 @@ def test_runner_end_to_end(written):
                   "rot_err_mean_deg", "tdir_err_mean_deg"):
             assert np.isfinite(r[k]), (k, r)
         assert 0 < r["coverage"] <= 1
-    for r in (r for r in res.rows if r["init"] == "twoview"):
+    for r in (r for r in res.rows if r["init"] == "features"):
         assert r["status"] == "ok"
         assert r["imae_per_km"] < 0.5 * r["const_imae_per_km"], r
         assert max(r["rot_err_deg"]) < 1.0, r
     summary = res.summary()
     assert [(s["init"], s["n_views"]) for s in summary] == [
-        ("identity", 1), ("identity", 2), ("twoview", 1), ("twoview", 2), ("constant depth", 0)]
+        ("identity", 1), ("identity", 2), ("features", 1), ("features", 2), ("constant depth", 0)]
     table = res.table()
     assert "iMAE [1/km]" in table and "constant depth" in table
     json.dumps(res.to_dict(), default=float)
@@ -140,10 +140,10 @@ def test_cli(written, tmp_path, capsys):
     root, _, _ = written
     out = tmp_path / "rows.json"
     rc = S.main([str(root), "--stride", "30", "--offsets", "10", "-10", "--max-views", "1",
-                 "--inits", "twoview", "--working-size", "160", "120", "--max-samples", "1",
+                 "--inits", "features", "--working-size", "160", "120", "--max-samples", "1",
                  "--json", str(out)])
     assert rc == 0
-    assert "| twoview | 1 | 1 | 1 |" in capsys.readouterr().out
+    assert "| features | 1 | 1 | 1 |" in capsys.readouterr().out
     data = json.loads(out.read_text())
     assert len(data["rows"]) == 1 and data["rows"][0]["views"] == [10]
     assert S.main([str(tmp_path / "nope")]) == 2

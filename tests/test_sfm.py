@@ -61,7 +61,7 @@ def test_depth_frontend_accuracy(seed2):
     C = res.pose_covariances[0]
     np.testing.assert_allclose(C, C.T, atol=1e-9 * np.abs(C).max())
     assert np.all(np.linalg.eigvalsh(C) > 0)
-    assert res.report["init"]["method"] == "twoview"
+    assert res.report["init"]["method"] == "features"
 
 
 @pytest.mark.slow

@@ -1,32 +1,40 @@
 """Few-view SfM on real sample frames: spgeo vs COLMAP (pycolmap) vs SIFT two-view,
-relative rotation / translation-direction errors against ground truth.
+relative rotation / translation-direction errors against ground truth and COLMAP.
 
-    python -m spgeo.evaluation.sfm.real [--shared ../shared/data] [--json OUT]
+    spgeo eval sfm_real [--shared ../shared/data] [--cases tum,icl,gaps]
+                        [--gaps 10,30,60] [--refs 0,60,120] [--json OUT]
 
-Cases (reference first): TUM fr1_desk frames 0, 4, 8 (the bundled 9-frame
-sample; ``../shared/data/tum_fr1_desk_9`` is the same data) and ICL-NUIM living
-room frames 1, 2, 3 of ``icl_nuim_lr_5`` (when the shared data is present).
-The regression test ``tests/test_sfm_real.py`` asserts the spgeo numbers stay
-below bounds set from this script's output.
+Cases (reference first; ``--cases`` picks them by kind or name): ``tum``: TUM fr1_desk
+frames 0, 4, 8 (the bundled 9-frame sample; ``../shared/data/tum_fr1_desk_9`` is the
+same data); ``icl``: ICL-NUIM living room frames 1, 2, 3 of ``icl_nuim_lr_5`` (when the
+shared data is present); ``gaps``: triplets (ref, ref + G, ref + 2G) of the shared
+7-Scenes clip ``7scenes_redkitchen_dev`` for each gap G of ``--gaps`` ("" or "none":
+none) and ref of ``--refs``, spgeo / COLMAP / SIFT two-view judged against COLMAP's
+pose of each view beside the ground truth, with spgeo's rotation-covariance coverage
+(:mod:`.gaps`).  One ``SfMConfig`` throughout: the default (marginals on, so pose
+covariances exist); the gap cases use the classical front-end.  The regression tests
+``tests/test_sfm_real.py`` and ``tests/test_sfm_gaps.py`` assert numbers from this
+protocol's output.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
-from typing import Callable, Dict, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
 from spgeo.evaluation.references.colmap import colmap_estimator
 from spgeo.evaluation.pose_compare import compare_on_dataset
 from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.shared_data import shared_data_root
+from spgeo.evaluation.sfm.gaps import (GAP_DATA, GapResults, parse_int_list, run_gaps,
+                                       write_json_atomic)
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 
-__all__ = ["CASES", "spgeo_estimator", "twoview_estimator", "run_case", "build_parser", "run",
-           "main"]
+__all__ = ["CASES", "CASE_KINDS", "spgeo_estimator", "twoview_estimator", "gap_estimators",
+           "run_case", "run_gap_cases", "parse_cases", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -34,11 +42,17 @@ CASES = {
     "tum_fr1_desk_0_4_8": ("tum", "tum_fr1_desk_9", [0, 4, 8]),
     "icl_lr_1_2_3": ("icl", "icl_nuim_lr_5", [1, 2, 3]),
 }
+#: what ``--cases`` may name (besides the names of :data:`CASES`)
+CASE_KINDS = ("tum", "icl", "gaps")
 
 
-def spgeo_estimator(frontend: str = "classical", config: SfMConfig = SfMConfig(marginals=False)
+def spgeo_estimator(frontend: str = "classical", config: Optional[SfMConfig] = None
                     ) -> Callable:
-    """An estimator for :func:`spgeo.evaluation.pose_compare.compare_on_dataset`."""
+    """An estimator for :func:`spgeo.evaluation.pose_compare.compare_on_dataset`:
+    :func:`few_view_sfm` with ``frontend`` at 320x240 and ``config`` (None: the
+    default ``SfMConfig()``, marginals on); the last :class:`SfMResult` is the
+    callable's ``last_result``."""
+    config = SfMConfig() if config is None else config
 
     def estimate(ref, views):
         fe = make_frontend(frontend, FrontEndConfig(working_size=(320, 240)))
@@ -59,6 +73,13 @@ def twoview_estimator() -> Callable:
         return [estimate_relative_pose(ref.image, v.image, ref.camera).T_ref_tgt for v in views]
 
     return estimate
+
+
+def gap_estimators() -> Dict[str, Callable]:
+    """Fresh estimators of the gap cases: ``"spgeo"`` (:func:`spgeo_estimator`,
+    classical), ``"colmap"`` (the judge) and ``"sift two-view"``."""
+    return {"spgeo": spgeo_estimator("classical"), "colmap": colmap_estimator(),
+            "sift two-view": twoview_estimator()}
 
 
 def _frames(kind: str, folder: Optional[Path], numbers: Sequence[int]):
@@ -104,8 +125,42 @@ def _table(name: str, comp: dict) -> str:
                 cells.append(f"{r['rotation_error_deg']:5.2f} / "
                              f"{r['translation_direction_error_deg']:5.1f}"
                              + (f" [{status[j]}]" if status else ""))
-        lines.append(f"  {method:30s} " + "   ".join(cells) + f"   ({comp['time_s'][method]:.1f} s)")
+        lines.append(f"  {method:30s} " + "   ".join(cells)
+                     + f"   ({comp['time_s'][method]:.1f} s)")
     return "\n".join(lines)
+
+
+def parse_cases(text: str) -> List[str]:
+    """``--cases``: comma-separated kinds (``tum``, ``icl``, ``gaps``) or names of
+    :data:`CASES` -> the names of :data:`CASES` to run, in their order, then
+    ``"gaps"`` when chosen.  ``""`` / ``"all"``: everything.
+
+    Raises:
+        ValueError: an unknown kind or name (the message lists the known ones)."""
+    parts = [p.strip() for p in (text or "").split(",") if p.strip()]
+    if not parts or parts == ["all"]:
+        parts = list(CASE_KINDS)
+    known = set(CASE_KINDS) | set(CASES)
+    bad = [p for p in parts if p not in known]
+    if bad:
+        raise ValueError(f"--cases: unknown {bad}; choose from {sorted(known)}")
+    chosen = [name for name, (kind, _, _) in CASES.items() if name in parts or kind in parts]
+    return chosen + (["gaps"] if "gaps" in parts else [])
+
+
+def run_gap_cases(shared: Path, gaps: Sequence[int], refs: Sequence[int],
+                  make_estimators: Callable[[], Dict[str, Callable]] = gap_estimators
+                  ) -> GapResults:
+    """The gap cases (:func:`spgeo.evaluation.sfm.gaps.run_gaps`) on
+    ``shared / GAP_DATA`` with ``make_estimators`` (default :func:`gap_estimators`).
+
+    Raises:
+        FileNotFoundError: no such folder; ValueError: a triplet frame it lacks."""
+    folder = Path(shared) / GAP_DATA
+    if not folder.is_dir():
+        raise FileNotFoundError(f"data of the gap cases not found: {folder}")
+    seq = open_dataset("7scenes", folder)
+    return run_gaps(seq, gaps, refs, make_estimators, data=GAP_DATA)
 
 
 NAME = "sfm_real"
@@ -115,17 +170,33 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
     ap = protocol_parser(None, __doc__, dataset=False)
     ap.add_argument("--shared", default=str(shared_data_root()),
-                    help="folder with tum_fr1_desk_9/ and icl_nuim_lr_5/ (default ../shared/data)")
-    ap.add_argument("--json", default=None, help="write all results as JSON here")
+                    help="folder with tum_fr1_desk_9/, icl_nuim_lr_5/ and "
+                         f"{GAP_DATA}/ (default ../shared/data)")
+    ap.add_argument("--cases", default=",".join(CASE_KINDS),
+                    help="comma-separated kinds (tum, icl, gaps) or case names to run "
+                         "(default all)")
+    ap.add_argument("--gaps", default="10,30,60",
+                    help="frame gaps G of the gap cases' triplets (ref, ref+G, ref+2G); "
+                         "'' or 'none': no gap cases (default 10,30,60)")
+    ap.add_argument("--refs", default="0,60,120",
+                    help="reference frame numbers of the gap cases (default 0,60,120)")
+    ap.add_argument("--json", default=None, help="write all results as JSON here (atomically)")
     return ap
 
 
 def run(args: argparse.Namespace) -> int:
-    """Each case of :data:`CASES` (the TUM one from the bundled sample when the shared
-    folder lacks it): print its table; write ``--json``."""
+    """The chosen cases (:func:`parse_cases`; the TUM one from the bundled sample when
+    the shared folder lacks it; the others skipped with a line when their data is
+    missing): print each table; write ``--json`` (case name -> comparison dict, and
+    ``"gaps"`` -> :meth:`GapResults.to_dict`).  Bad ``--cases`` / ``--gaps`` /
+    ``--refs`` raise ``ValueError`` before anything runs."""
     shared = Path(args.shared)
-    out = {}
-    for name, (kind, sub, _) in CASES.items():
+    cases = parse_cases(args.cases)
+    gaps = parse_int_list(args.gaps, "--gaps", minimum=1)
+    refs = parse_int_list(args.refs, "--refs", minimum=0)
+    out: Dict[str, object] = {}
+    for name in (c for c in cases if c in CASES):
+        kind, sub, _ = CASES[name]
         use = shared if (shared / sub).is_dir() else None
         if use is None and kind != "tum":
             print(f"{name}: skipped ({shared / sub} not found)")
@@ -133,8 +204,17 @@ def run(args: argparse.Namespace) -> int:
         comp = run_case(name, use)
         out[name] = comp
         print(_table(name, comp))
+    if "gaps" in cases:
+        if not gaps or not refs:
+            print("gaps: skipped (no gaps or no refs given)")
+        elif not (shared / GAP_DATA).is_dir():
+            print(f"gaps: skipped ({shared / GAP_DATA} not found)")
+        else:
+            res = run_gap_cases(shared, gaps, refs)
+            out["gaps"] = res.to_dict()
+            print(res.table())
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2, default=str))
+        write_json_atomic(args.json, out)
     return 0
 
 

@@ -12,7 +12,7 @@ a set is discarded when a reference or view pose is invalid, fewer than
 ``min_translation`` AND rotated less than ``min_rotation_deg`` relative to the
 reference).  :func:`spgeo.sfm.few_view_sfm` runs per set, per ``n`` and per
 initialisation (the paper's ``"identity"`` and the library default
-``"twoview"``); its depth is median-scaled to the ground truth (valid in
+``"features"``); its depth is median-scaled to the ground truth (valid in
 ``[min_depth, max_depth]``, default 0.1-10 m) and scored with iMAE / iRMSE
 (1/km), abs-rel, delta < 1.25 at the SfM working resolution (ground truth
 resampled by nearest neighbour), beside a median-scaled constant-depth
@@ -74,7 +74,7 @@ class ScanNetProtocolConfig:
         min_depth, max_depth: ground-truth depths scored (metres, exclusive),
             default 0.1 and 10.
         inits: SfM initialisations to run: ``"identity"`` (the paper: poses
-            at identity, log-scales 0) and ``"twoview"`` (the library default),
+            at identity, log-scales 0) and ``"features"`` (the library default),
             default both.
         frontend: front-end name (``"classical"`` default, ``"depth"`` = oracle
             normals from the ground-truth depth, ``"onnx"``).
@@ -94,7 +94,7 @@ class ScanNetProtocolConfig:
     min_rotation_deg: float = 1.5
     min_depth: float = 0.1
     max_depth: float = 10.0
-    inits: Tuple[str, ...] = ("identity", "twoview")
+    inits: Tuple[str, ...] = ("identity", "features")
     frontend: str = "classical"
     working_size: Tuple[int, int] = (320, 240)
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(marginals=False))
@@ -116,8 +116,8 @@ class ScanNetProtocolConfig:
                              f"{self.max_depth}")
         if self.min_translation < 0 or self.min_rotation_deg < 0:
             raise ValueError("min_translation and min_rotation_deg must be >= 0")
-        if not self.inits or any(i not in ("identity", "twoview") for i in self.inits):
-            raise ValueError(f"inits must be a non-empty subset of ('identity', 'twoview'), "
+        if not self.inits or any(i not in ("identity", "features") for i in self.inits):
+            raise ValueError(f"inits must be a non-empty subset of ('identity', 'features'), "
                              f"got {self.inits}")
         if self.max_samples is not None and int(self.max_samples) < 1:
             raise ValueError(f"max_samples must be >= 1 or None, got {self.max_samples}")
@@ -475,8 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--frontend", default="classical", choices=("classical", "depth", "onnx"))
     ap.add_argument("--working-size", type=int, nargs=2, default=[320, 240],
                     metavar=("W", "H"))
-    ap.add_argument("--inits", nargs="+", default=["identity", "twoview"],
-                    choices=("identity", "twoview"))
+    ap.add_argument("--inits", nargs="+", default=["identity", "features"],
+                    choices=("identity", "features"))
     ap.add_argument("--max-samples", type=int, default=None)
     ap.add_argument("--json", default=None, help="also write rows and summary to this file")
     return ap

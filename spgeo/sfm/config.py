@@ -6,6 +6,7 @@ from typing import Tuple
 
 from ..configs import config_repr
 from ..factors.photometric import PhotometricConfig
+from ..twoview.config import TwoViewConfig
 
 __all__ = ["SfMConfig"]
 
@@ -40,13 +41,19 @@ class SfMConfig:
         ref_prior_sigma: sigma of the gauge prior on the reference pose.
         reset_scales: start every log-scale at 0 (paper) even if the front-end
             fitted scales (depth-using front-ends do).
-        init: ``"identity"`` (the paper: poses at identity, log-scales 0) or
-            ``"twoview"`` (default): feature-based relative pose per view
-            (:func:`spgeo.twoview.estimate_relative_pose`, OpenCV SIFT +
-            essential matrix), inliers triangulated into a sparse reference
-            depth that sets each primitive's initial log-scale by robust median;
-            views whose two-view estimate fails start at identity
-            (:func:`spgeo.sfm.init.twoview_initialisation`).
+        init: ``"features"`` (default): the landmark bundle of all views
+            (:class:`spgeo.sfm.landmarks.LandmarkStage`: SIFT tracks over every
+            pair, the best-conditioned pair, PnP, a GTSAM bundle adjustment) sets
+            the poses and, through the landmarks seen in the reference, the
+            initial log-scales; its projection factors stay in the solve, and its
+            held-out matches decide whether the photometric term may move the
+            poses; views it cannot place start at identity and are flagged.
+            ``"identity"``: the paper's start (poses at identity, log-scales 0).
+            (``"twoview"``, one two-view pose per view, was the default until
+            d00416a: docs/results.md, issue 40.)
+        features: SIFT features and pair geometry of ``init="features"``
+            (default: :class:`~spgeo.twoview.TwoViewConfig` with ``min_inliers=30``,
+            as the bundle checks each pair once more).
         rotation_first: when a view starts at identity, at the coarsest
             level first solve the views' rotations and brightness with translations held at their initial
             values (a tight translation prior) and scales fixed: rotational
@@ -84,7 +91,8 @@ class SfMConfig:
     reset_scales: bool = True
     min_level_pixels: int = 4
     rotation_first: bool = True
-    init: str = "twoview"
+    init: str = "features"
+    features: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(min_inliers=30))
     min_parallax: float = 0.01
     min_valid_fraction: float = 0.3
     marginals: bool = True
@@ -97,8 +105,8 @@ class SfMConfig:
             raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
         if self.levels < 1 or not self.max_iterations:
             raise ValueError("levels must be >= 1 and max_iterations non-empty")
-        if self.init not in ("identity", "twoview"):
-            raise ValueError(f"init must be 'identity' or 'twoview', got {self.init!r}")
+        if self.init not in ("features", "identity"):
+            raise ValueError(f"init must be 'features' or 'identity', got {self.init!r}")
         if self.scale_prior_weight <= 0:
             raise ValueError("scale_prior_weight must be > 0 (it fixes the scale gauge)")
         if self.chunk < 1:

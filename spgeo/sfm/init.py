@@ -17,7 +17,7 @@ from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
 
-__all__ = ["twoview_initialisation", "triangulate_depths"]
+__all__ = ["twoview_initialisation", "triangulate_depths", "scales_from_points"]
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +37,34 @@ def triangulate_depths(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np
         X = (Xh[:3] / Xh[3]).T
         z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
         return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
+
+
+def scales_from_points(prims: PrimitiveSet, camera: PinholeCamera, pixels: np.ndarray,
+                       depths: np.ndarray) -> Tuple[PrimitiveSet, int, int]:
+    """``prims`` with log-scales set by a robust median over sparse reference depths.
+
+    Args:
+        prims: reference primitives (at their own, possibly smaller, working camera).
+        camera: the camera of ``pixels`` (the reference image's).
+        pixels: (N, 2) reference pixels (spgeo convention) of the points.
+        depths: (N,) their depths (NaN: unused).
+    Returns:
+        ``(prims, points used, primitives with a point)``; primitives without a
+        point take the median log-scale of the others; ``prims`` unchanged when no
+        primitive has a point.
+    """
+    cam = prims.camera
+    sx, sy = cam.width / camera.width, cam.height / camera.height
+    sparse = np.full(cam.shape, np.nan)
+    u = np.round((pixels[:, 0] + 0.5) * sx - 0.5).astype(int)
+    v = np.round((pixels[:, 1] + 0.5) * sy - 0.5).astype(int)
+    keep = np.isfinite(depths) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    sparse[v[keep], u[keep]] = depths[keep]
+    s, n = prims.fit_log_scales(sparse)
+    if np.any(np.isfinite(s)):
+        s = np.where(np.isfinite(s), s, np.nanmedian(s))
+        prims = prims.with_log_scales(s)
+    return prims, int(keep.sum()), int(np.sum(n > 0))
 
 
 def twoview_initialisation(ref_image: np.ndarray, views: Sequence[np.ndarray],
@@ -74,17 +102,9 @@ def twoview_initialisation(ref_image: np.ndarray, views: Sequence[np.ndarray],
     best = max(ok, key=lambda j: results[j].num_inliers)
     r = results[best]
     z = triangulate_depths(r.T_ref_tgt, camera, r.points_ref, r.points_tgt)
-    sparse = np.full(cam.shape, np.nan)
-    u = np.round((r.points_ref[:, 0] + 0.5) * sx - 0.5).astype(int)
-    v = np.round((r.points_ref[:, 1] + 0.5) * sy - 0.5).astype(int)
-    keep = np.isfinite(z) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-    sparse[v[keep], u[keep]] = z[keep]
-    s, n = prims.fit_log_scales(sparse)
-    if np.any(np.isfinite(s)):
-        s = np.where(np.isfinite(s), s, np.nanmedian(s))
-        prims = prims.with_log_scales(s)
-    report["twoview_points"] = int(keep.sum())
-    report["primitives_with_points"] = int(np.sum(n > 0))
+    prims, n_points, n_prims = scales_from_points(prims, camera, r.points_ref, z)
+    report["twoview_points"] = n_points
+    report["primitives_with_points"] = n_prims
     # other views: translation magnitude from their own triangulation vs the map
     depth_map = prims.depth_map()
     for j in ok:

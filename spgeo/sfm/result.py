@@ -21,10 +21,10 @@ class SfMResult:
 
     Attributes:
         status: ``"ok"`` or the first problem found, in this order:
-            ``"diverged"`` (non-finite result), ``"unverified"`` (the two-view
-            feature check found too few matches or a degenerate geometry for a
-            view, which then started at identity: often no overlap, and the
-            photometric result is not trusted), ``"low_parallax"``,
+            ``"diverged"`` (non-finite result), ``"unverified"`` (the features
+            could not place a view, which then started at identity: often little
+            overlap, and the photometric result is not trusted; the features'
+            reason is in ``report["init"]["view_status"]``), ``"low_parallax"``,
             ``"low_overlap"``.
         view_status: status per supporting view.
         T_ref_view: 4x4 pose of each supporting view in the reference camera
@@ -51,12 +51,20 @@ class SfMResult:
             ``config.max_log_scale_std`` (needs ``config.marginals``).
             ``primitives`` keeps every primitive at its solved (for these:
             unsupported) log-scale.
-        pose_covariances: 6x6 marginal covariance per view (rotation first,
-            gtsam tangent at the estimate), conditioned on the gauge priors.
-            Marginals use a per-pixel noise model whose sigma is the robust
-            (MAD) std of the photometric residuals at the solution
-            (``report["pixel_sigma"]``); pixels are treated as independent, so
-            the uncertainties are optimistic where residuals are correlated.
+        pose_covariances: 6x6 covariance per view (rotation first, gtsam
+            ``Pose3`` tangent at the estimate; radians and the map's translation
+            units), conditioned on the gauge (the reference pose, and the distance
+            to the farthest view for the scale).  With the landmark bundle
+            (``init="features"``, a view it registered): the bundle adjustment's
+            marginal with the projection noise at the robust spread of its
+            reprojection residuals (``report["init"]["pixel_sigma"]``), inflated
+            by :data:`spgeo.sfm.bundle.COVARIANCE_INFLATION` so that the real
+            rotation error is within 3 sigma on at least 90 % of the views
+            measured (docs/results.md, issue 40).  Otherwise (no landmarks): the
+            photometric marginal with the residuals' robust std
+            (``report["pixel_sigma"]``), pixels treated as independent: far too
+            small (it missed real errors 300-fold in issue 40), not a calibrated
+            uncertainty.
         report: per-level iterations, costs, valid fractions, timings.
     """
 
@@ -97,13 +105,13 @@ class SfMResult:
 
 
 def assess_result(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: SfMConfig,
-            report: dict, twoview_status: Optional[Sequence[str]] = None):
+                  report: dict, unverified: Optional[Sequence[bool]] = None):
     """Status flags: diverged (non-finite), unverified, low parallax, low overlap.
 
-    A view the two-view feature check could not pose (too few matches /
-    degenerate) most likely shares little with the reference: photometric
-    alignment from identity can then "converge" to a wrong pose, so it is
-    ``unverified`` rather than ``ok``.
+    A view the features could not pose (``unverified[j]``: too few matches, a
+    degenerate pair, not registered) most likely shares little with the
+    reference: photometric alignment from identity can then "converge" to a wrong
+    pose, so it is ``unverified`` rather than ``ok``.
     """
     finite = all(np.all(np.isfinite(T)) for T in T_ref_view) and np.all(
         np.isfinite(solved.log_scales))
@@ -124,8 +132,7 @@ def assess_result(solved: PrimitiveSet, T_ref_view: List[np.ndarray], config: Sf
         frac = float(np.mean(cam.in_image(uvv) & (z > 0)))
         valid_frac.append(frac)
         parallax = np.linalg.norm(T[:3, 3]) / max(med_depth, 1e-12)
-        if twoview_status is not None and twoview_status[j] in ("too_few_matches",
-                                                                 "degenerate"):
+        if unverified is not None and unverified[j]:
             view_status.append("unverified")
         elif parallax < config.min_parallax:
             view_status.append("low_parallax")

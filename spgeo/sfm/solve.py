@@ -36,7 +36,7 @@ from ..images import gaussian_pyramid, to_float_image, to_gray
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import SfMConfig
-from .init import twoview_initialisation
+from .landmarks import LandmarkStage
 from .orientation import choose_planar_orientations
 from .result import SfMResult, assess_result
 
@@ -189,11 +189,14 @@ def _solve_stage(graph, values: gtsam.Values, config: SfMConfig, lvl: int, n_lev
 
 
 def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_T_ref_view,
-                    report: dict) -> Tuple[gtsam.Values, List[PhotometricFactorGroup]]:
+                    report: dict, stage: Optional[LandmarkStage] = None
+                    ) -> Tuple[gtsam.Values, List[PhotometricFactorGroup]]:
     """Solve level by level, coarsest first: a rotation-only stage first when a
     view starts at identity (``config.rotation_first``), and once more at the
-    finest level after the planar orientation choice.  Returns the solved values
-    and the factor groups of the last stage."""
+    finest level after the planar orientation choice.  With an active landmark
+    ``stage`` its factors join every level, and when its held-out check rejects the
+    photometric poses the finest level is solved once more with the bundle's poses
+    held.  Returns the solved values and the factor groups of the last stage."""
     builders: List[PhotometricFactorGroup] = []
     n_levels = pb.n_levels
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
@@ -206,6 +209,8 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
         release_groups(builders)      # the previous stage's (else never freed)
         graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
                                       values, config, orientations)
+        if stage is not None:
+            stage.add_factors(graph)
         if rotation_only:
             hold_translation_and_shape(graph, values, pb.n_views, len(pb.prims))
         values = _solve_stage(graph, values, config, lvl, n_levels, rotation_only, report)
@@ -214,6 +219,14 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
             values, orientations = choose_planar_orientations(pb.prims, builders, values, report)
             if orientations is not None:
                 stages.append((0, False))      # refine once more with the chosen planes
+    if stage is not None and stage.active and not stage.photometric_helps(values, report):
+        values = stage.restore(values)     # the scales once more at the bundle's poses
+        release_groups(builders)
+        graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
+                                            values, config, orientations)
+        stage.add_factors(graph)
+        stage.hold_poses(graph, values)
+        values = _solve_stage(graph, values, config, 0, n_levels, False, report)
     return values, builders
 
 
@@ -276,7 +289,8 @@ def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
 
 
 def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[PhotometricFactorGroup],
-               config: SfMConfig, status: str, report: dict) -> _Marginals:
+               config: SfMConfig, status: str, report: dict,
+               stage: Optional[LandmarkStage] = None) -> _Marginals:
     """Marginal uncertainties at the solution (``config.marginals``, not when
     diverged) with a per-pixel noise model whose sigma is the residuals' robust
     std (``report["pixel_sigma"]``); a failure is reported in
@@ -303,10 +317,12 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
                                               pixel_sigma=sigma))
             mgraph, mgroups = build_level_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
                                           values, pix_cfg)
+            if stage is not None:
+                stage.add_factors(mgraph)
             marg = gtsam.Marginals(mgraph, values)
             release_groups(mgroups)
-            for j in range(pb.n_views):
-                covs[j] = marg.marginalCovariance(pose_key(j + 1))
+            covs = stage.covariances() if stage is not None and stage.active else [
+                marg.marginalCovariance(pose_key(j + 1)) for j in range(pb.n_views)]
             if config.shape_model == "scaled":
                 log_std, prior_only = gauge_free_scale_std(marg, len(prims),
                                                             1.0 / np.sqrt(prior_w))
@@ -336,6 +352,21 @@ def _supported_depth(solved: PrimitiveSet, unconstrained: np.ndarray, status: st
              unconstrained.size, len(solved), "status " + status if keep.size == 0
              else f"log-scale std > {config.max_log_scale_std:.2f}")
     return depth
+
+
+def _start(ref_image, views, camera, pb: _Problem, config: SfMConfig, init_T_ref_view,
+           init_report: dict):
+    """The start of the solve by ``config.init`` unless poses are given: ``(landmark
+    stage or None, initial poses or None, per view True where the features could
+    not verify it)``; ``pb.prims`` takes the initial log-scales."""
+    unverified = [False] * len(views)
+    if init_T_ref_view is not None or config.init == "identity":
+        return None, init_T_ref_view, unverified
+    stage = LandmarkStage([ref_image] + list(views), camera, config.features)
+    pb.prims = stage.scaled_primitives(pb.prims, init_report)
+    init_report.update(stage.bundle.report, view_status=stage.bundle.view_status[1:],
+                       pixel_sigma=stage.bundle.pixel_sigma)
+    return stage, stage.initial_poses(), stage.unverified()
 
 
 def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camera: PinholeCamera,
@@ -378,17 +409,17 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     t_front = time.perf_counter()
     pb = _problem(ref_image, views, camera, prims, cam, config)
 
-    # ---- initial values
     init_report: Dict[str, object] = {"method": "given" if init_T_ref_view is not None
                                       else config.init}
-    if init_T_ref_view is None and config.init == "twoview":
-        init_T_ref_view, pb.prims = twoview_initialisation(ref_image, views, camera, pb.prims,
-                                                           init_report)
+    stage, init_T_ref_view, unverified = _start(ref_image, views, camera, pb, config,
+                                                init_T_ref_view, init_report)
     values = _initial_values(pb.prims, len(views), init_T_ref_view, config)
+    if stage is not None:
+        stage.insert_values(values)
     report: Dict[str, object] = {"levels": [], "n_primitives": len(pb.prims),
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}
-    values, builders = _coarse_to_fine(pb, values, config, init_T_ref_view, report)
+    values, builders = _coarse_to_fine(pb, values, config, init_T_ref_view, report, stage)
     t_opt = time.perf_counter()
 
     # ---- results
@@ -399,8 +430,8 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     depth = solved.depth_map()
 
     status, view_status, valid_frac = assess_result(solved, T_ref_view, config, report,
-                                                    init_report.get("twoview_status"))
-    marg = _marginals(pb, values, builders, config, status, report)
+                                                    unverified)
+    marg = _marginals(pb, values, builders, config, status, report, stage)
     release_groups(builders)
     unconstrained = _unconstrained(solved, marg, status, view_status, config, report)
     if unconstrained.size:

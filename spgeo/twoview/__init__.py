@@ -14,10 +14,12 @@ The method is described in :mod:`spgeo.twoview.pose`.  Modules, one job each:
 from .backends import colmap_camera, quiet_colmap
 from .config import TWO_VIEW_STATUSES, FeatureOptions, TwoViewConfig
 from .geometry import parallax_angles_deg, rotation_only_fit
-from .pose import TwoViewResult, estimate_relative_pose, to_gray_uint8
+from .pose import (TwoViewResult, estimate_relative_pose, relative_pose_from_matches,
+                   to_gray_uint8)
 
 __all__ = [
     "TWO_VIEW_STATUSES", "TwoViewConfig", "TwoViewResult", "estimate_relative_pose",
+    "relative_pose_from_matches",
     "to_gray_uint8", "colmap_camera", "rotation_only_fit", "parallax_angles_deg",
     "quiet_colmap",
 ]

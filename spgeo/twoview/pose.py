@@ -43,6 +43,7 @@ The result is *flagged*, never silently wrong (:attr:`TwoViewResult.status`):
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -58,7 +59,8 @@ from .config import TwoViewConfig
 from .geometry import (bearings, kabsch, parallax_angles_deg, pose_from_tgt_ref, pose_std_deg,
                        rotation_only_fit, undistort_points)
 
-__all__ = ["TwoViewResult", "estimate_relative_pose", "to_gray_uint8"]
+__all__ = ["TwoViewResult", "estimate_relative_pose", "relative_pose_from_matches",
+           "to_gray_uint8"]
 
 logger = logging.getLogger(__name__)
 
@@ -88,6 +90,8 @@ class TwoViewResult:
             the inliers' Sampson residuals; NaN when not computed.
         points_ref, points_tgt: (N, 2) inlier pixel coordinates (spgeo
             convention, undistorted) in the reference and target images.
+        inliers: (N,) indices of those inliers among the putative matches
+            (rows of the matches given to :func:`relative_pose_from_matches`).
         backend: back-end used.
         message: human-readable reason for a non-``"ok"`` status.
         timings: seconds per stage (``features``, ``matching``, ``geometry``).
@@ -106,6 +110,7 @@ class TwoViewResult:
     translation_std_deg: float = float("nan")
     points_ref: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     points_tgt: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     backend: str = ""
     message: str = ""
     timings: Dict[str, float] = field(default_factory=dict)
@@ -213,6 +218,7 @@ def _low_parallax(pair: _Pair, mask: Optional[np.ndarray], message: str) -> TwoV
     R, keep = rotation_only_fit(cam, x1[sel], x2[sel], max(2.0, pair.config.ransac_threshold_px))
     res.T_ref_tgt = pose_from_tgt_ref(R, np.zeros(3))
     res.points_ref, res.points_tgt = x1[sel][keep], x2[sel][keep]
+    res.inliers = np.flatnonzero(sel)[keep]
     res.num_inliers = int(keep.sum())
     res.rotation_only_parallax_deg = float(np.median(
         parallax_angles_deg(cam, res.points_ref, res.points_tgt, R))) if keep.any() else 0.0
@@ -250,6 +256,7 @@ def _checked_pose(pair: _Pair, R: np.ndarray, t: np.ndarray, inl: np.ndarray) ->
     uncertainty (``"degenerate"``); ``"ok"`` when it passes."""
     res, config, cam = pair.res, pair.config, pair.cam
     res.points_ref, res.points_tgt = pair.x1[inl], pair.x2[inl]
+    res.inliers = np.flatnonzero(inl)
     par = parallax_angles_deg(cam, res.points_ref, res.points_tgt, R)
     res.median_parallax_deg = float(np.median(par))
     # how much parallax is left by the best pure rotation (least squares on the
@@ -326,12 +333,45 @@ def estimate_relative_pose(image_ref: np.ndarray, image_tgt: np.ndarray, camera:
 
     x1 = undistort_points(camera, p1[matches[:, 0]])
     x2 = undistort_points(camera, p2[matches[:, 1]])
-    cam = camera.undistorted()
-    res.median_flow_px = float(np.median(np.linalg.norm(x2 - x1, axis=1)))
-    pair = _Pair(res, config, cam, x1, x2, t_match)
+    return _pose_of_pair(_Pair(res, config, camera.undistorted(), x1, x2, t_match))
+
+
+def _pose_of_pair(pair: _Pair) -> TwoViewResult:
+    """The flow check, then :func:`_geometry`, on ``pair``'s putative matches."""
+    res, config = pair.res, pair.config
+    res.median_flow_px = float(np.median(np.linalg.norm(pair.x2 - pair.x1, axis=1)))
     if res.median_flow_px < config.min_flow_px:
         return _low_parallax(pair, None, f"median image motion {res.median_flow_px:.3f} px < "
                                          f"min_flow_px = {config.min_flow_px}: no motion")
-
-    # ---- geometry
     return _geometry(pair)
+
+
+def relative_pose_from_matches(x_ref: np.ndarray, x_tgt: np.ndarray, camera: PinholeCamera,
+                               config: Optional[TwoViewConfig] = None) -> TwoViewResult:
+    """:func:`estimate_relative_pose` from putative correspondences already made.
+
+    Args:
+        x_ref, x_tgt: (M, 2) undistorted pixel coordinates (spgeo convention) of the
+            putative matches in the reference and target images.
+        camera: their (undistorted) intrinsics.
+        config: :class:`TwoViewConfig` (its geometry and status options; the
+            feature options are unused).
+    Returns:
+        :class:`TwoViewResult` with ``inliers`` indexing rows of ``x_ref``
+        (``num_keypoints`` is (0, 0): no features were detected here).
+    Raises:
+        ValueError: ``x_ref`` and ``x_tgt`` not both (M, 2).
+    """
+    config = config or TwoViewConfig()
+    x1, x2 = np.asarray(x_ref, np.float64), np.asarray(x_tgt, np.float64)
+    if x1.ndim != 2 or x1.shape[1:] != (2,) or x1.shape != x2.shape:
+        raise ValueError(f"relative_pose_from_matches: x_ref {x1.shape} and x_tgt {x2.shape} "
+                         "must both be (M, 2)")
+    res = TwoViewResult(status="degenerate", backend="opencv", timings={},
+                        num_matches=len(x1))
+    if len(x1) < config.min_matches:
+        res.status = "too_few_matches"
+        res.message = f"{len(x1)} putative matches < min_matches = {config.min_matches}"
+        return res
+    return _pose_of_pair(_Pair(res, dataclasses.replace(config, backend="opencv"),
+                               camera.undistorted(), x1, x2, time.perf_counter()))

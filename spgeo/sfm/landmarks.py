@@ -1,0 +1,135 @@
+"""The landmark bundle inside the few-view solve (docs/design.md §5, "Landmark bundle").
+
+:class:`LandmarkStage` owns the tracks and the bundle of one :func:`spgeo.sfm.few_view_sfm`
+call: it starts the solve (the views' poses, the primitives' log-scales from the
+landmarks seen in the reference, the landmark variables), adds the landmarks'
+projection factors to every pyramid level's graph, and judges the photometric term:
+the poses of the joint solve are kept only when no view's held-out matches fit them
+worse than the bundle's poses (:func:`spgeo.sfm.bundle.heldout_errors`); otherwise
+the bundle's poses are restored and held.
+"""
+from __future__ import annotations
+
+import logging
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+import gtsam
+
+from ..camera import PinholeCamera
+from ..geometry import rotation_angle_deg
+from ..graph.keys import landmark_key, pose_key
+from ..primitives import PrimitiveSet
+from ..twoview import TwoViewConfig
+from .bundle import FeatureBundle, add_landmark_factors, feature_bundle, heldout_errors
+from .init import scales_from_points
+from .tracks import ViewTracks, match_views
+
+__all__ = ["LandmarkStage"]
+
+log = logging.getLogger(__name__)
+
+#: sigma of the priors that hold the bundle's poses when the photometric term is rejected
+HOLD_SIGMA = 1e-6
+
+
+class LandmarkStage:
+    """Tracks and landmark bundle of a reference image and its views.
+
+    Args:
+        images: the reference image then the views, of ``camera``'s size.
+        camera: their intrinsics.
+        config: features and pair geometry (:class:`~spgeo.twoview.TwoViewConfig`).
+    """
+
+    def __init__(self, images: Sequence[np.ndarray], camera: PinholeCamera,
+                 config: TwoViewConfig) -> None:
+        self.camera = camera.undistorted()
+        self.tracks: ViewTracks = match_views(images, camera, config)
+        self.bundle: FeatureBundle = feature_bundle(self.tracks, self.camera)
+
+    @property
+    def active(self) -> bool:
+        """True when the bundle has landmarks (their factors join the solve)."""
+        return self.bundle.ok
+
+    def initial_poses(self) -> List[np.ndarray]:
+        """Per supporting view, its bundle pose ``T_ref_view`` (identity where none)."""
+        return [np.eye(4) if T is None else T.copy() for T in self.bundle.T_ref_view[1:]]
+
+    def unverified(self) -> List[bool]:
+        """Per supporting view, True when the features could not place it (neither
+        registered nor given a low-parallax rotation)."""
+        return [s not in ("ok", "low_parallax") for s in self.bundle.view_status[1:]]
+
+    def scaled_primitives(self, prims: PrimitiveSet, report: dict) -> PrimitiveSet:
+        """``prims`` with log-scales from the depths of the landmarks seen in the
+        reference (unchanged without landmarks); counts in ``report``."""
+        b = self.bundle
+        if not self.active:
+            return prims
+        px = self.tracks.track_pixels(0, b.track_rows)
+        seen = np.isfinite(px[:, 0])
+        prims, n_pts, n_prims = scales_from_points(prims, self.camera, px[seen],
+                                                   b.points[seen, 2])
+        report.update(landmark_points=n_pts, primitives_with_points=n_prims)
+        return prims
+
+    def insert_values(self, values: gtsam.Values) -> None:
+        """The landmark variables at the bundle's points (when active)."""
+        if self.active:
+            for i, P in enumerate(self.bundle.points):
+                values.insert(landmark_key(i), gtsam.Point3(*P))
+
+    def add_factors(self, graph: gtsam.NonlinearFactorGraph) -> int:
+        """The landmarks' projection factors and the scale gauge (when active)."""
+        if not self.active:
+            return 0
+        return add_landmark_factors(graph, self.tracks, self.bundle, self.camera)
+
+    def poses_of(self, values: gtsam.Values) -> List[Optional[np.ndarray]]:
+        """The bundle-registered views' poses in ``values`` (None for the others);
+        the reference first."""
+        return [None if T is None else values.atPose3(pose_key(v)).matrix()
+                for v, T in enumerate(self.bundle.T_ref_view)]
+
+    def photometric_helps(self, values: gtsam.Values, report: dict) -> bool:
+        """True when every registered view's held-out matches fit the poses of
+        ``values`` at least as well as the bundle's (:func:`heldout_errors`);
+        the errors and the largest rotation the photometric term added go to
+        ``report["heldout_px"]``."""
+        b = self.bundle
+        joint = self.poses_of(values)
+        e_b = heldout_errors(self.tracks, b.heldout_rows, b.T_ref_view, self.camera)
+        e_j = heldout_errors(self.tracks, b.heldout_rows, joint, self.camera)
+        judged = np.isfinite(e_b) & np.isfinite(e_j)
+        helps = bool(np.all(e_j[judged] <= e_b[judged]))
+        moved = [rotation_angle_deg(Tb[:3, :3].T @ Tj[:3, :3])
+                 for Tb, Tj in zip(b.T_ref_view[1:], joint[1:]) if Tb is not None]
+        report["heldout_px"] = {"features": e_b[1:].tolist(), "joint": e_j[1:].tolist(),
+                                "photometric_poses_kept": helps,
+                                "photometric_rotation_change_deg": max(moved, default=0.0)}
+        log.debug("held-out Sampson px: features %s, joint %s", e_b, e_j)
+        return helps
+
+    def restore(self, values: gtsam.Values) -> gtsam.Values:
+        """``values`` with the bundle's poses and points (registered views)."""
+        out = gtsam.Values(values)
+        for v, T in enumerate(self.bundle.T_ref_view):
+            if T is not None and v > 0:
+                out.update(pose_key(v), gtsam.Pose3(T))
+        for i, P in enumerate(self.bundle.points):
+            out.update(landmark_key(i), gtsam.Point3(*P))
+        return out
+
+    def hold_poses(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        """Tight priors holding the registered views' poses at ``values``."""
+        noise = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
+        for v, T in enumerate(self.bundle.T_ref_view):
+            if T is not None and v > 0:
+                graph.add(gtsam.PriorFactorPose3(pose_key(v), values.atPose3(pose_key(v)), noise))
+
+    def covariances(self) -> List[Optional[np.ndarray]]:
+        """Per supporting view, the bundle's 6x6 pose covariance (None if unregistered)."""
+        return list(self.bundle.covariances[1:])
