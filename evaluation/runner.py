@@ -117,10 +117,12 @@ def run_vo_dataset(args: argparse.Namespace):
 
 def write_json(path, payload, indent: int = 2) -> None:
     """Write ``payload`` to ``path`` as UTF-8 JSON (``indent``; numpy values through
-    :func:`spgeo.jsonio.json_default`)."""
+    :func:`spgeo.jsonio.json_default`), atomically
+    (:func:`spgeo.io.outputs.write_bytes_atomic`: a reader never sees half a file)."""
     import json
 
+    from spgeo.io.outputs import write_bytes_atomic
     from spgeo.jsonio import json_default
 
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(payload, fh, indent=indent, default=json_default)
+    text = json.dumps(payload, indent=indent, default=json_default)
+    write_bytes_atomic(path, text.encode("utf-8"), "JSON output")

@@ -10,7 +10,7 @@ import pytest
 from spgeo.evaluation.pose_compare import compare_methods
 from spgeo.evaluation.sfm.gaps import (GAP_DATA, GapResults, coverage_report, gap_triplets,
                                        parse_int_list, rotation_coverage, sigma_rot_deg,
-                                       summarize_views, view_records, write_json_atomic)
+                                       summarize_views, view_records)
 from spgeo.evaluation.sfm.real import build_parser, main, parse_cases, run_gap_cases
 
 NAN = float("nan")
@@ -173,14 +173,16 @@ def test_gap_triplets_check_frames_first():
         gap_triplets(range(300), [10, 60], [250])
 
 
-def test_write_json_atomic_replaces_or_leaves_untouched(tmp_path):
+def test_protocol_json_is_written_atomically(tmp_path):
+    from spgeo.evaluation.runner import write_json
+
     path = tmp_path / "out.json"
-    write_json_atomic(path, {"a": np.float64(1.5), "b": [np.int64(2)]})
+    write_json(path, {"a": np.float64(1.5), "b": [np.int64(2)]})
     assert json.loads(path.read_text()) == {"a": 1.5, "b": [2]}
     loop: list = []
     loop.append(loop)
     with pytest.raises(ValueError):
-        write_json_atomic(path, loop)
+        write_json(path, loop)
     assert json.loads(path.read_text()) == {"a": 1.5, "b": [2]}
     assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
 
@@ -189,7 +191,7 @@ def test_write_json_atomic_replaces_or_leaves_untouched(tmp_path):
 def test_parser_defaults_and_case_selection():
     args = build_parser().parse_args([])
     assert (args.gaps, args.refs) == ("10,30,60", "0,60,120")
-    assert parse_cases(args.cases) == ["tum_fr1_desk_0_4_8", "icl_lr_1_2_3", "gaps"]
+    assert parse_cases(args.cases) == ["tum_fr1_desk_0_4_8", "icl_lr_1_2_3", "gaps", "synthetic"]
     assert parse_cases("gaps,tum") == ["tum_fr1_desk_0_4_8", "gaps"]
     assert parse_cases("icl_lr_1_2_3") == ["icl_lr_1_2_3"]
     with pytest.raises(ValueError, match="kitti"):
@@ -224,3 +226,57 @@ def test_gap_10_colmap_agrees_with_ground_truth(shared_data):
     assert res.summary["gap 10"]["colmap"]["posed"] == 2
     assert res.coverage["spgeo"]["all"]["vs_colmap"]["n"] == 2
     assert "| 10 | colmap |" in res.table()
+
+
+def test_clip_estimator_reads_relative_poses_and_skips_lost_frames(tmp_path):
+    from types import SimpleNamespace
+
+    from spgeo.evaluation.sfm.gaps import clip_estimator
+    from spgeo.geometry import so3_exp
+    from spgeo.trajectory import Trajectory
+
+    poses = np.stack([np.eye(4)] * 4)
+    for i in range(4):
+        poses[i][:3, :3] = so3_exp(np.array([0.0, 0.1 * i, 0.0]))
+        poses[i][:3, 3] = [0.2 * i, 0.0, 0.0]
+    traj = Trajectory(np.arange(4.0), poses, ["ok", "ok", "lost", "ok"])
+    path = traj.save(tmp_path / "trajectory.txt")
+    est = clip_estimator(Trajectory.load(path))
+    frames = [SimpleNamespace(timestamp=t) for t in (1.0, 3.0, 2.0, 7.0)]
+    out = est(frames[0], frames[1:])
+    assert np.allclose(out[0], np.linalg.inv(poses[1]) @ poses[3])
+    assert out[1] is None and out[2] is None          # lost, and not in the clip
+    assert est.last_result.view_method == ["clip", None, None]
+
+
+def test_run_gaps_judges_by_a_clip_trajectory_with_exact_numbers():
+    """A fake sequence of 5 frames: the clip judge poses every frame, a fake method errs by
+    exactly 2 degrees on every view; its records say so against the judge."""
+    from types import SimpleNamespace
+
+    from spgeo.evaluation.sfm.gaps import clip_estimator, run_gaps
+    from spgeo.geometry import so3_exp
+    from spgeo.trajectory import Trajectory
+
+    poses = np.stack([np.eye(4)] * 5)
+    for i in range(5):
+        poses[i][:3, :3] = so3_exp(np.array([0.0, 0.05 * i, 0.0]))
+        poses[i][:3, 3] = [0.1 * i, 0.0, 0.0]
+    frames = [SimpleNamespace(timestamp=float(i), T_world_cam=poses[i], name=f"f{i}")
+              for i in range(5)]
+    seq = type("Seq", (), {"frame_numbers": list(range(5)),
+                           "__getitem__": lambda self, i: frames[i]})()
+    off = np.eye(4)
+    off[:3, :3] = so3_exp(np.array([math.radians(2.0), 0.0, 0.0]))
+
+    def wrong(ref, views):
+        return [np.linalg.inv(ref.T_world_cam) @ v.T_world_cam @ off for v in views]
+
+    traj = Trajectory(np.arange(5.0), poses)
+    res = run_gaps(seq, [1, 2], [0], lambda: {"m": wrong, "clip": clip_estimator(traj)},
+                   judge="clip")
+    rows = [r for r in res.records if r["method"] == "m"]
+    assert len(rows) == 4 and res.judge == "clip"
+    assert np.allclose([r["rotation_vs_colmap_deg"] for r in rows], 2.0)
+    assert all(r["colmap_posed_by"] == "clip" for r in rows)
+    assert "judged by 'clip'" in res.table()

@@ -24,13 +24,9 @@ The pure functions (:func:`parse_int_list`, :func:`sigma_rot_deg`,
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -39,7 +35,7 @@ from spgeo.evaluation.pose_compare import compare_on_dataset
 
 __all__ = ["GAP_DATA", "JUDGE", "MAX_JUDGE_DISAGREEMENT_DEG", "parse_int_list", "sigma_rot_deg",
            "rotation_coverage", "view_records", "summarize_views", "coverage_report",
-           "gap_triplets", "run_gap_triplet", "GapResults", "run_gaps", "write_json_atomic"]
+           "clip_estimator", "methods_with", "gap_triplets", "run_gap_triplet", "GapResults", "run_gaps"]
 
 log = logging.getLogger(__name__)
 
@@ -254,6 +250,42 @@ def coverage_report(records: Sequence[Record], method: str, k: float = 3.0
 
 
 # ============================================================================ running
+class _ClipPoses:
+    """``last_result`` of :func:`clip_estimator`: how each view was posed."""
+
+    def __init__(self, view_method: List[Optional[str]]) -> None:
+        self.view_method = view_method
+
+
+def clip_estimator(traj, max_time_diff: float = 1e-3) -> Callable:
+    """An estimator (for :func:`compare_on_dataset`) that reads the poses of a reference
+    trajectory of the whole clip (a :class:`spgeo.trajectory.Trajectory`, e.g.
+    ``spgeo eval colmap_vo --out DIR``'s ``trajectory.txt``, loaded with its status
+    file): ``T_ref_view`` of each view from the frames' timestamps (within
+    ``max_time_diff``); None for a frame the trajectory lost or lacks.  Its
+    ``last_result.view_method`` says ``"clip"`` per posed view.  COLMAP on hundreds of
+    frames is a sharper judge than COLMAP on the three views (docs/results.md, issue 40).
+    """
+    stamps = np.asarray(traj.timestamps, np.float64)
+    usable = traj.tracked
+
+    def pose_of(frame) -> Optional[np.ndarray]:
+        i = int(np.argmin(np.abs(stamps - float(frame.timestamp)))) if len(stamps) else -1
+        if i < 0 or abs(stamps[i] - float(frame.timestamp)) > max_time_diff or not usable[i]:
+            return None
+        return traj.poses[i]
+
+    def estimate(ref, views):
+        T_ref = pose_of(ref)
+        poses = [None if T_ref is None or pose_of(v) is None
+                 else np.linalg.inv(T_ref) @ pose_of(v) for v in views]
+        estimate.last_result = _ClipPoses(["clip" if T is not None else None for T in poses])
+        return poses
+
+    estimate.last_result = None  # type: ignore[attr-defined]
+    return estimate
+
+
 def gap_triplets(frame_numbers: Sequence[int], gaps: Sequence[int], refs: Sequence[int]
                  ) -> List[Tuple[int, int, List[int]]]:
     """``(gap, ref, [ref, ref + gap, ref + 2 gap])`` for every gap and ref, gaps outer.
@@ -308,7 +340,8 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
     records = view_records(comp, gap, ref, how, statuses, sigmas, judge,
                            getattr(jres, "two_view_disagreement_deg", None))
     triplet = {"gap": gap, "ref": ref, "frames": numbers, "comparison": comp,
-               "colmap": None if jres is None else jres.summary(), "per_method": per_method}
+               "colmap": jres.summary() if hasattr(jres, "summary") else None,
+               "per_method": per_method}
     return triplet, records
 
 
@@ -320,7 +353,7 @@ def _fmt(x: object, spec: str = ".2f") -> str:
     return format(v, spec) if math.isfinite(v) else "-"
 
 
-def _methods_with(records: Sequence[Record], key: str) -> List[str]:
+def methods_with(records: Sequence[Record], key: str) -> List[str]:
     """Methods (in order) with a non-None ``status`` (``key="status"``) or a finite
     ``sigma_rot_deg`` (``key="sigma_rot_deg"``) in some record."""
     def has(r: Record) -> bool:
@@ -336,6 +369,9 @@ class GapResults:
     Attributes:
         data: the sequence's name / folder.
         gaps, refs: the gaps and reference frame numbers run.
+        judge: the method whose poses judge the others (the tables' "COLMAP").
+        label, ref_label: what the tables call ``gap`` and ``ref`` (the synthetic
+            cases: the angle and the seed).
         triplets: one dict per triplet (:func:`run_gap_triplet`).
         records: the view records of every triplet (:func:`view_records`).
         summary: ``"gap G"`` -> :func:`summarize_views` of that gap's records.
@@ -345,6 +381,9 @@ class GapResults:
     data: str
     gaps: List[int]
     refs: List[int]
+    judge: str = JUDGE
+    label: str = "gap"
+    ref_label: str = "ref"
     triplets: List[Dict[str, object]] = field(default_factory=list)
     records: List[Record] = field(default_factory=list)
     summary: Dict[str, Dict[str, Dict[str, float]]] = field(default_factory=dict)
@@ -356,7 +395,8 @@ class GapResults:
         inconsistent COLMAP pose) / flagged, the median rotation error vs the consistent
         COLMAP poses only, the unflagged and flagged views' median rotation error vs
         COLMAP, seconds."""
-        lines = ["| gap | method | rot vs COLMAP | tdir vs COLMAP | rot vs GT | tdir vs GT "
+        lines = [f"| {self.label} | method | rot vs COLMAP | tdir vs COLMAP | rot vs GT "
+                 "| tdir vs GT "
                  "| posed | judged (inconsistent judge) | rot vs consistent COLMAP | flagged "
                  "| rot vs COLMAP: ok / flagged views | s per triplet |",
                  "|---|---|" + "---:|" * 10]
@@ -376,7 +416,7 @@ class GapResults:
         """Markdown: per method with covariances, per gap and overall, the views with
         a sigma, their median ``sigma_rot_deg`` and the 3-sigma coverage / median
         error-to-sigma ratio against COLMAP and against the ground truth."""
-        lines = ["| method | gap | views with sigma | median sigma_rot deg "
+        lines = [f"| method | {self.label} | views with sigma | median sigma_rot deg "
                  "| within 3 sigma of COLMAP | median err/sigma (COLMAP) "
                  "| within 3 sigma of GT | median err/sigma (GT) |", "|---|---|" + "---:|" * 6]
         for m, rep in self.coverage.items():
@@ -395,8 +435,8 @@ class GapResults:
         method's rotation error vs COLMAP / vs GT (degrees; ``[status]`` where the
         method gives one; ``sigma`` columns for methods with covariances)."""
         methods = list(dict.fromkeys(str(r["method"]) for r in self.records))
-        with_sigma = _methods_with(self.records, "sigma_rot_deg")
-        head = (["gap", "ref", "view", "COLMAP posed by"]
+        with_sigma = methods_with(self.records, "sigma_rot_deg")
+        head = ([self.label, self.ref_label, "view", "COLMAP posed by"]
                 + [f"{m} rot vs COLMAP / GT" for m in methods]
                 + [f"{m} sigma_rot deg" for m in with_sigma])
         lines = ["| " + " | ".join(head) + " |", "|---|---|---|---|" + "---:|" * (len(head) - 4)]
@@ -426,7 +466,8 @@ class GapResults:
     def table(self) -> str:
         """The three tables, each under a one-line title."""
         return "\n\n".join([
-            f"Gap cases on {self.data}, refs {self.refs}: medians over each gap's views "
+            f"Gap cases on {self.data}, refs {self.refs}, judged by {self.judge!r} (the "
+            "tables' COLMAP): medians over each gap's views "
             "(degrees; rot = rotation error, tdir = translation-direction error)",
             self.summary_table(),
             "Rotation covariance coverage (sigma_rot = degrees(sqrt(trace(C_rot))))",
@@ -436,6 +477,7 @@ class GapResults:
     def to_dict(self) -> Dict[str, object]:
         """Everything, JSON-friendly (numpy values through ``json_default``)."""
         return {"data": self.data, "gaps": list(self.gaps), "refs": list(self.refs),
+                "judge": self.judge,
                 "summary": self.summary, "coverage": self.coverage, "views": self.records,
                 "triplets": self.triplets}
 
@@ -450,7 +492,7 @@ def run_gaps(seq, gaps: Sequence[int], refs: Sequence[int], make_estimators: Est
         ValueError: a triplet frame the sequence lacks (before anything runs)."""
     plan = gap_triplets(seq.frame_numbers, gaps, refs)
     out = GapResults(data=data or str(getattr(seq, "name", "")), gaps=list(gaps),
-                     refs=list(refs))
+                     refs=list(refs), judge=judge)
     seconds: Dict[int, Dict[str, List[float]]] = {}
     for gap, ref, numbers in plan:
         log.info("gap %d, frames %s", gap, numbers)
@@ -462,27 +504,6 @@ def run_gaps(seq, gaps: Sequence[int], refs: Sequence[int], make_estimators: Est
     for gap in dict.fromkeys(g for g, _, _ in plan):
         out.summary[f"gap {gap}"] = summarize_views(
             [r for r in out.records if r["gap"] == gap], seconds.get(gap))
-    for m in _methods_with(out.records, "sigma_rot_deg"):
+    for m in methods_with(out.records, "sigma_rot_deg"):
         out.coverage[m] = coverage_report(out.records, m, k)
     return out
-
-
-def write_json_atomic(path, payload: object, indent: int = 2) -> None:
-    """Write ``payload`` as UTF-8 JSON to ``path`` atomically: a temporary file in the
-    same folder, then ``os.replace`` (a reader never sees half a file; on an error the
-    temporary file is removed and ``path`` is untouched)."""
-    from spgeo.jsonio import json_default
-
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(payload, fh, indent=indent, default=json_default)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 -> what open() would have made
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

@@ -1,8 +1,9 @@
 """Few-view SfM on real sample frames: spgeo vs COLMAP (pycolmap) vs SIFT two-view,
 relative rotation / translation-direction errors against ground truth and COLMAP.
 
-    spgeo eval sfm_real [--shared ../shared/data] [--cases tum,icl,gaps]
-                        [--gaps 10,30,60] [--refs 0,60,120] [--json OUT]
+    spgeo eval sfm_real [--shared ../shared/data] [--cases tum,icl,gaps,synthetic]
+                        [--gaps 10,30,60] [--refs 0,60,120] [--clip-reference TRAJ]
+                        [--angles 5,20,45] [--seeds 0,1,2,3,4,5] [--json OUT]
 
 Cases (reference first; ``--cases`` picks them by kind or name): ``tum``: TUM fr1_desk
 frames 0, 4, 8 (the bundled 9-frame sample; ``../shared/data/tum_fr1_desk_9`` is the
@@ -11,7 +12,10 @@ shared data is present); ``gaps``: triplets (ref, ref + G, ref + 2G) of the shar
 7-Scenes clip ``7scenes_redkitchen_dev`` for each gap G of ``--gaps`` ("" or "none":
 none) and ref of ``--refs``, spgeo / COLMAP / SIFT two-view judged against COLMAP's
 pose of each view beside the ground truth, with spgeo's rotation-covariance coverage
-(:mod:`.gaps`).  One ``SfMConfig`` throughout: the default (marginals on, so pose
+(:mod:`.gaps`; ``--clip-reference``: COLMAP on the whole clip judges instead);
+``synthetic``: synthetic rooms with views ``--angles`` degrees from the reference, one
+per seed of ``--seeds``, against the exact ground truth (:mod:`.baselines`).  One
+``SfMConfig`` throughout: the default (marginals on, so pose
 covariances exist); the gap cases use the classical front-end.  The regression tests
 ``tests/test_sfm_real.py`` and ``tests/test_sfm_gaps.py`` assert numbers from this
 protocol's output.
@@ -26,12 +30,14 @@ from typing import Callable, Dict, List, Optional, Sequence
 from spgeo.datasets import load_bundled_tum, open_dataset
 from spgeo.evaluation.references.colmap import colmap_estimator
 from spgeo.evaluation.pose_compare import compare_on_dataset
-from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
 from spgeo.evaluation.shared_data import shared_data_root
-from spgeo.evaluation.sfm.gaps import (GAP_DATA, GapResults, parse_int_list, run_gaps,
-                                       write_json_atomic)
+from spgeo.evaluation.sfm.baselines import ANGLES, run_baselines
+from spgeo.evaluation.sfm.gaps import (GAP_DATA, GapResults, clip_estimator, parse_int_list,
+                                       run_gaps)
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
+from spgeo.trajectory import Trajectory
 
 __all__ = ["CASES", "CASE_KINDS", "spgeo_estimator", "twoview_estimator", "gap_estimators",
            "run_case", "run_gap_cases", "parse_cases", "build_parser", "run", "main"]
@@ -42,8 +48,10 @@ CASES = {
     "tum_fr1_desk_0_4_8": ("tum", "tum_fr1_desk_9", [0, 4, 8]),
     "icl_lr_1_2_3": ("icl", "icl_nuim_lr_5", [1, 2, 3]),
 }
+#: the judge's name with ``--clip-reference``
+CLIP_JUDGE = "colmap clip"
 #: what ``--cases`` may name (besides the names of :data:`CASES`)
-CASE_KINDS = ("tum", "icl", "gaps")
+CASE_KINDS = ("tum", "icl", "gaps", "synthetic")
 
 
 def spgeo_estimator(frontend: str = "classical", config: Optional[SfMConfig] = None
@@ -131,9 +139,9 @@ def _table(name: str, comp: dict) -> str:
 
 
 def parse_cases(text: str) -> List[str]:
-    """``--cases``: comma-separated kinds (``tum``, ``icl``, ``gaps``) or names of
-    :data:`CASES` -> the names of :data:`CASES` to run, in their order, then
-    ``"gaps"`` when chosen.  ``""`` / ``"all"``: everything.
+    """``--cases``: comma-separated kinds (``tum``, ``icl``, ``gaps``, ``synthetic``) or
+    names of :data:`CASES` -> the names of :data:`CASES` to run, in their order, then
+    ``"gaps"`` and ``"synthetic"`` when chosen.  ``""`` / ``"all"``: everything.
 
     Raises:
         ValueError: an unknown kind or name (the message lists the known ones)."""
@@ -145,22 +153,34 @@ def parse_cases(text: str) -> List[str]:
     if bad:
         raise ValueError(f"--cases: unknown {bad}; choose from {sorted(known)}")
     chosen = [name for name, (kind, _, _) in CASES.items() if name in parts or kind in parts]
-    return chosen + (["gaps"] if "gaps" in parts else [])
+    return chosen + [k for k in ("gaps", "synthetic") if k in parts]
 
 
 def run_gap_cases(shared: Path, gaps: Sequence[int], refs: Sequence[int],
-                  make_estimators: Callable[[], Dict[str, Callable]] = gap_estimators
-                  ) -> GapResults:
+                  make_estimators: Callable[[], Dict[str, Callable]] = gap_estimators,
+                  clip_reference: Optional[Path] = None) -> GapResults:
     """The gap cases (:func:`spgeo.evaluation.sfm.gaps.run_gaps`) on
     ``shared / GAP_DATA`` with ``make_estimators`` (default :func:`gap_estimators`).
+    With ``clip_reference`` (a TUM trajectory of the whole clip with its status file,
+    e.g. ``spgeo eval colmap_vo --out DIR``'s ``trajectory.txt``) its poses,
+    ``"colmap clip"`` (:func:`~spgeo.evaluation.sfm.gaps.clip_estimator`), judge
+    instead of COLMAP on the three views.
 
     Raises:
-        FileNotFoundError: no such folder; ValueError: a triplet frame it lacks."""
+        FileNotFoundError: no such folder or file; ValueError: a triplet frame the clip
+        lacks, or a malformed trajectory file."""
     folder = Path(shared) / GAP_DATA
     if not folder.is_dir():
         raise FileNotFoundError(f"data of the gap cases not found: {folder}")
     seq = open_dataset("7scenes", folder)
-    return run_gaps(seq, gaps, refs, make_estimators, data=GAP_DATA)
+    if clip_reference is None:
+        return run_gaps(seq, gaps, refs, make_estimators, data=GAP_DATA)
+    traj = Trajectory.load(clip_reference)
+
+    def with_clip() -> Dict[str, Callable]:
+        return {**make_estimators(), CLIP_JUDGE: clip_estimator(traj)}
+
+    return run_gaps(seq, gaps, refs, with_clip, data=GAP_DATA, judge=CLIP_JUDGE)
 
 
 NAME = "sfm_real"
@@ -173,13 +193,22 @@ def build_parser() -> argparse.ArgumentParser:
                     help="folder with tum_fr1_desk_9/, icl_nuim_lr_5/ and "
                          f"{GAP_DATA}/ (default ../shared/data)")
     ap.add_argument("--cases", default=",".join(CASE_KINDS),
-                    help="comma-separated kinds (tum, icl, gaps) or case names to run "
+                    help="comma-separated kinds (tum, icl, gaps, synthetic) or case names to run "
                          "(default all)")
     ap.add_argument("--gaps", default="10,30,60",
                     help="frame gaps G of the gap cases' triplets (ref, ref+G, ref+2G); "
                          "'' or 'none': no gap cases (default 10,30,60)")
     ap.add_argument("--refs", default="0,60,120",
                     help="reference frame numbers of the gap cases (default 0,60,120)")
+    ap.add_argument("--clip-reference", default=None,
+                    help="TUM trajectory of the whole clip (with its .status.txt), e.g. "
+                         "'spgeo eval colmap_vo --out DIR''s trajectory.txt: it judges the gap "
+                         "cases instead of COLMAP on the three views")
+    ap.add_argument("--angles", default=",".join(str(a) for a in ANGLES),
+                    help="synthetic cases: degrees between the views and the reference "
+                         "(default 5,20,45)")
+    ap.add_argument("--seeds", default="0,1,2,3,4,5",
+                    help="synthetic cases: the rooms' seeds (default 0-5)")
     ap.add_argument("--json", default=None, help="write all results as JSON here (atomically)")
     return ap
 
@@ -188,12 +217,15 @@ def run(args: argparse.Namespace) -> int:
     """The chosen cases (:func:`parse_cases`; the TUM one from the bundled sample when
     the shared folder lacks it; the others skipped with a line when their data is
     missing): print each table; write ``--json`` (case name -> comparison dict, and
-    ``"gaps"`` -> :meth:`GapResults.to_dict`).  Bad ``--cases`` / ``--gaps`` /
-    ``--refs`` raise ``ValueError`` before anything runs."""
+    ``"gaps"`` / ``"synthetic"`` -> :meth:`GapResults.to_dict`).  Bad ``--cases`` /
+    ``--gaps`` / ``--refs`` / ``--angles`` / ``--seeds`` raise ``ValueError`` before
+    anything runs."""
     shared = Path(args.shared)
     cases = parse_cases(args.cases)
     gaps = parse_int_list(args.gaps, "--gaps", minimum=1)
     refs = parse_int_list(args.refs, "--refs", minimum=0)
+    angles = parse_int_list(args.angles, "--angles", minimum=1)
+    seeds = parse_int_list(args.seeds, "--seeds", minimum=0)
     out: Dict[str, object] = {}
     for name in (c for c in cases if c in CASES):
         kind, sub, _ = CASES[name]
@@ -210,11 +242,15 @@ def run(args: argparse.Namespace) -> int:
         elif not (shared / GAP_DATA).is_dir():
             print(f"gaps: skipped ({shared / GAP_DATA} not found)")
         else:
-            res = run_gap_cases(shared, gaps, refs)
+            res = run_gap_cases(shared, gaps, refs, clip_reference=args.clip_reference)
             out["gaps"] = res.to_dict()
             print(res.table())
+    if "synthetic" in cases and angles and seeds:
+        res = run_baselines(angles, seeds, gap_estimators)
+        out["synthetic"] = res.to_dict()
+        print(res.table())
     if args.json:
-        write_json_atomic(args.json, out)
+        write_json(args.json, out)
     return 0
 
 

@@ -60,8 +60,10 @@ class SfMResult:
             reprojection residuals (``report["init"]["pixel_sigma"]``), inflated
             by :data:`spgeo.sfm.bundle.COVARIANCE_INFLATION` so that the real
             rotation error is within 3 sigma on at least 90 % of the views
-            measured (docs/results.md, issue 40).  Otherwise (no landmarks): the
-            photometric marginal with the residuals' robust std
+            measured (docs/results.md, issue 40); None for a view the bundle did not
+            register (no calibrated uncertainty: its pose is flagged or only a
+            rotation).  With ``init="identity"`` or given initial poses (the VO):
+            the photometric marginal with the residuals' robust std
             (``report["pixel_sigma"]``), pixels treated as independent: far too
             small (it missed real errors 300-fold in issue 40), not a calibrated
             uncertainty.

@@ -321,7 +321,7 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
                 stage.add_factors(mgraph)
             marg = gtsam.Marginals(mgraph, values)
             release_groups(mgroups)
-            covs = stage.covariances() if stage is not None and stage.active else [
+            covs = stage.covariances() if stage is not None else [
                 marg.marginalCovariance(pose_key(j + 1)) for j in range(pb.n_views)]
             if config.shape_model == "scaled":
                 log_std, prior_only = gauge_free_scale_std(marg, len(prims),

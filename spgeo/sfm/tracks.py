@@ -8,9 +8,9 @@ RANSAC, parallax and conditioning checks).  The verified matches of all pairs ar
 joined into tracks (connected components of the match graph); a component holding
 two features of one view is inconsistent and dropped.
 
-A pair whose inliers a homography explains (a plane) has two physically valid
+A pair whose inliers a homography explains (a plane) may have two physically valid
 relative poses; when the other one rotates differently by more than
-``AMBIGUITY_DEG`` the pair is *ambiguous* (:func:`planar_alternatives`): its matches
+``AMBIGUITY_DEG`` and explains the inliers as well, the pair is *ambiguous* (:func:`planar_alternatives`): its matches
 still join tracks, but it cannot start the map, and it places a view only where
 landmarks seen by both views choose among its poses.
 """
@@ -27,9 +27,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..camera import PinholeCamera
-from ..geometry import invert_pose, rotation_angle_deg
+from ..geometry import rotation_angle_deg
 from ..twoview import TwoViewConfig, TwoViewResult, relative_pose_from_matches, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
+from ..twoview.geometry import pose_from_tgt_ref, refine_sampson, sampson_px
 
 __all__ = ["ViewTracks", "match_views", "planar_alternatives"]
 
@@ -91,12 +92,15 @@ class ViewTracks:
         return self.pair_matches[(a, b)][res.inliers]
 
 
-def planar_alternatives(res: TwoViewResult, camera: PinholeCamera) -> List[np.ndarray]:
+def planar_alternatives(res: TwoViewResult, camera: PinholeCamera,
+                        threshold_px: float = 1.0) -> List[np.ndarray]:
     """The other relative poses ``T_ref_tgt`` (unit translation) of an ``"ok"`` pair
-    ``res``: those of the homography of its inliers that keep the inliers in front of
-    both cameras and whose rotation differs from ``res``'s by more than
-    ``AMBIGUITY_DEG``; empty when no homography explains ``PLANAR_FRACTION`` of the
-    inliers (the scene is not a plane: the pose is unique)."""
+    ``res`` that explain its inliers as well: the poses of the homography of the
+    inliers that keep them in front of both cameras, whose rotation differs from
+    ``res``'s by more than ``AMBIGUITY_DEG``, and which, refined on the inliers'
+    Sampson distances, keep ``PLANAR_FRACTION`` of them within ``threshold_px`` (an
+    equally good RANSAC model).  Empty when no homography explains that fraction of
+    the inliers (the scene is not a plane: the pose is unique)."""
     x1, x2 = res.points_ref.astype(np.float64), res.points_tgt.astype(np.float64)
     if len(x1) < 8:
         return []
@@ -111,11 +115,12 @@ def planar_alternatives(res: TwoViewResult, camera: PinholeCamera) -> List[np.nd
     R_tgt_ref = res.T_ref_tgt[:3, :3].T
     out = []
     for i in ([] if kept is None else kept.ravel()):
-        if rotation_angle_deg(Rs[i].T @ R_tgt_ref) > AMBIGUITY_DEG:
-            T_tgt_ref = np.eye(4)
-            T_tgt_ref[:3, :3] = Rs[i]
-            T_tgt_ref[:3, 3] = ts[i].ravel() / max(np.linalg.norm(ts[i]), 1e-12)
-            out.append(invert_pose(T_tgt_ref))
+        if rotation_angle_deg(Rs[i].T @ R_tgt_ref) <= AMBIGUITY_DEG:
+            continue
+        R, t = refine_sampson(camera, Rs[i], ts[i].ravel(), x1, x2, threshold_px)
+        fits = np.abs(sampson_px(camera, R, t, x1, x2)) <= threshold_px
+        if rotation_angle_deg(R @ R_tgt_ref.T) > AMBIGUITY_DEG and fits.mean() >= PLANAR_FRACTION:
+            out.append(pose_from_tgt_ref(R, t))
     return out
 
 
@@ -175,7 +180,8 @@ def match_views(images: Sequence[np.ndarray], camera: PinholeCamera,
         log.debug("pair %d-%d: %d matches, %s, %d inliers", a, b, len(m), pairs[(a, b)].status,
                   pairs[(a, b)].num_inliers)
     ids = [k for k, r in pairs.items() if r.status in ("ok", "low_parallax")]
-    alternatives = {k: planar_alternatives(r, camera) for k, r in pairs.items() if r.ok}
+    alternatives = {k: planar_alternatives(r, camera, config.ransac_threshold_px)
+                    for k, r in pairs.items() if r.ok}
     vt = ViewTracks(pixels, pairs, pair_matches, np.zeros((0, len(images)), np.int64),
                     {k: alt for k, alt in alternatives.items() if alt})
     vt.tracks = _tracks_from_matches([len(p) for p in pixels],
