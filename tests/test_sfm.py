@@ -58,9 +58,10 @@ def test_depth_frontend_accuracy(seed2):
     assert err < 0.03 and cover > 0.85, (err, cover)
     # uncertainty outputs: finite, positive, and pose covariance is symmetric PSD
     assert np.all(np.isfinite(res.log_scale_std)) and np.all(res.log_scale_std > 0)
-    C = res.pose_covariances[0]
-    np.testing.assert_allclose(C, C.T, atol=1e-9 * np.abs(C).max())
-    assert np.all(np.linalg.eigvalsh(C) > 0)
+    # 5 % baselines: both pairs are rotation-only to the features (low parallax), the
+    # photometric solve sets the translations and no calibrated covariance is claimed
+    assert res.report["init"]["view_status"] == ["low_parallax", "low_parallax"]
+    assert res.pose_covariances == [None, None]
     assert res.report["init"]["method"] == "features"
 
 

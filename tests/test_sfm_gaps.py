@@ -156,8 +156,9 @@ def test_summary_table_shows_dashes_for_missing_numbers():
                      coverage={"spgeo": coverage_report(records, "spgeo")})
     table = res.summary_table()
     assert ("| 10 | spgeo | 1.00 | 0.0 | 1.00 | 22.5 | 2 of 2 | 1 (0) | 1.00 | 1 | 1.00 / - "
-            "| 2.0 |") in table
-    assert "| 10 | colmap | - | - | 1.00 | 0.0 | 1 of 2 | 0 (0) | - | 0 | - / - | - |" in table
+            "| 1.00 / 0.0 (1) | 2.0 |") in table
+    assert ("| 10 | colmap | - | - | 1.00 | 0.0 | 1 of 2 | 0 (0) | - | 0 | - / - | - / - (0) "
+            "| - |") in table
     coverage = res.coverage_table()
     assert "| spgeo | 10 | 2 | 0.75 | 1 of 1 (1.00) | 2 | 1 of 2 (0.50) | 2 |" in coverage
     views = res.views_table()
@@ -212,7 +213,8 @@ def test_main_rejects_bad_gaps_and_skips_none(tmp_path, capsys):
 @pytest.mark.slow
 def test_gap_10_colmap_agrees_with_ground_truth(shared_data):
     """7-Scenes frames 0, 10, 20: COLMAP poses both views within 3 deg of the ground
-    truth; spgeo's default configuration gives a rotation sigma for each view."""
+    truth; the camera barely moves (9 and 24 mm), so spgeo's features give only
+    rotations (low parallax) and no calibrated covariance: no sigma is claimed."""
     if not (shared_data / GAP_DATA).is_dir():
         pytest.skip(f"{shared_data / GAP_DATA} not found")
     res = run_gap_cases(shared_data, [10], [0])
@@ -221,10 +223,10 @@ def test_gap_10_colmap_agrees_with_ground_truth(shared_data):
     assert all(r["posed"] and r["colmap_posed_by"] in ("incremental", "two_view") for r in col)
     assert all(r["rotation_vs_gt_deg"] < 3.0 for r in col), col
     sp = [r for r in res.records if r["method"] == "spgeo"]
-    assert all(r["posed"] and r["sigma_rot_deg"] > 0 for r in sp), sp
+    assert all(r["posed"] and math.isnan(r["sigma_rot_deg"]) for r in sp), sp
     assert all(math.isfinite(r["rotation_vs_colmap_deg"]) for r in sp)
     assert res.summary["gap 10"]["colmap"]["posed"] == 2
-    assert res.coverage["spgeo"]["all"]["vs_colmap"]["n"] == 2
+    assert "spgeo" not in res.coverage
     assert "| 10 | colmap |" in res.table()
 
 

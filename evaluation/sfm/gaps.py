@@ -199,10 +199,13 @@ def summarize_views(records: Sequence[Record],
     ``rotation_vs_consistent_colmap_deg`` (the views whose COLMAP pose is not
     inconsistent), the medians of the rotation error vs COLMAP of the unflagged and of
     the flagged posed views (``rotation_vs_colmap_ok_deg``,
-    ``rotation_vs_colmap_flagged_deg``) and ``seconds``: the median of
-    ``seconds[method]`` (time per triplet; NaN without)."""
+    ``rotation_vs_colmap_flagged_deg``), ``common`` views and the medians over them
+    ``rotation_vs_colmap_common_deg``, ``tdir_vs_colmap_common_deg`` (the views every
+    judged method posed without a flag: :func:`_common_views`) and ``seconds``: the
+    median of ``seconds[method]`` (time per triplet; NaN without)."""
     out: Dict[str, Dict[str, float]] = {}
     methods = list(dict.fromkeys(str(r["method"]) for r in records))
+    common = _common_views(records)
     for m in methods:
         rows = [r for r in records if r["method"] == m]
         posed = [r for r in rows if r["posed"]]
@@ -221,9 +224,28 @@ def summarize_views(records: Sequence[Record],
         s["rotation_vs_colmap_ok_deg"] = _median([float(r["rotation_vs_colmap_deg"]) for r in ok])
         s["rotation_vs_colmap_flagged_deg"] = _median(
             [float(r["rotation_vs_colmap_deg"]) for r in flagged])
+        on_common = [r for r in judged if (r["ref"], r["view"]) in common]
+        s["common"] = len(on_common)
+        s["rotation_vs_colmap_common_deg"] = _median(
+            [float(r["rotation_vs_colmap_deg"]) for r in on_common])
+        s["tdir_vs_colmap_common_deg"] = _median(
+            [float(r["tdir_vs_colmap_deg"]) for r in on_common])
         s["seconds"] = _median((seconds or {}).get(m, []))
         out[m] = s
     return out
+
+
+def _common_views(records: Sequence[Record]) -> set:
+    """``(ref, view)`` of the views every judged method posed without a flag and the
+    judge posed too: where the methods are compared on equal terms."""
+    keys: Dict[str, set] = {}
+    for r in records:
+        keys.setdefault(str(r["method"]), set())
+        if (r["posed"] and not r["flagged"]
+                and math.isfinite(float(r["rotation_vs_colmap_deg"]))):
+            keys[str(r["method"])].add((r["ref"], r["view"]))
+    judged = [k for k in keys.values() if k]
+    return set.intersection(*judged) if judged else set()
 
 
 def coverage_report(records: Sequence[Record], method: str, k: float = 3.0
@@ -315,7 +337,8 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
         ``(triplet dict, view records)``: the triplet dict holds ``gap, ref, frames``,
         ``comparison`` (:func:`compare_on_dataset`'s dict), ``colmap`` (the judge's
         ``ColmapResult.summary()`` or None) and ``per_method`` (method -> ``status,
-        view_status, sigma_rot_deg, pose_covariances`` where its result has them)."""
+        view_status, heldout_px, sigma_rot_deg, pose_covariances`` where its result has
+        them; ``heldout_px``: spgeo's held-out check of the photometric poses)."""
     index = {int(n): i for i, n in enumerate(seq.frame_numbers)}
     numbers = [ref, ref + gap, ref + 2 * gap]
     comp = compare_on_dataset([seq[index[n]] for n in numbers], estimators)
@@ -327,7 +350,8 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
         if name == judge or res is None or not hasattr(res, "view_status"):
             continue
         statuses[name] = [str(s) for s in res.view_status]
-        info: Dict[str, object] = {"status": res.status, "view_status": statuses[name]}
+        info: Dict[str, object] = {"status": res.status, "view_status": statuses[name],
+                                   "heldout_px": getattr(res, "report", {}).get("heldout_px")}
         covs = getattr(res, "pose_covariances", None)
         if covs is not None:
             sigmas[name] = [sigma_rot_deg(c) for c in covs]
@@ -398,8 +422,9 @@ class GapResults:
         lines = [f"| {self.label} | method | rot vs COLMAP | tdir vs COLMAP | rot vs GT "
                  "| tdir vs GT "
                  "| posed | judged (inconsistent judge) | rot vs consistent COLMAP | flagged "
-                 "| rot vs COLMAP: ok / flagged views | s per triplet |",
-                 "|---|---|" + "---:|" * 10]
+                 "| rot vs COLMAP: ok / flagged views | rot / tdir vs COLMAP on common views "
+                 "| s per triplet |",
+                 "|---|---|" + "---:|" * 11]
         for gname, per in self.summary.items():
             for m, s in per.items():
                 lines.append(
@@ -409,7 +434,10 @@ class GapResults:
                     f"| {s['judged']} ({s['judged_inconsistent']}) "
                     f"| {_fmt(s['rotation_vs_consistent_colmap_deg'])} | {s['flagged']} "
                     f"| {_fmt(s['rotation_vs_colmap_ok_deg'])} / "
-                    f"{_fmt(s['rotation_vs_colmap_flagged_deg'])} | {_fmt(s['seconds'], '.1f')} |")
+                    f"{_fmt(s['rotation_vs_colmap_flagged_deg'])} "
+                    f"| {_fmt(s['rotation_vs_colmap_common_deg'])} / "
+                    f"{_fmt(s['tdir_vs_colmap_common_deg'], '.1f')} ({s['common']}) "
+                    f"| {_fmt(s['seconds'], '.1f')} |")
         return "\n".join(lines)
 
     def coverage_table(self) -> str:

@@ -83,11 +83,15 @@ def twoview_estimator() -> Callable:
     return estimate
 
 
-def gap_estimators() -> Dict[str, Callable]:
-    """Fresh estimators of the gap cases: ``"spgeo"`` (:func:`spgeo_estimator`,
-    classical), ``"colmap"`` (the judge) and ``"sift two-view"``."""
-    return {"spgeo": spgeo_estimator("classical"), "colmap": colmap_estimator(),
-            "sift two-view": twoview_estimator()}
+def gap_estimators(inits: Sequence[str] = ("features",)) -> Dict[str, Callable]:
+    """Fresh estimators of the gap and synthetic cases: ``"spgeo"`` (:func:`spgeo_estimator`,
+    classical, ``SfMConfig(init=inits[0])``), ``"spgeo init=I"`` for each further start
+    ``I`` of ``inits`` (to compare starts in one run), ``"colmap"`` (the judge) and
+    ``"sift two-view"``."""
+    out = {"spgeo" if k == 0 else f"spgeo init={init}":
+           spgeo_estimator("classical", SfMConfig(init=init)) for k, init in enumerate(inits)}
+    out.update({"colmap": colmap_estimator(), "sift two-view": twoview_estimator()})
+    return out
 
 
 def _frames(kind: str, folder: Optional[Path], numbers: Sequence[int]):
@@ -209,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "(default 5,20,45)")
     ap.add_argument("--seeds", default="0,1,2,3,4,5",
                     help="synthetic cases: the rooms' seeds (default 0-5)")
+    ap.add_argument("--inits", default="features",
+                    help="gap and synthetic cases: spgeo's starts (SfMConfig.init), the first "
+                         "as 'spgeo', the others beside it (default features)")
     ap.add_argument("--json", default=None, help="write all results as JSON here (atomically)")
     return ap
 
@@ -226,6 +233,9 @@ def run(args: argparse.Namespace) -> int:
     refs = parse_int_list(args.refs, "--refs", minimum=0)
     angles = parse_int_list(args.angles, "--angles", minimum=1)
     seeds = parse_int_list(args.seeds, "--seeds", minimum=0)
+    inits = [i.strip() for i in args.inits.split(",") if i.strip()]
+    for init in inits:
+        SfMConfig(init=init)       # ValueError naming the value before anything runs
     out: Dict[str, object] = {}
     for name in (c for c in cases if c in CASES):
         kind, sub, _ = CASES[name]
@@ -242,11 +252,12 @@ def run(args: argparse.Namespace) -> int:
         elif not (shared / GAP_DATA).is_dir():
             print(f"gaps: skipped ({shared / GAP_DATA} not found)")
         else:
-            res = run_gap_cases(shared, gaps, refs, clip_reference=args.clip_reference)
+            res = run_gap_cases(shared, gaps, refs, lambda: gap_estimators(inits),
+                                args.clip_reference)
             out["gaps"] = res.to_dict()
             print(res.table())
     if "synthetic" in cases and angles and seeds:
-        res = run_baselines(angles, seeds, gap_estimators)
+        res = run_baselines(angles, seeds, lambda: gap_estimators(inits))
         out["synthetic"] = res.to_dict()
         print(res.table())
     if args.json:

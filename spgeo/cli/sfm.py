@@ -3,7 +3,7 @@
     spgeo sfm --ref IMG --views IMG [IMG ...] --intrinsics fx,fy,cx,cy --out DIR
               [--frontend classical|manhattan|onnx|onnx-depth] [--sam-family NAME]
               [--normal-model NAME|PATH] [--depth-model NAME|PATH] [--shape-model scaled|planar]
-              [--init features|identity] [--export-colmap DIR]
+              [--init features|twoview|identity] [--export-colmap DIR]
               [--config FILE] [--set FIELD=VALUE ...]
               [--rerun spawn | save FILE.rrd | connect [ADDR]]
 
@@ -146,7 +146,7 @@ def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
     add_model_arguments(p)
     p.add_argument("--shape-model", default=None, choices=["scaled", "planar"],
                    help="SfMConfig.shape_model (default scaled)")
-    p.add_argument("--init", default=None, choices=["features", "identity"],
+    p.add_argument("--init", default=None, choices=["features", "twoview", "identity"],
                    help="SfMConfig.init (default features)")
     p.add_argument("--export-colmap", default=None, metavar="DIR",
                    help="also write a COLMAP model: DIR/images/*.png (working resolution) and "

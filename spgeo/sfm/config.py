@@ -48,9 +48,12 @@ class SfMConfig:
             initial log-scales; its projection factors stay in the solve, and its
             held-out matches decide whether the photometric term may move the
             poses; views it cannot place start at identity and are flagged.
+            ``"twoview"``: one feature-based relative pose per view
+            (:func:`spgeo.sfm.init.twoview_initialisation`), the default until
+            d00416a; the VO's start keeps it (``OdometryConfig.sfm``: its
+            keyframe 1 when tracking it failed, measured there), few-view SfM
+            loses with it at every baseline (docs/results.md, issue 40).
             ``"identity"``: the paper's start (poses at identity, log-scales 0).
-            (``"twoview"``, one two-view pose per view, was the default until
-            d00416a: docs/results.md, issue 40.)
         features: SIFT features and pair geometry of ``init="features"``
             (default: :class:`~spgeo.twoview.TwoViewConfig` with ``min_inliers=30``,
             as the bundle checks each pair once more).
@@ -105,8 +108,9 @@ class SfMConfig:
             raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
         if self.levels < 1 or not self.max_iterations:
             raise ValueError("levels must be >= 1 and max_iterations non-empty")
-        if self.init not in ("features", "identity"):
-            raise ValueError(f"init must be 'features' or 'identity', got {self.init!r}")
+        if self.init not in ("features", "twoview", "identity"):
+            raise ValueError(f"init must be 'features', 'twoview' or 'identity', "
+                             f"got {self.init!r}")
         if self.scale_prior_weight <= 0:
             raise ValueError("scale_prior_weight must be > 0 (it fixes the scale gauge)")
         if self.chunk < 1:

@@ -2,16 +2,15 @@
 
 :class:`LandmarkStage` owns the tracks and the bundle of one :func:`spgeo.sfm.few_view_sfm`
 call: it starts the solve (the views' poses, the primitives' log-scales from the
-landmarks seen in the reference, the landmark variables), adds the landmarks'
-projection factors to every pyramid level's graph, and judges the photometric term:
-the poses of the joint solve are kept only when no view's held-out matches fit them
-worse than the bundle's poses (:func:`spgeo.sfm.bundle.heldout_errors`); otherwise
-the bundle's poses are restored and held.
+landmarks seen in the reference) and judges the photometric refinement that follows:
+each view keeps its photometric pose only where its held-out matches fit it at least as
+well as the bundle's pose (:func:`spgeo.sfm.bundle.heldout_errors`); otherwise it takes
+the bundle's, held while the scales are solved once more.
 """
 from __future__ import annotations
 
 import logging
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -19,10 +18,10 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..geometry import rotation_angle_deg
-from ..graph.keys import landmark_key, pose_key
+from ..graph.keys import pose_key
 from ..primitives import PrimitiveSet
 from ..twoview import TwoViewConfig
-from .bundle import FeatureBundle, add_landmark_factors, feature_bundle, heldout_errors
+from .bundle import FeatureBundle, feature_bundle, heldout_errors
 from .init import scales_from_points
 from .tracks import ViewTracks, match_views
 
@@ -51,7 +50,7 @@ class LandmarkStage:
 
     @property
     def active(self) -> bool:
-        """True when the bundle has landmarks (their factors join the solve)."""
+        """True when the bundle has landmarks (it started the solve and judges it)."""
         return self.bundle.ok
 
     def initial_poses(self) -> List[np.ndarray]:
@@ -76,52 +75,37 @@ class LandmarkStage:
         report.update(landmark_points=n_pts, primitives_with_points=n_prims)
         return prims
 
-    def insert_values(self, values: gtsam.Values) -> None:
-        """The landmark variables at the bundle's points (when active)."""
-        if self.active:
-            for i, P in enumerate(self.bundle.points):
-                values.insert(landmark_key(i), gtsam.Point3(*P))
-
-    def add_factors(self, graph: gtsam.NonlinearFactorGraph) -> int:
-        """The landmarks' projection factors and the scale gauge (when active)."""
-        if not self.active:
-            return 0
-        return add_landmark_factors(graph, self.tracks, self.bundle, self.camera)
-
     def poses_of(self, values: gtsam.Values) -> List[Optional[np.ndarray]]:
         """The bundle-registered views' poses in ``values`` (None for the others);
         the reference first."""
         return [None if T is None else values.atPose3(pose_key(v)).matrix()
                 for v, T in enumerate(self.bundle.T_ref_view)]
 
-    def photometric_helps(self, values: gtsam.Values, report: dict) -> bool:
-        """True when every registered view's held-out matches fit the poses of
-        ``values`` at least as well as the bundle's (:func:`heldout_errors`);
-        the errors and the largest rotation the photometric term added go to
-        ``report["heldout_px"]``."""
+    def choose_poses(self, values: gtsam.Values, report: dict) -> Tuple[gtsam.Values, bool]:
+        """Per registered view, the photometric pose in ``values`` where the view's
+        held-out matches fit it at least as well as the bundle's pose
+        (:func:`heldout_errors`), else the bundle's.  Returns ``(values with the chosen
+        poses, True when some view took the bundle's)``; the errors, the choices and
+        the largest rotation the photometric term made go to ``report["heldout_px"]``."""
         b = self.bundle
-        joint = self.poses_of(values)
+        photo = self.poses_of(values)
         e_b = heldout_errors(self.tracks, b.heldout_rows, b.T_ref_view, self.camera)
-        e_j = heldout_errors(self.tracks, b.heldout_rows, joint, self.camera)
-        judged = np.isfinite(e_b) & np.isfinite(e_j)
-        helps = bool(np.all(e_j[judged] <= e_b[judged]))
-        moved = [rotation_angle_deg(Tb[:3, :3].T @ Tj[:3, :3])
-                 for Tb, Tj in zip(b.T_ref_view[1:], joint[1:]) if Tb is not None]
-        report["heldout_px"] = {"features": e_b[1:].tolist(), "joint": e_j[1:].tolist(),
-                                "photometric_poses_kept": helps,
-                                "photometric_rotation_change_deg": max(moved, default=0.0)}
-        log.debug("held-out Sampson px: features %s, joint %s", e_b, e_j)
-        return helps
-
-    def restore(self, values: gtsam.Values) -> gtsam.Values:
-        """``values`` with the bundle's poses and points (registered views)."""
+        e_p = heldout_errors(self.tracks, b.heldout_rows, photo, self.camera)
         out = gtsam.Values(values)
-        for v, T in enumerate(self.bundle.T_ref_view):
-            if T is not None and v > 0:
+        kept: List[bool] = []
+        for v, T in enumerate(b.T_ref_view):
+            if T is None or v == 0:
+                continue
+            kept.append(bool(e_p[v] <= e_b[v]) if np.isfinite(e_b[v]) else True)
+            if not kept[-1]:
                 out.update(pose_key(v), gtsam.Pose3(T))
-        for i, P in enumerate(self.bundle.points):
-            out.update(landmark_key(i), gtsam.Point3(*P))
-        return out
+        moved = [rotation_angle_deg(Tb[:3, :3].T @ Tp[:3, :3])
+                 for Tb, Tp in zip(b.T_ref_view[1:], photo[1:]) if Tb is not None]
+        report["heldout_px"] = {"features": e_b[1:].tolist(), "photometric": e_p[1:].tolist(),
+                                "photometric_kept": kept,
+                                "photometric_rotation_change_deg": max(moved, default=0.0)}
+        log.debug("held-out Sampson px: features %s, photometric %s", e_b, e_p)
+        return out, not all(kept)
 
     def hold_poses(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         """Tight priors holding the registered views' poses at ``values``."""

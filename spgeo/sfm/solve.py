@@ -6,7 +6,10 @@ estimated by photometric alignment: one :class:`PrimitivePhotometricFactor`
 per (primitive, view) in a GTSAM graph (evaluated in chunks of primitives by
 :class:`PhotometricFactorGroup`: the same cost), solved by Levenberg-Marquardt
 coarse-to-fine over a Gaussian pyramid (geometry stays at the reference's
-resolution; factors are rebuilt per level).
+resolution; factors are rebuilt per level).  By default (``SfMConfig.init =
+"features"``) the solve starts at a landmark bundle adjustment of all views
+(:class:`~spgeo.sfm.landmarks.LandmarkStage`), which then keeps or rejects each
+view's photometric pose by its held-out feature matches.
 
 Gauge: a tight prior on the reference pose (identity) and a weak prior on
 every log-scale (the paper's 1e-5) that fixes the global scale, which
@@ -36,6 +39,7 @@ from ..images import gaussian_pyramid, to_float_image, to_gray
 from ..primitives import PrimitiveSet
 from ..validation import InputError, check_camera
 from .config import SfMConfig
+from .init import twoview_initialisation
 from .landmarks import LandmarkStage
 from .orientation import choose_planar_orientations
 from .result import SfMResult, assess_result
@@ -194,9 +198,11 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
     """Solve level by level, coarsest first: a rotation-only stage first when a
     view starts at identity (``config.rotation_first``), and once more at the
     finest level after the planar orientation choice.  With an active landmark
-    ``stage`` its factors join every level, and when its held-out check rejects the
-    photometric poses the finest level is solved once more with the bundle's poses
-    held.  Returns the solved values and the factor groups of the last stage."""
+    ``stage`` (the solve started at its bundle) each registered view keeps the
+    photometric pose only where its held-out matches fit it at least as well as the
+    bundle's (:meth:`LandmarkStage.choose_poses`); otherwise it takes the bundle's,
+    and the finest level solves the scales once more with the poses held.  Returns
+    the solved values and the factor groups of the last stage."""
     builders: List[PhotometricFactorGroup] = []
     n_levels = pb.n_levels
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
@@ -209,8 +215,6 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
         release_groups(builders)      # the previous stage's (else never freed)
         graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, lvl,
                                       values, config, orientations)
-        if stage is not None:
-            stage.add_factors(graph)
         if rotation_only:
             hold_translation_and_shape(graph, values, pb.n_views, len(pb.prims))
         values = _solve_stage(graph, values, config, lvl, n_levels, rotation_only, report)
@@ -219,14 +223,14 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
             values, orientations = choose_planar_orientations(pb.prims, builders, values, report)
             if orientations is not None:
                 stages.append((0, False))      # refine once more with the chosen planes
-    if stage is not None and stage.active and not stage.photometric_helps(values, report):
-        values = stage.restore(values)     # the scales once more at the bundle's poses
-        release_groups(builders)
-        graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
-                                            values, config, orientations)
-        stage.add_factors(graph)
-        stage.hold_poses(graph, values)
-        values = _solve_stage(graph, values, config, 0, n_levels, False, report)
+    if stage is not None and stage.active:
+        values, held = stage.choose_poses(values, report)
+        if held:       # the scales once more at the chosen poses
+            release_groups(builders)
+            graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr,
+                                                pb.view_pyrs, 0, values, config, orientations)
+            stage.hold_poses(graph, values)
+            values = _solve_stage(graph, values, config, 0, n_levels, False, report)
     return values, builders
 
 
@@ -317,8 +321,6 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
                                               pixel_sigma=sigma))
             mgraph, mgroups = build_level_graph(prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
                                           values, pix_cfg)
-            if stage is not None:
-                stage.add_factors(mgraph)
             marg = gtsam.Marginals(mgraph, values)
             release_groups(mgroups)
             covs = stage.covariances() if stage is not None else [
@@ -362,6 +364,11 @@ def _start(ref_image, views, camera, pb: _Problem, config: SfMConfig, init_T_ref
     unverified = [False] * len(views)
     if init_T_ref_view is not None or config.init == "identity":
         return None, init_T_ref_view, unverified
+    if config.init == "twoview":
+        init_T_ref_view, pb.prims = twoview_initialisation(ref_image, views, camera, pb.prims,
+                                                           init_report)
+        return None, init_T_ref_view, [s in ("too_few_matches", "degenerate")
+                                       for s in init_report["twoview_status"]]
     stage = LandmarkStage([ref_image] + list(views), camera, config.features)
     pb.prims = stage.scaled_primitives(pb.prims, init_report)
     init_report.update(stage.bundle.report, view_status=stage.bundle.view_status[1:],
@@ -414,8 +421,6 @@ def few_view_sfm(ref_image: np.ndarray, view_images: Sequence[np.ndarray], camer
     stage, init_T_ref_view, unverified = _start(ref_image, views, camera, pb, config,
                                                 init_T_ref_view, init_report)
     values = _initial_values(pb.prims, len(views), init_T_ref_view, config)
-    if stage is not None:
-        stage.insert_values(values)
     report: Dict[str, object] = {"levels": [], "n_primitives": len(pb.prims),
                                  "n_views": len(views), "shape_model": config.shape_model,
                                  "init": init_report}

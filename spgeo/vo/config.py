@@ -321,7 +321,9 @@ class OdometryConfig:
             (default 10).
         sfm: :class:`SfMConfig` of the two-view initialisation (its
             ``reset_scales`` is overridden: False with a depth-using
-            front-end, True otherwise).
+            front-end, True otherwise; ``init="twoview"``: when keyframe 1 was
+            not tracked its start is the two-view pose, as measured for the VO;
+            few-view SfM's own default, the landmark bundle, is not measured here).
         feature_retry: :class:`~spgeo.vo.feature_retry.FeatureRetryConfig`:
             when tracking against the latest keyframe fails, a PnP pose from
             features lifted with its primitive depth restarts the tracker.
@@ -370,7 +372,8 @@ class OdometryConfig:
     scale_check: ScaleCheckConfig = field(default_factory=ScaleCheckConfig)
     init: InitConfig = field(default_factory=InitConfig)
     max_lost_frames: int = 10
-    sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False))
+    sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False,
+                                                             init="twoview"))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
