@@ -35,7 +35,8 @@ from spgeo.evaluation.pose_compare import compare_on_dataset
 
 __all__ = ["GAP_DATA", "JUDGE", "MAX_JUDGE_DISAGREEMENT_DEG", "parse_int_list", "sigma_rot_deg",
            "rotation_coverage", "view_records", "summarize_views", "coverage_report",
-           "clip_estimator", "methods_with", "gap_triplets", "run_gap_triplet", "GapResults", "run_gaps"]
+           "clip_estimator", "methods_with", "gap_triplets", "run_gap_triplet", "GapResults",
+           "run_gaps"]
 
 log = logging.getLogger(__name__)
 

@@ -11,6 +11,9 @@
   :func:`spgeo.sfm.few_view_sfm` and the tests of the VO tracker, which minimises the
   same cost), its lattice pixels (:func:`level_pixels`) and the rotation-only stage's
   holding priors (:func:`hold_translation_and_shape`).
+* :func:`projection_model`: the calibration and robust noise of the landmarks'
+  projection factors (the VO window's :func:`spgeo.vo.landmarks.add_landmark_factors`
+  and the few-view bundle's :func:`spgeo.sfm.bundle.add_landmark_factors`).
 * :func:`gtsam_error_line`: a gtsam exception's message in one line (every solver's
   report and log).
 
@@ -41,7 +44,7 @@ from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam_error_line",
            "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
            "add_factor_group", "link_keyframe_pair", "level_pixels",
-           "hold_translation_and_shape", "build_level_graph"]
+           "hold_translation_and_shape", "build_level_graph", "projection_model"]
 
 #: sigma of the first keyframe's pose prior (the gauge)
 GAUGE_SIGMA = 1e-6
@@ -50,6 +53,17 @@ PLANAR_SLOPE_SIGMA = 2.0
 #: sigmas of the priors of the brightness ``(a, b)`` variables (as the SfM graph's
 #: default ``SfMConfig.brightness_prior_sigma``)
 BRIGHTNESS_PRIOR_SIGMA: Tuple[float, float] = (0.3, 0.3)
+
+
+def projection_model(K: np.ndarray, pixel_sigma: float, huber_px: float):
+    """``(gtsam.Cal3_S2, noise model)`` of the landmarks' projection factors (the VO's
+    window and the few-view SfM's bundle): the pinhole ``K`` (3x3, no skew) and an
+    isotropic ``pixel_sigma`` (pixels) under a Huber kernel at ``huber_px``."""
+    cal = gtsam.Cal3_S2(float(K[0, 0]), float(K[1, 1]), 0.0, float(K[0, 2]), float(K[1, 2]))
+    noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(huber_px / pixel_sigma),
+        gtsam.noiseModel.Isotropic.Sigma(2, pixel_sigma))
+    return cal, noise
 
 
 def gtsam_error_line(exc: BaseException) -> str:

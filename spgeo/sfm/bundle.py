@@ -35,6 +35,7 @@ import gtsam
 
 from ..camera import PinholeCamera
 from ..geometry import invert_pose, transform_points
+from ..graph.builders import projection_model
 from ..graph.keys import landmark_key, pose_key
 from ..twoview.geometry import sampson_px
 from .tracks import ViewTracks
@@ -263,10 +264,7 @@ def add_landmark_factors(graph: gtsam.NonlinearFactorGraph, vt: ViewTracks,
     Huber at ``HUBER_PX``, and the scale gauge (``RangeFactorPose3`` from the
     reference to the farthest registered view at its current distance).  Returns
     the number of projection factors."""
-    cal = gtsam.Cal3_S2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy)
-    noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(HUBER_PX / pixel_sigma),
-        gtsam.noiseModel.Isotropic.Sigma(2, pixel_sigma))
+    cal, noise = projection_model(camera.K, pixel_sigma, HUBER_PX)
     n = 0
     for v, T in enumerate(bundle.T_ref_view):
         if T is None:

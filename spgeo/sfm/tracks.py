@@ -9,10 +9,10 @@ joined into tracks (connected components of the match graph); a component holdin
 two features of one view is inconsistent and dropped.
 
 A pair whose inliers a homography explains (a plane) may have two physically valid
-relative poses; when the other one rotates differently by more than
-``AMBIGUITY_DEG`` and explains the inliers as well, the pair is *ambiguous* (:func:`planar_alternatives`): its matches
-still join tracks, but it cannot start the map, and it places a view only where
-landmarks seen by both views choose among its poses.
+relative poses; when the other one rotates differently by more than ``AMBIGUITY_DEG``
+and explains the inliers as well, the pair is *ambiguous* (:func:`planar_alternatives`):
+its matches still join tracks, but it cannot start the map, and it places a view only
+where landmarks seen by both views choose among its poses.
 """
 from __future__ import annotations
 

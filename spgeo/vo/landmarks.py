@@ -336,14 +336,11 @@ def add_landmark_factors(batch, lmap: LandmarkMap, k: int, poses_in: set, lms_in
     """
     import gtsam
 
+    from ..graph.builders import projection_model
     from ..graph.keys import landmark_key, pose_key
 
     cfg = lmap.config
-    cal = gtsam.Cal3_S2(float(lmap.K[0, 0]), float(lmap.K[1, 1]), 0.0,
-                        float(lmap.K[0, 2]), float(lmap.K[1, 2]))
-    noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / cfg.pixel_sigma),
-        gtsam.noiseModel.Isotropic.Sigma(2, cfg.pixel_sigma))
+    cal, noise = projection_model(lmap.K, cfg.pixel_sigma, cfg.huber_px)
     created = set(lmap.created)
     n = 0
     seen = sorted(lmap.observed_in(k), key=lambda lm: (lm.first_seen, lm.id))
