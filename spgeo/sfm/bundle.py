@@ -3,7 +3,7 @@
 From the tracks of :func:`spgeo.sfm.tracks.match_views`:
 
 1. **Initial pair**: the verified pair (status ``"ok"``, not left ambiguous by a
-   plane: :func:`spgeo.sfm.tracks.planar_ambiguity`) whose translation direction
+   plane: :func:`spgeo.sfm.tracks.planar_alternatives`) whose translation direction
    is best conditioned (least first-order std), posed by its essential matrix with a
    unit baseline; the tracks it sees are triangulated (multi-view linear DLT).
 2. **The other views by PnP** (``cv2.solvePnPRansac``) on the tracks already
@@ -34,6 +34,7 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
+from ..factors.priors import pose_gauge_prior
 from ..geometry import invert_pose, transform_points
 from ..graph.builders import projection_model
 from ..graph.keys import landmark_key, pose_key
@@ -195,18 +196,17 @@ def _register_by_pair(vt: ViewTracks, v: int, rows: np.ndarray, X: np.ndarray,
     best = None
     for u in poses:
         common = np.isfinite(X[:, 0]) & vt.observed([u, v])[rows]
-        if (_pair_poses(vt, u, v) and common.sum() >= MIN_SCALE_POINTS
-                and (best is None or common.sum() > best[1].sum())):
-            best = (u, common)
+        cands = _pair_poses(vt, u, v)
+        if cands and common.sum() >= MIN_SCALE_POINTS and (
+                best is None or common.sum() > best[1].sum()):
+            best = (u, common, cands)
     if best is None:
         return None
-    u, common = best
+    u, common, cands = best
     scored = [c for c in (_scaled_candidate(vt, T_uv, u, poses[u], rows[common], X[common], v,
-                                            camera) for T_uv in _pair_poses(vt, u, v))
-              if c is not None]
-    if not scored or min(scored, key=lambda c: c[0])[0] > GATE_PX:
-        return None
-    return min(scored, key=lambda c: c[0])[1]
+                                            camera) for T_uv in cands) if c is not None]
+    err, T_world_v = min(scored, key=lambda c: c[0], default=(np.inf, None))
+    return T_world_v if err <= GATE_PX else None
 
 
 def _scaled_candidate(vt: ViewTracks, T_uv: np.ndarray, u: int, T_world_u: np.ndarray,
@@ -287,8 +287,7 @@ def _bundle_graph(vt: ViewTracks, bundle: FeatureBundle, camera: PinholeCamera,
     """``(graph, values)`` of the landmark bundle adjustment (module docstring, step 3)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    graph.add(gtsam.PriorFactorPose3(pose_key(0), gtsam.Pose3(),
-                                     gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    graph.add(pose_gauge_prior(pose_key(0)))
     for v, T in enumerate(bundle.T_ref_view):
         if T is not None:
             values.insert(pose_key(v), gtsam.Pose3(T))

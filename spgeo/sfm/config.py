@@ -45,9 +45,10 @@ class SfMConfig:
             (:class:`spgeo.sfm.landmarks.LandmarkStage`: SIFT tracks over every
             pair, the best-conditioned pair, PnP, a GTSAM bundle adjustment) sets
             the poses and, through the landmarks seen in the reference, the
-            initial log-scales; its projection factors stay in the solve, and its
-            held-out matches decide whether the photometric term may move the
-            poses; views it cannot place start at identity and are flagged.
+            initial log-scales; the photometric solve then refines the poses, and
+            each view keeps its photometric pose only where the bundle's held-out
+            matches fit it at least as well; views it cannot place start at
+            identity and are flagged.
             ``"twoview"``: one feature-based relative pose per view
             (:func:`spgeo.sfm.init.twoview_initialisation`), the default until
             d00416a; the VO's start keeps it (``OdometryConfig.sfm``: its

@@ -17,6 +17,7 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
+from ..factors.priors import pose_gauge_prior
 from ..geometry import rotation_angle_deg
 from ..graph.keys import pose_key
 from ..primitives import PrimitiveSet
@@ -28,9 +29,6 @@ from .tracks import ViewTracks, match_views
 __all__ = ["LandmarkStage"]
 
 log = logging.getLogger(__name__)
-
-#: sigma of the priors that hold the bundle's poses when the photometric term is rejected
-HOLD_SIGMA = 1e-6
 
 
 class LandmarkStage:
@@ -109,10 +107,9 @@ class LandmarkStage:
 
     def hold_poses(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         """Tight priors holding the registered views' poses at ``values``."""
-        noise = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
         for v, T in enumerate(self.bundle.T_ref_view):
             if T is not None and v > 0:
-                graph.add(gtsam.PriorFactorPose3(pose_key(v), values.atPose3(pose_key(v)), noise))
+                graph.add(pose_gauge_prior(pose_key(v), values.atPose3(pose_key(v)).matrix()))
 
     def covariances(self) -> List[Optional[np.ndarray]]:
         """Per supporting view, the bundle's 6x6 pose covariance (None if unregistered)."""
