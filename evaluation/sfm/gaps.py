@@ -8,8 +8,8 @@ gets its rotation / translation-direction error against the ground truth *and* a
 COLMAP's pose of the same view (where COLMAP posed it; how, ``"incremental"`` or
 ``"two_view"``, is recorded, :attr:`ColmapResult.view_method
 <spgeo.evaluation.references.colmap.ColmapResult.view_method>`).  COLMAP judges the
-rotations because the clip's ground truth itself disagrees with COLMAP by ~1.7-1.8
-degrees per 30 frames (docs/history.md, "Judged against COLMAP").
+rotations because the clip's ground truth itself disagrees with COLMAP by about as
+much as the errors judged (docs/results.md, "Few-view SfM at wider baselines").
 
 Per gap and method (:func:`summarize_views`): medians over the posed views (NaN errors
 left out, views flagged by the method kept in), views posed / flagged and the flagged

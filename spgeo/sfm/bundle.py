@@ -48,11 +48,10 @@ log = logging.getLogger(__name__)
 
 #: one track in this many is held out of the adjustment (the acceptance check's)
 HELDOUT_EVERY = 5
-#: factor on the marginal standard deviations: with it the median rotation error over
-#: sigma on the shared 7-Scenes triplets (judged by COLMAP on the whole clip) is 1.05, a
-#: 3D Gaussian's 0.89, and 95 % of those views and all synthetic ones are within 3 sigma
-#: (docs/results.md, issue 40; model errors the residuals cannot see: intrinsics,
-#: distortion, rolling shutter, SIFT's localisation bias)
+#: factor on the marginal standard deviations, calibrated on the synthetic rooms and the
+#: shared 7-Scenes triplets judged by COLMAP on the whole clip (docs/results.md, issue 40):
+#: the model errors the residuals cannot see (intrinsics, distortion, rolling shutter,
+#: SIFT's localisation bias)
 COVARIANCE_INFLATION = 5.0
 #: projection factors: sigma and Huber threshold (pixels); new points' reprojection gate
 PIXEL_SIGMA, HUBER_PX, GATE_PX = 1.0, 2.0, 4.0

@@ -65,8 +65,7 @@ class SfMResult:
             rotation).  With ``init="identity"`` or given initial poses (the VO):
             the photometric marginal with the residuals' robust std
             (``report["pixel_sigma"]``), pixels treated as independent: far too
-            small (it missed real errors 300-fold in issue 40), not a calibrated
-            uncertainty.
+            small (docs/results.md, issue 40), not a calibrated uncertainty.
         report: per-level iterations, costs, valid fractions, timings.
     """
 
