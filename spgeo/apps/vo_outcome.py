@@ -96,6 +96,9 @@ class VORun:
             (:attr:`output_odometry`); ``odometry`` itself stays in VO units.
         metric_scale_failure: why a requested metric scale could not be
             estimated (the outputs are then in VO units).
+        capture: live input (:func:`~spgeo.apps.vo_run.run_live`): the capture
+            ring's report (:meth:`spgeo.datasets.capture.CaptureRing.report`:
+            frames dropped, with their names); ``report.json``'s ``"capture"``.
     """
 
     odometry: Odometry
@@ -112,6 +115,7 @@ class VORun:
     intrinsics: Optional[Dict[str, object]] = None
     metric_scale: Optional[MetricScale] = None
     metric_scale_failure: Optional[str] = None
+    capture: Optional[Dict[str, object]] = None
 
     @property
     def output_odometry(self) -> Union[Odometry, ScaledOdometry]:
@@ -293,7 +297,8 @@ class VORun:
         ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
         keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
         ``"run"`` (processing resolution, front-end, wall time, FPS, ``n_skipped``),
-        ``"intrinsics"`` (:attr:`intrinsics`, when set),
+        ``"intrinsics"`` (:attr:`intrinsics`, when set), ``"capture"``
+        (:attr:`capture`, live input),
         ``"skipped"`` (one :meth:`SkippedFrame.to_dict` per skipped frame; such a
         frame is ``skipped`` in the status file and has no line in
         ``trajectory.txt``), ``"run_config"``
@@ -325,6 +330,8 @@ class VORun:
                            if k != "odometry"}}
         if self.intrinsics is not None:
             extra["intrinsics"] = dict(self.intrinsics)
+        if self.capture is not None:
+            extra["capture"] = dict(self.capture)
         if with_ate:
             ate = self.ate() if ate is None else ate
             extra["ate"] = self.ate_report(ate) if ate is not None else None

@@ -60,7 +60,7 @@ from ..validation import FrameReadError
 from .memory import RssCheckpoints
 from .vo_outcome import SkippedFrame, VORun
 
-__all__ = ["VORunConfig", "run_odometry", "run_dataset", "run_vo", "make_vo_frontend",
+__all__ = ["VORunConfig", "run_odometry", "run_dataset", "run_live", "run_vo", "make_vo_frontend",
            "blas_threads", "load_metric_model", "run_metric_scale"]
 
 log = logging.getLogger(__name__)
@@ -124,6 +124,11 @@ class VORunConfig:
             frame: ``FileNotFoundError`` / ``ValueError`` naming it when it is
             missing, breaks its preset's contract or is not metric.  Default
             None: outputs in the VO's unit.
+        capture_ring: live input (:func:`run_live`, a camera): frames the
+            capture thread holds while the VO is busy
+            (:class:`~spgeo.datasets.capture.CaptureRing`; the oldest is dropped
+            when it is full).  Default 8; docs/results.md, "Real time with a
+            camera", says why.
     """
 
     strict: bool = False
@@ -136,6 +141,7 @@ class VORunConfig:
     ate_max_time_diff: float = 1e-3
     blas_threads: Optional[int] = 1
     metric_scale: Optional[str] = None
+    capture_ring: int = 8
 
     def __post_init__(self) -> None:
         if self.frontend not in FRONTENDS:
@@ -146,6 +152,10 @@ class VORunConfig:
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
+        if isinstance(self.capture_ring, bool) or not isinstance(self.capture_ring, int) \
+                or self.capture_ring < 1:
+            raise ValueError(f"VORunConfig.capture_ring must be an integer >= 1, "
+                             f"got {self.capture_ring!r}")
         if self.metric_scale is not None and not (isinstance(self.metric_scale, str)
                                                   and self.metric_scale.strip()):
             raise ValueError("VORunConfig.metric_scale must be None or a model name / .onnx "
@@ -444,17 +454,44 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
     if opts["load_depth"] is False and uses_depth:
         raise ValueError("the front-end uses depth: the data set must be read with depth")
     seq = open_dataset(kind, path, frames=frames, **opts)
-    if kind == "camera":      # input already timed by the camera: the fewest stalls
-        config = dataclasses.replace(config, odometry=dataclasses.replace(
-            config.odometry, mapping_schedule="ready"))
     n = len(seq) if hasattr(seq, "__len__") else None      # a live camera has no length
     if n == 0:
         raise ValueError(f"{path}: the frame selection {frames!r} is empty")
     log.info("VO on %s (%s): %s frames, camera %r, processing size %s", seq.name, kind,
              "live" if n is None else n, seq.camera,
              config.odometry.processing_size_for(seq.camera.size))
-    run = run_odometry(seq, config, frontend, n_frames=n, on_frame=on_frame)
+    if kind == "camera":
+        run = run_live(seq, config, frontend, on_frame=on_frame)
+    else:
+        run = run_odometry(seq, config, frontend, n_frames=n, on_frame=on_frame)
     run.intrinsics = seq.intrinsics
+    return run
+
+
+def run_live(source: Iterable[Frame], config: VORunConfig = VORunConfig(),
+             frontend: Optional[PrimitiveFrontEnd] = None,
+             on_frame: Optional[FrameHook] = None) -> VORun:
+    """The VO on a live source (a camera, or a simulated one): its frames read
+    by a capture thread into a :class:`~spgeo.datasets.capture.CaptureRing` of
+    ``config.capture_ring`` frames, and :func:`run_odometry` with
+    ``OdometryConfig.mapping_schedule="ready"`` (the input already depends on
+    timing: the tracker never waits for the back end, :mod:`spgeo.vo.mapping_port`).
+    The returned :attr:`VORun.capture` is the ring's report (frames dropped, with
+    their names); arguments and errors as :func:`run_odometry`."""
+    from ..datasets.capture import CaptureRing
+
+    config = dataclasses.replace(config, odometry=dataclasses.replace(
+        config.odometry, mapping_schedule="ready"))
+    ring = CaptureRing(source, config.capture_ring)
+    try:
+        run = run_odometry(ring, config, frontend, on_frame=on_frame)
+    finally:
+        ring.close()
+    run.capture = ring.report()
+    if run.capture["dropped"]:
+        log.warning("live input: %d of %d frames dropped by the capture ring (longest run %d)",
+                    run.capture["dropped"], run.capture["arrived"],
+                    run.capture["longest_drop_run"])
     return run
 
 

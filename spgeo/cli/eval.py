@@ -31,6 +31,7 @@ PROTOCOLS: Dict[str, str] = {
     "vo_memory": "vo.memory",
     "vo_long_run": "vo.long_run",
     "vo_mesh": "vo.mesh",
+    "vo_camera": "vo.camera",
     "tum_fr1": "vo.tum_fr1",
     # sfm/: few-view structure from motion
     "sfm_real": "sfm.real",

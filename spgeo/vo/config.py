@@ -348,8 +348,10 @@ class OdometryConfig:
         mapping_schedule: live mapping, one of :data:`MAPPING_SCHEDULES`:
             ``"fixed"`` (default; recorded input) only the rule above, so the
             trajectory does not depend on the machine or its load; ``"ready"``
-            (a live camera) also at the first frame that finds the update
-            ready.
+            (a live camera) the tracker never waits for the back end: the update
+            is applied at the first frame that finds it ready (``mapping_lead``
+            unused) and a keyframe wanted before it is deferred
+            (:mod:`spgeo.vo.mapping_port`).
     """
 
     resolution: Optional[Tuple[int, int]] = None

@@ -41,15 +41,16 @@ class FrameTracker:
         self.motion = MotionModel()
         self._retry = FeatureRetry(camera, config.feature_retry)
 
-    def track(self, kf: Keyframe, image: np.ndarray,
-              retry: Optional[MapKeyframe] = None) -> TrackResult:
-        """``image`` tracked against ``kf`` from the motion model's guesses
-        (constant velocity, then the last good pose), then (``retry``: ``kf``'s
+    def track(self, kf: Keyframe, image: np.ndarray, retry: Optional[MapKeyframe] = None,
+              timestamp: Optional[float] = None) -> TrackResult:
+        """``image`` (taken at ``timestamp``; None: one period after the last
+        good frame) tracked against ``kf`` from the motion model's guesses
+        (constant velocity over the time gap, then the last good pose), then (``retry``: ``kf``'s
         map keyframe, with ``feature_retry.enabled``) the feature-based PnP pose;
         the first ``ok`` result, else the one of lowest photometric cost.  A
         result refused only for its cost (``"high_cost"``) is ``ok`` when the
         PnP pose's matches agree with it (:meth:`FeaturePose.agrees`)."""
-        guesses = self.motion.guesses()
+        guesses = self.motion.guesses(timestamp)
         pnp: Optional[FeaturePose] = None
         if retry is not None and self.config.feature_retry.enabled:
             def feature_guess() -> Optional[np.ndarray]:

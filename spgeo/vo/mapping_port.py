@@ -16,15 +16,18 @@ applies an update.
 * :class:`WorkerPort` (``"live"``): the back end in the mapping worker process
   (:mod:`spgeo.vo.mapping_worker`), solving while the next frames are tracked.
 
-The schedule (:meth:`MappingPort.due`): an update is applied before the frame that
-is ``lead`` frames after its keyframe (``mapping="inline"``: ``lead`` 0, i.e. before
-the next frame).  With ``OdometryConfig.mapping_schedule="fixed"`` (recorded input)
-that is the only timed rule: the update is waited for when it is not ready, so the
-trajectory is the same on any machine under any load.  With ``"ready"`` (a live
-camera, whose input already depends on timing) it is also applied at the first frame
-that finds it ready.  The frames themselves may apply it earlier, the same way in
-every schedule: a keyframe decision, a frame lost against the pending map, a new
-segment, or a call that reads the map.
+The schedule (:meth:`MappingPort.due`).  With ``OdometryConfig.mapping_schedule=
+"fixed"`` (recorded input) an update is applied before the frame that is ``lead``
+frames after its keyframe (``mapping="inline"``: ``lead`` 0, i.e. before the next
+frame), waited for when it is not ready, so the trajectory is the same on any
+machine under any load; a keyframe wanted while an update is pending applies it
+first (waiting).  With ``"ready"`` (a live camera, whose input already depends on
+timing) the tracker never waits for the back end: an update is applied at the first
+frame that finds it ready, whatever the lead, and a keyframe wanted while it is not
+ready is deferred (:meth:`MappingPort.defers_keyframe`): the frame stays tracked
+against the latest keyframe, and a later frame makes the keyframe.  In both
+schedules a frame lost against the pending map, a new segment, or a call that reads
+the map applies the update, waiting for it.
 """
 from __future__ import annotations
 
@@ -70,6 +73,8 @@ class MappingRecord:
         pending: the :class:`PendingJob` in flight, or None.
         reset_next: the next job restarts the smoother (a new segment).
         older_map_frames: frames tracked while an update was pending.
+        deferred_keyframes: keyframe decisions deferred because the update was not
+            ready (``"ready"`` schedule).
         latencies: per applied update, the frames processed between sending the
             job and applying its update.
         reports: the mapper's report entries, in order.
@@ -82,6 +87,7 @@ class MappingRecord:
     pending: Optional[PendingJob] = None
     reset_next: bool = False
     older_map_frames: int = 0
+    deferred_keyframes: int = 0
     latencies: List[int] = field(default_factory=list)
     reports: List[dict] = field(default_factory=list)
     landmarks: Optional[dict] = None
@@ -109,6 +115,7 @@ class MappingRecord:
         latency in frames (mean, max) and the back end's seconds per stage."""
         lat = self.latencies
         return {"updates": len(lat), "frames_tracked_against_older_map": self.older_map_frames,
+                "keyframes_deferred": self.deferred_keyframes,
                 "latency_frames_mean": float(np.mean(lat)) if lat else None,
                 "latency_frames_max": int(max(lat)) if lat else None,
                 "worker_seconds": dict(self.seconds),
@@ -172,9 +179,18 @@ class MappingPort:
         (module docstring)."""
         if not self.pending:
             return False
-        if self.record.lead(n_frames) >= self.lead:
-            return True
-        return self.schedule == "ready" and self._ready()
+        if self.schedule == "ready":
+            return self._ready()
+        return self.record.lead(n_frames) >= self.lead
+
+    def defers_keyframe(self) -> bool:
+        """Whether a keyframe wanted now is deferred (module docstring): an
+        update is pending and, on the ``"ready"`` schedule, not ready.  A
+        deferral is counted (:attr:`MappingRecord.deferred_keyframes`)."""
+        if not (self.pending and self.schedule == "ready" and not self._ready()):
+            return False
+        self.record.deferred_keyframes += 1
+        return True
 
     def note_frame(self) -> None:
         """A frame is tracked now (counted when an update is pending)."""

@@ -179,7 +179,7 @@ class Odometry(OdometryReadout):
         self._map.retire_outside_window()
         self._map.take_candidates()
         self._initialiser.reset()
-        self._motion.reset(T_world)
+        self._motion.reset(T_world, float(frame.timestamp))
         self._n_lost = 0
         status = FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT
         return _result(frame, idx, T_world, status, keyframe_index=k)
@@ -189,10 +189,10 @@ class Odometry(OdometryReadout):
         the :class:`Initialiser`'s decision applied."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         t = time.perf_counter()
-        tr = self._tracker.track(kf0.keyframe, frame.image)
+        tr = self._tracker.track(kf0.keyframe, frame.image, timestamp=frame.timestamp)
         timings["track"] = time.perf_counter() - t
         if tr.ok:
-            self._motion.accept(tr)
+            self._motion.accept(tr, float(frame.timestamp))
         self._n_lost = 0 if tr.ok else self._n_lost + 1
         dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
                                      self._map.segment, timings)
@@ -213,7 +213,9 @@ class Odometry(OdometryReadout):
         re-tracked frames their poses and statuses, this frame is keyframe 1."""
         self._map.replace_keyframe(kf0.index, dec.keyframe0)
         self._map.adopt_retracked(kf0, dec.retracked, self._frames)
-        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last)
+        good = [r.frame for r in dec.retracked if r.ok]
+        t_last = self._frames[good[-1] if good else kf0.frame].timestamp
+        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame.timestamp), t_last)
         self._n_lost = 0
         return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
 
@@ -222,14 +224,14 @@ class Odometry(OdometryReadout):
         (or relocalised against an older one), then the keyframe decision."""
         latest = ref = self._map.latest
         t = time.perf_counter()
-        tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
+        tr = self._tracker.track(latest.keyframe, frame.image, latest, frame.timestamp)
         if not tr.ok and self._port.pending:
             # lost against the map before its update: tracked again after it (the
             # wait is mapping's time, not tracking's)
             tracked = time.perf_counter() - t
             self._sync(timings)
             t = time.perf_counter() - tracked
-            tr = self._tracker.track(latest.keyframe, frame.image, retry=latest)
+            tr = self._tracker.track(latest.keyframe, frame.image, latest, frame.timestamp)
         relocalised = False
         if not tr.ok:
             older = [self._map.kfs[k] for k in reversed(self._map.seg_kfs[-self.config.window:-1])]
@@ -241,12 +243,13 @@ class Odometry(OdometryReadout):
             return self._lost(frame, idx, tr, timings)
         was_lost = self._n_lost > 0
         self._n_lost = 0
-        self._motion.accept(tr)
+        self._motion.accept(tr, float(frame.timestamp))
         T_ref_f = invert_pose(ref.keyframe.T_world_kf) @ tr.T_world_frame
         self._map.anchor(idx, ref.index, T_ref_f, ref.keyframe.median_depth)
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
         # tracked against an older keyframe: make it a keyframe to re-anchor the map
-        if ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest):
+        if ((ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest))
+                and not self._port.defers_keyframe()):
             if ref is latest and self._port.pending:
                 tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
             else:
