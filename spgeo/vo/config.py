@@ -348,9 +348,9 @@ class OdometryConfig:
         mapping_schedule: live mapping, one of :data:`MAPPING_SCHEDULES`:
             ``"fixed"`` (default; recorded input) only the rule above, so the
             trajectory does not depend on the machine or its load; ``"ready"``
-            (a live camera) the update is applied at the first frame that finds
-            it ready, and a keyframe wanted before that is deferred until the
-            job is ``mapping_lead`` frames old, then waits for it
+            (a live camera) the tracker never waits for the back end: the update
+            is applied at the first frame that finds it ready (``mapping_lead``
+            unused) and a keyframe wanted before it is deferred
             (:mod:`spgeo.vo.mapping_port`).
     """
 

@@ -22,16 +22,12 @@ frames after its keyframe (``mapping="inline"``: ``lead`` 0, i.e. before the nex
 frame), waited for when it is not ready, so the trajectory is the same on any
 machine under any load; a keyframe wanted while an update is pending applies it
 first (waiting).  With ``"ready"`` (a live camera, whose input already depends on
-timing) an update is applied at the first frame that finds it ready, whatever the
-lead, and the tracker waits for it only when it needs the map: a keyframe wanted
-while the update is not ready is deferred (:meth:`MappingPort.defers_keyframe`; the
-frame stays tracked against the latest keyframe, and a later frame makes the
-keyframe) until the job is ``lead`` frames old; from then on a wanted keyframe waits
-for the update, as on the fixed schedule.  A back end slower than the camera then
-costs dropped frames, which the motion model bridges, rather than a tracker that
-drifts away from its keyframe until it is lost.  In both schedules a frame lost
-against the pending map, a new segment, or a call that reads the map applies the
-update, waiting for it.
+timing) the tracker never waits for the back end: an update is applied at the first
+frame that finds it ready, whatever the lead, and a keyframe wanted while it is not
+ready is deferred (:meth:`MappingPort.defers_keyframe`): the frame stays tracked
+against the latest keyframe, and a later frame makes the keyframe.  In both
+schedules a frame lost against the pending map, a new segment, or a call that reads
+the map applies the update, waiting for it.
 """
 from __future__ import annotations
 
@@ -187,14 +183,11 @@ class MappingPort:
             return self._ready()
         return self.record.lead(n_frames) >= self.lead
 
-    def defers_keyframe(self, n_frames: int) -> bool:
-        """Whether a keyframe wanted at frame ``n_frames`` is deferred (module
-        docstring): on the ``"ready"`` schedule, an update is pending, not
-        ready, and sent fewer than ``lead`` frames ago.  A deferral is counted
-        (:attr:`MappingRecord.deferred_keyframes`)."""
-        if not (self.pending and self.schedule == "ready") or self._ready():
-            return False
-        if self.record.lead(n_frames) >= self.lead:
+    def defers_keyframe(self) -> bool:
+        """Whether a keyframe wanted now is deferred (module docstring): an
+        update is pending and, on the ``"ready"`` schedule, not ready.  A
+        deferral is counted (:attr:`MappingRecord.deferred_keyframes`)."""
+        if not (self.pending and self.schedule == "ready" and not self._ready()):
             return False
         self.record.deferred_keyframes += 1
         return True

@@ -249,7 +249,7 @@ class Odometry(OdometryReadout):
         status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
         # tracked against an older keyframe: make it a keyframe to re-anchor the map
         if ((ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest))
-                and not self._port.defers_keyframe(idx)):
+                and not self._port.defers_keyframe()):
             if ref is latest and self._port.pending:
                 tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
             else:
