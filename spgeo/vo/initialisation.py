@@ -35,8 +35,9 @@ from .config import OdometryConfig
 from .map import MapKeyframe
 from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
 
-__all__ = ["Initialiser", "InitDecision", "RetrackedFrame", "init_views", "init_rejection",
-           "append_bounded", "twoview_start", "sfm_parallax_deg"]
+__all__ = ["Initialiser", "InitDecision", "InitJob", "InitSolution", "RetrackedFrame", "Solving",
+           "init_views", "init_rejection", "append_bounded", "twoview_start", "sfm_parallax_deg",
+           "solve_keyframe1", "solved_keyframe0", "retrack"]
 
 log = logging.getLogger(__name__)
 
@@ -166,6 +167,93 @@ WAIT, FAILED, START = "wait", "failed", "start"
 
 
 @dataclass
+class InitJob:
+    """What the keyframe-1 solve reads, picklable: :meth:`run` is a pure function
+    of it, run where the mapping port says (this process, or the mapping worker
+    while the tracker goes on: :meth:`spgeo.vo.mapping_port.MappingPort.solve_init`).
+
+    Attributes:
+        image, idx: keyframe 1's candidate frame and its number.
+        kf0_image, kf0_frame, kf0_keyframe: keyframe 0's image, frame number and
+            :class:`Keyframe` (unsolved primitives, pose).
+        buffer: ``(frame number, image)`` of the frames waiting between them.
+        T_kf0_f: the candidate's pose tracked against keyframe 0 (4x4).
+        tracked: whether that tracking was ``ok``.
+        brightness: the VO's brightness estimate (the re-tracking's start).
+        segment: the map segment.
+        camera, config, uses_depth: as :class:`Initialiser`'s.
+        ahead: also solve keyframe 0 and re-track the buffer (:meth:`run`), for
+            a solve away from the tracker, whose result is only judged there.
+    """
+
+    image: np.ndarray
+    idx: int
+    kf0_image: np.ndarray
+    kf0_frame: int
+    kf0_keyframe: Keyframe
+    buffer: List[tuple]
+    T_kf0_f: np.ndarray
+    tracked: bool
+    brightness: np.ndarray
+    segment: int
+    camera: PinholeCamera
+    config: OdometryConfig
+    uses_depth: bool
+    ahead: bool = False
+
+    def run(self) -> "InitSolution":
+        """The SfM of keyframe 0, the candidate and extra views; with
+        :attr:`ahead` and a finite, not diverged solve also keyframe 0 rebuilt
+        with its primitives and the buffer re-tracked (images left out: the
+        caller has them)."""
+        t = time.perf_counter()
+        sfm, n_views = solve_keyframe1(self)
+        sol = InitSolution(sfm, n_views)
+        if self.ahead and sfm.status != "diverged" and np.all(np.isfinite(sfm.T_ref_view[0])):
+            sol.keyframe0, sol.T_01 = solved_keyframe0(self, sfm)
+            retracked, sol.T_world_last = retrack(sol.keyframe0, self, sol.T_01)
+            sol.retracked = [dataclasses.replace(r, image=None) for r in retracked]
+        sol.seconds = time.perf_counter() - t
+        return sol
+
+
+@dataclass
+class InitSolution:
+    """:meth:`InitJob.run`'s result: the SfM, its view count and (``ahead``)
+    keyframe 0 solved, ``T_kf0_kf1``, the re-tracked buffer (without images) and
+    the last good re-tracked pose; ``seconds`` it took."""
+
+    sfm: SfMResult
+    n_views: int
+    keyframe0: Optional[Keyframe] = None
+    T_01: Optional[np.ndarray] = None
+    retracked: Optional[List["RetrackedFrame"]] = None
+    T_world_last: Optional[np.ndarray] = None
+    seconds: float = 0.0
+
+
+def solve_keyframe1(job: InitJob) -> Tuple[SfMResult, int]:
+    """The SfM of keyframe 0 (reference), ``job``'s candidate and extra views;
+    its view count."""
+    cfg = job.config
+    sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=not job.uses_depth)
+    prims0 = job.kf0_keyframe.primitives
+    T_init = job.T_kf0_f if job.tracked else None
+    if job.tracked and cfg.init.method == "twoview" and not job.uses_depth:
+        tv = twoview_start(job.kf0_image, job.image, job.camera, prims0)
+        if tv is not None:
+            T_init, prims0 = tv
+            sfm_cfg = dataclasses.replace(sfm_cfg, reset_scales=False)
+        else:
+            log.info("frame %d: no two-view estimate for keyframe 1; the SfM starts from "
+                     "the tracked pose", job.idx)
+    views, init = init_views(job.image, job.idx, job.kf0_frame, job.buffer,
+                             cfg.init.extra_views, T_init)
+    sfm = few_view_sfm(job.kf0_image, views, job.camera, prims0, sfm_cfg, init_T_ref_view=init)
+    return sfm, len(views)
+
+
+@dataclass
 class RetrackedFrame:
     """A buffered frame re-tracked against the solved keyframe 0.
 
@@ -203,6 +291,12 @@ class InitDecision:
             ``keyframe0``, in frame order.
         T_world_last: ``"start"``: the last re-tracked good pose (keyframe 0's
             when none tracked): the previous pose of the velocity model.
+        keyframe1: ``"start"``: the frame number of keyframe 1: the frame
+            decided for, or an earlier one whose solve ran beside the tracker.
+        image1, track1: ``"start"``: keyframe 1's image and its tracking
+            against keyframe 0.
+        since: ``"start"`` for an earlier keyframe 1: ``(frame number, image)``
+            of the buffered frames after it (tracked during its solve).
     """
 
     action: str
@@ -211,6 +305,10 @@ class InitDecision:
     T_world_kf1: Optional[np.ndarray] = None
     retracked: List[RetrackedFrame] = field(default_factory=list)
     T_world_last: Optional[np.ndarray] = None
+    keyframe1: Optional[int] = None
+    image1: Optional[np.ndarray] = None
+    track1: Optional[TrackResult] = None
+    since: List[tuple] = field(default_factory=list)
 
 
 class Initialiser:
@@ -221,31 +319,51 @@ class Initialiser:
             ``kf_*`` overlap thresholds, ``primitive_model``, ``tracker``).
         camera: the frames' intrinsics.
         uses_depth: whether the front-end uses depth (metric primitives).
+        solver: where the keyframe-1 solve runs: an object with
+            ``solve_init(job) -> InitSolution or None`` (None: solved elsewhere,
+            the tracker goes on) and ``init_result() -> InitSolution or None``
+            (None while in flight), e.g. the VO's
+            :class:`~spgeo.vo.mapping_port.MappingPort`; default None: solved here,
+            at once.
 
     Attributes:
         failure: why the last keyframe-1 SfM was refused (None: none yet in
             this segment).
         wait_note: why the current wait goes on.
         reports: one dict per SfM tried (all segments).
+        solving: the :class:`InitJob` solved elsewhere now, with the candidate's
+            tracking (:class:`Solving`), or None.
     """
 
-    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool) -> None:
+    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool,
+                 solver=None) -> None:
         self.config = config
         self.camera = camera
         self.uses_depth = bool(uses_depth)
+        self.solver = solver
         self.reports: List[dict] = []
         self.reset()
 
     def reset(self) -> None:
-        """A new segment: no buffered frame, no retry gap, no failure note."""
+        """A new segment: no buffered frame, no retry gap, no failure note, no
+        solve in flight."""
         self.buffer: List[tuple] = []    # (frame index, image) before keyframe 1
         self.retry_gap = 0    # a lost frame may end the wait from this gap on
         self.wait_until = 0   # past init.max_gap, after a pair without parallax
         self.failure: Optional[str] = None
         self.wait_note: Optional[str] = None
+        self.solving: Optional[Solving] = None
 
     def _buffer_frame(self, idx: int, image: np.ndarray) -> None:
-        append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
+        """Buffer frame ``idx`` in frame order (a solved candidate comes back
+        after the frames tracked during its solve)."""
+        at = len(self.buffer)
+        while at > 0 and self.buffer[at - 1][0] > idx:
+            at -= 1
+        self.buffer.insert(at, (idx, np.asarray(image)))
+        if at == len(self.buffer) - 1:
+            self.buffer.pop()
+            append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
 
     def step(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
              brightness: np.ndarray, segment: int,
@@ -253,8 +371,23 @@ class Initialiser:
         """Decide for frame ``idx`` (``image``) of a segment with only keyframe
         ``kf0``, given ``tr``, its tracking against keyframe 0, and
         ``brightness``, the VO's current brightness estimate (the re-tracking's
-        start).  Adds ``timings["init"]`` when an SfM runs."""
+        start).  Adds ``timings["init"]`` (the seconds this thread spent) when
+        an SfM runs or is concluded.  While a solve is in flight elsewhere the
+        frame waits (buffered); the frame that finds it solved concludes it: a
+        ``"start"`` decision then names an earlier keyframe 1
+        (:attr:`InitDecision.keyframe1`)."""
         T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
+        if self.solving is not None:
+            t = time.perf_counter()
+            sol = self.solver.init_result()
+            if sol is None:
+                self._buffer_frame(idx, image)
+                return InitDecision(WAIT, T_kf0_f)
+            dec = self._conclude(self.solving, sol)
+            timings["init"] = time.perf_counter() - t
+            if dec.action != START:
+                self._buffer_frame(idx, image)
+            return dataclasses.replace(dec, T_kf0_frame=T_kf0_f)
         parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
                     if tr.ok else 0.0)
         gap = idx - kf0.frame
@@ -267,26 +400,52 @@ class Initialiser:
             self._buffer_frame(idx, image)
             return InitDecision(WAIT, T_kf0_f)
         t = time.perf_counter()
-        sfm, n_views = self._solve(image, idx, kf0, tr, T_kf0_f)
+        job = InitJob(np.asarray(image), idx, kf0.image, kf0.frame, kf0.keyframe,
+                      list(self.buffer), T_kf0_f, bool(tr.ok), np.asarray(brightness, float),
+                      segment, self.camera, self.config, self.uses_depth)
+        solving = Solving(job, tr, T_kf0_f, float(parallax), bool(early))
+        sol = job.run() if self.solver is None else self.solver.solve_init(job)
+        if sol is None:
+            self.solving = solving
+            self.wait_note = f"solving keyframes 0-1 (frame {idx}) beside the tracker"
+            return InitDecision(WAIT, T_kf0_f)
+        dec = self._conclude(solving, sol)
         timings["init"] = time.perf_counter() - t
-        failed, rejected = self._judge(sfm, tr, idx, segment, parallax, early, n_views)
+        return dec
+
+    def _conclude(self, solving: "Solving", sol: InitSolution) -> InitDecision:
+        """The decision of a solved :class:`InitJob` (judged here; keyframe 0
+        rebuilt and the buffer re-tracked here unless the solve did it)."""
+        job, tr = solving.job, solving.track
+        self.solving = None
+        gap = job.idx - job.kf0_frame
+        failed, rejected = self._judge(sol.sfm, tr, job.idx, job.segment, solving.parallax,
+                                       solving.early, sol.n_views)
         if failed:
             self.retry_gap = gap + max(1, gap // 2)
-            self.failure = f"frame {idx}: SfM of keyframes 0-1 {sfm.status}"
-            self._buffer_frame(idx, image)
-            return InitDecision(FAILED, T_kf0_f)
+            self.failure = f"frame {job.idx}: SfM of keyframes 0-1 {sol.sfm.status}"
+            self._buffer_frame(job.idx, job.image)
+            return InitDecision(FAILED, solving.T_kf0_f)
         if rejected is not None:
             # no baseline between keyframes 0 and 1: no map; wait for motion
             self.wait_until = max(gap, self.config.init.max_gap) + max(1, gap // 2)
-            self.failure = f"frame {idx}: no map initialised from keyframes 0-1 ({rejected})"
+            self.failure = (f"frame {job.idx}: no map initialised from keyframes 0-1 "
+                            f"({rejected})")
             log.warning("%s; waiting for camera motion", self.failure)
-            self._buffer_frame(idx, image)
-            return InitDecision(WAIT, T_kf0_f)
-        keyframe0, T_01 = self._solved_keyframe0(kf0, sfm, segment)
-        retracked, last = self._retrack(keyframe0, kf0.frame, idx, T_01, brightness)
+            self._buffer_frame(job.idx, job.image)
+            return InitDecision(WAIT, solving.T_kf0_f)
+        if sol.keyframe0 is None:
+            keyframe0, T_01 = solved_keyframe0(job, sol.sfm)
+            retracked, last = retrack(keyframe0, job, T_01)
+        else:
+            keyframe0, T_01, last = sol.keyframe0, sol.T_01, sol.T_world_last
+            images = dict(job.buffer)
+            retracked = [dataclasses.replace(r, image=images[r.frame]) for r in sol.retracked]
+        since = [(i, img) for i, img in self.buffer if i > job.idx]
         self.buffer.clear()
-        return InitDecision(START, T_kf0_f, keyframe0, kf0.keyframe.T_world_kf @ T_01, retracked,
-                            last)
+        return InitDecision(START, solving.T_kf0_f, keyframe0,
+                            job.kf0_keyframe.T_world_kf @ T_01, retracked, last,
+                            keyframe1=job.idx, image1=job.image, track1=tr, since=since)
 
     def _waits(self, tr: TrackResult, T_kf0_f: np.ndarray, parallax: float, gap: int,
                early: bool) -> bool:
@@ -306,25 +465,6 @@ class Initialiser:
         # unless the tracked parallax is reached or keyframe 0's view is ending
         return wait or (gap < self.wait_until and not overlap_ending
                         and not (tr.ok and parallax >= cfg.init.min_parallax))
-
-    def _solve(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
-               T_kf0_f: np.ndarray) -> Tuple[SfMResult, int]:
-        """The SfM of keyframe 0 (reference), this frame and extra views; its view count."""
-        cfg = self.config
-        sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=not self.uses_depth)
-        prims0 = kf0.keyframe.primitives
-        T_init = T_kf0_f if tr.ok else None
-        if tr.ok and cfg.init.method == "twoview" and not self.uses_depth:
-            tv = twoview_start(kf0.image, image, self.camera, prims0)
-            if tv is not None:
-                T_init, prims0 = tv
-                sfm_cfg = dataclasses.replace(sfm_cfg, reset_scales=False)
-            else:
-                log.info("frame %d: no two-view estimate for keyframe 1; the SfM starts from "
-                         "the tracked pose", idx)
-        views, init = init_views(image, idx, kf0.frame, self.buffer, cfg.init.extra_views, T_init)
-        sfm = few_view_sfm(kf0.image, views, self.camera, prims0, sfm_cfg, init_T_ref_view=init)
-        return sfm, len(views)
 
     def _judge(self, sfm: SfMResult, tr: TrackResult, idx: int, segment: int, parallax: float,
                early: bool, n_views: int) -> Tuple[bool, Optional[str]]:
@@ -356,53 +496,69 @@ class Initialiser:
             return True, rejected
         return False, rejected
 
-    def _solved_keyframe0(self, kf0: MapKeyframe, sfm: SfMResult,
-                          segment: int) -> Tuple[Keyframe, np.ndarray]:
-        """Keyframe 0 rebuilt with the SfM's primitives, and ``T_kf0_kf1``."""
-        new_prims = sfm.primitives
-        if self.config.primitive_model != "integrated":
-            new_prims = apply_primitive_model(new_prims, self.config.primitive_model)
-        if not self.uses_depth and segment > 0:
-            # a re-initialised monocular segment keeps the previous map's depth scale
-            # (keyframe 0's primitives were set to it by Odometry._reinitialise)
-            med = np.median(np.exp(kf0.keyframe.primitives.scaled_log_depth()))
-            med_new = np.median(np.exp(new_prims.scaled_log_depth()))
-            c = float(np.log(med / med_new))
-            new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
-            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float).copy()
-            T_01[:3, 3] *= np.exp(c)
-        else:
-            T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
-        keyframe0 = Keyframe.build(kf0.image, new_prims, kf0.keyframe.T_world_kf,
-                                   self.config.keyframe_levels, self.config.selection)
-        return keyframe0, T_01
 
-    def _retrack(self, keyframe0: Keyframe, frame0: int, idx: int, T_01: np.ndarray,
-                 brightness: np.ndarray) -> Tuple[List[RetrackedFrame], np.ndarray]:
-        """Re-track the buffered frames against the solved keyframe 0: from the
-        constant-velocity guess, else from the pose interpolated between keyframes
-        0 and 1 at the frame's place in the gap (a failed frame leaves no velocity).
-        Returns the frames and the last good pose."""
-        tracker = self.config.tracker
-        T_w0 = keyframe0.T_world_kf
-        prev = None
-        last = T_w0.copy()
-        xi01 = gtsam.Pose3.Logmap(gtsam.Pose3(T_01))
-        out: List[RetrackedFrame] = []
-        for j, img in self.buffer:
-            tj = track_frame(keyframe0, img, constant_velocity_guess(last, prev), brightness,
-                             tracker)
-            if not tj.ok:
-                frac = (j - frame0) / max(idx - frame0, 1)
-                T_guess = T_w0 @ gtsam.Pose3.Expmap(frac * xi01).matrix()
-                tj2 = track_frame(keyframe0, img, T_guess, brightness, tracker)
-                if tj2.ok or tj2.photometric_cost < tj.photometric_cost:
-                    tj = tj2
-            if tj.ok:
-                prev, last = last, tj.T_world_frame
-                out.append(RetrackedFrame(j, img, True, tj.T_world_frame.copy(),
-                                          invert_pose(T_w0) @ tj.T_world_frame,
-                                          np.asarray(tj.brightness, float)))
-            else:
-                out.append(RetrackedFrame(j, img, False, last.copy()))
-        return out, last
+@dataclass
+class Solving:
+    """A keyframe-1 solve in flight: its :class:`InitJob`, the candidate's
+    tracking against keyframe 0 (``track``, ``T_kf0_f``) and the parallax and
+    ``early`` flag the judgement reads."""
+
+    job: InitJob
+    track: TrackResult
+    T_kf0_f: np.ndarray
+    parallax: float
+    early: bool
+
+
+def solved_keyframe0(job: InitJob, sfm: SfMResult) -> Tuple[Keyframe, np.ndarray]:
+    """Keyframe 0 rebuilt with the SfM's primitives, and ``T_kf0_kf1``."""
+    config, kf0 = job.config, job.kf0_keyframe
+    new_prims = sfm.primitives
+    if config.primitive_model != "integrated":
+        new_prims = apply_primitive_model(new_prims, config.primitive_model)
+    if not job.uses_depth and job.segment > 0:
+        # a re-initialised monocular segment keeps the previous map's depth scale
+        # (keyframe 0's primitives were set to it by Odometry._reinitialise)
+        med = np.median(np.exp(kf0.primitives.scaled_log_depth()))
+        med_new = np.median(np.exp(new_prims.scaled_log_depth()))
+        c = float(np.log(med / med_new))
+        new_prims = new_prims.with_log_scales(new_prims.log_scales + c)
+        T_01 = np.asarray(sfm.T_ref_view[0], dtype=float).copy()
+        T_01[:3, 3] *= np.exp(c)
+    else:
+        T_01 = np.asarray(sfm.T_ref_view[0], dtype=float)
+    keyframe0 = Keyframe.build(job.kf0_image, new_prims, kf0.T_world_kf,
+                               config.keyframe_levels, config.selection)
+    return keyframe0, T_01
+
+
+def retrack(keyframe0: Keyframe, job: InitJob, T_01: np.ndarray
+            ) -> Tuple[List["RetrackedFrame"], np.ndarray]:
+    """Re-track ``job``'s buffered frames against the solved keyframe 0: from the
+    constant-velocity guess, else from the pose interpolated between keyframes
+    0 and 1 at the frame's place in the gap (a failed frame leaves no velocity).
+    Returns the frames and the last good pose."""
+    tracker = job.config.tracker
+    frame0, idx, brightness = job.kf0_frame, job.idx, job.brightness
+    T_w0 = keyframe0.T_world_kf
+    prev = None
+    last = T_w0.copy()
+    xi01 = gtsam.Pose3.Logmap(gtsam.Pose3(T_01))
+    out: List[RetrackedFrame] = []
+    for j, img in job.buffer:
+        tj = track_frame(keyframe0, img, constant_velocity_guess(last, prev), brightness,
+                         tracker)
+        if not tj.ok:
+            frac = (j - frame0) / max(idx - frame0, 1)
+            T_guess = T_w0 @ gtsam.Pose3.Expmap(frac * xi01).matrix()
+            tj2 = track_frame(keyframe0, img, T_guess, brightness, tracker)
+            if tj2.ok or tj2.photometric_cost < tj.photometric_cost:
+                tj = tj2
+        if tj.ok:
+            prev, last = last, tj.T_world_frame
+            out.append(RetrackedFrame(j, img, True, tj.T_world_frame.copy(),
+                                      invert_pose(T_w0) @ tj.T_world_frame,
+                                      np.asarray(tj.brightness, float)))
+        else:
+            out.append(RetrackedFrame(j, img, False, last.copy()))
+    return out, last

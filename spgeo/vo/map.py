@@ -284,6 +284,10 @@ class KeyframeMap:
         ``median_then`` the keyframe's median depth then (:meth:`frame_pose`)."""
         self.anchors[frame] = (k, T_kf_frame, median_then)
 
+    def unanchor(self, frame: int) -> None:
+        """Frame ``frame`` no longer follows a keyframe (e.g. lost when tracked again)."""
+        self.anchors.pop(frame, None)
+
     def begin_segment(self) -> None:
         """A new map segment (re-initialisation): its keyframe 0 comes next
         (:meth:`add` with ``new_segment``)."""

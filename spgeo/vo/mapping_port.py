@@ -43,6 +43,7 @@ from ..geometry import invert_pose
 from ..similarity import sim3
 from .backend import MappingJob, MappingUpdate, WindowBackend
 from .config import OdometryConfig
+from .initialisation import InitJob, InitSolution
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_worker import MappingWorker
 from .motion import MotionModel
@@ -237,6 +238,31 @@ class MappingPort:
         back end's copy (an update applied)."""
         self._sent[k] = keyframe
 
+    # ------------------------------------------------------------ initialisation
+    def solve_init(self, job: InitJob) -> Optional[InitSolution]:
+        """The keyframe-1 solve of a map's initialisation
+        (:class:`~spgeo.vo.initialisation.Initialiser`'s solver).  On the
+        ``"fixed"`` schedule it runs here, now, and its solution is returned; on
+        the ``"ready"`` schedule it is sent where the back end runs (with
+        ``ahead``: keyframe 0 solved and the buffer re-tracked there too) and
+        None is returned: :meth:`init_result` gives it to a later frame, and the
+        tracker goes on meanwhile."""
+        if self.schedule != "ready":
+            return job.run()
+        self._submit_init(dataclasses.replace(job, ahead=True))
+        return None
+
+    def init_result(self) -> Optional[InitSolution]:
+        """The solution of the solve sent by :meth:`solve_init`, or None while
+        it is not ready."""
+        return self._init_result()
+
+    def _submit_init(self, job: InitJob) -> None:
+        raise NotImplementedError
+
+    def _init_result(self) -> Optional[InitSolution]:
+        raise NotImplementedError
+
     # ------------------------------------------------------------ place
     @property
     def backend(self) -> WindowBackend:
@@ -277,6 +303,7 @@ class InProcessPort(MappingPort):
         super().__init__(config, lead, schedule)
         self._backend = WindowBackend(camera, config)
         self._job: Optional[MappingJob] = None
+        self._init_job: Optional[InitJob] = None
 
     @property
     def backend(self) -> WindowBackend:
@@ -292,6 +319,13 @@ class InProcessPort(MappingPort):
         job, self._job = self._job, None
         upd = self._backend.run(job)
         return upd, dict(upd.timings)
+
+    def _submit_init(self, job: InitJob) -> None:
+        self._init_job = job
+
+    def _init_result(self) -> Optional[InitSolution]:
+        job, self._init_job = self._init_job, None
+        return None if job is None else job.run()
 
 
 class WorkerPort(MappingPort):
@@ -320,6 +354,12 @@ class WorkerPort(MappingPort):
         t = time.perf_counter()
         upd = self.worker.receive()
         return upd, {"mapping": time.perf_counter() - t}
+
+    def _submit_init(self, job: InitJob) -> None:
+        self.worker.submit(job)
+
+    def _init_result(self) -> Optional[InitSolution]:
+        return self.worker.receive() if self.worker.ready() else None
 
 
 def make_port(camera: PinholeCamera, config: OdometryConfig, wait: bool = False) -> MappingPort:

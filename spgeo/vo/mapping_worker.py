@@ -7,7 +7,11 @@ Why a process and not a thread: GTSAM's Python wrapper holds the interpreter loc
 for the whole smoother update (``python scripts/gil_during_solve.py``; docs/history.md,
 issue 32), so a mapper thread would only take turns with the tracker.
 
-Protocol (one update in flight at a time): :meth:`MappingWorker.submit` sends a
+A map's initialisation may also send its keyframe-1 solve (an
+:class:`~spgeo.vo.initialisation.InitJob`, run by its own ``run``) while the worker
+has no window yet (:meth:`spgeo.vo.mapping_port.MappingPort.solve_init`).
+
+Protocol (one job in flight at a time): :meth:`MappingWorker.submit` sends a
 :class:`~spgeo.vo.backend.MappingJob` (its keyframes pickled without their derived
 data, :meth:`Keyframe.__getstate__ <spgeo.vo.tracking.Keyframe.__getstate__>`); the
 worker runs :meth:`WindowBackend.run <spgeo.vo.backend.WindowBackend.run>` on its own
@@ -30,6 +34,7 @@ from multiprocessing.connection import Connection
 from ..camera import PinholeCamera
 from .backend import MappingJob, MappingUpdate, WindowBackend
 from .config import OdometryConfig
+from .initialisation import InitJob
 
 __all__ = ["MappingJob", "MappingUpdate", "MappingWorker", "MappingWorkerError"]
 
@@ -70,7 +75,7 @@ def serve(jobs, updates) -> None:
             if job is None:
                 return
             try:
-                answer = ("ok", backend.run(job))
+                answer = ("ok", job.run() if isinstance(job, InitJob) else backend.run(job))
             except Exception:      # noqa: BLE001 - every failure goes back to the caller
                 answer = ("error", traceback.format_exc())
             updates.send(answer)

@@ -101,10 +101,11 @@ class Odometry(OdometryReadout):
         self._map = KeyframeMap(config.window, config.keyframe_levels, config.n_support, store)
         self._tracker = FrameTracker(self.camera, config)
         self._motion = self._tracker.motion
-        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth)
         self._n_lost = 0
         self._port = port if port is not None else make_port(self.camera, config,
                                                               wait_for_mapper)
+        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth,
+                                        solver=self._port)
         self._maker = KeyframeMaker(self.camera, config, frontend)
 
     # ------------------------------------------------------------ public API
@@ -196,6 +197,8 @@ class Odometry(OdometryReadout):
         self._n_lost = 0 if tr.ok else self._n_lost + 1
         dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
                                      self._map.segment, timings)
+        if dec.action == START and dec.keyframe1 != idx:
+            return self._start_map_late(frame, idx, kf0, dec, timings)
         if dec.action == START:
             return self._start_map(frame, idx, kf0, dec, tr, timings)
         last_good = self._motion.last_good
@@ -218,6 +221,35 @@ class Odometry(OdometryReadout):
         self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame.timestamp), t_last)
         self._n_lost = 0
         return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
+
+    def _start_map_late(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
+                        timings: Dict[str, float]) -> FrameResult:
+        """A ``"start"`` decision for an earlier frame (its solve ran beside the
+        tracker): that frame becomes keyframe 1 and the buffered frames tracked
+        during the solve are tracked again against it (their returned results
+        rewritten in place, as the re-tracked frames before it), then this frame
+        is tracked against keyframe 1."""
+        j = dec.keyframe1
+        frame1 = Frame(dec.image1, self.camera, self._frames[j].timestamp)
+        res1 = self._start_map(frame1, j, kf0, dec, dec.track1, timings)
+        if res1 is not None:
+            _rewrite(self._frames[j], res1.status, res1.T_world_cam, res1.track,
+                     res1.keyframe_index)
+        t = time.perf_counter()
+        latest = self._map.latest
+        for i, image in dec.since:
+            res = self._frames[i]
+            tr = self._tracker.track(latest.keyframe, image, timestamp=res.timestamp)
+            if tr.ok:
+                self._motion.accept(tr, res.timestamp)
+                T_kf_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
+                self._map.anchor(i, latest.index, T_kf_f, latest.keyframe.median_depth)
+                _rewrite(res, FrameStatus.OK, tr.T_world_frame, tr)
+            else:
+                self._map.unanchor(i)
+                _rewrite(res, FrameStatus.LOST, self._motion.last_good, tr)
+        timings["init"] = timings.get("init", 0.0) + time.perf_counter() - t
+        return self._track(frame, idx, timings)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of an initialised segment: tracked against the latest keyframe
@@ -345,6 +377,14 @@ class Odometry(OdometryReadout):
             for key, sec in seconds.items():
                 timings[key] = timings.get(key, 0.0) + sec
         return True
+
+def _rewrite(res: FrameResult, status: FrameStatus, T_world_cam: np.ndarray,
+             track: Optional[TrackResult], keyframe_index: Optional[int] = None) -> None:
+    """A returned :class:`FrameResult` rewritten in place (an initialisation's
+    frames, once: :meth:`Odometry.track`)."""
+    res.status, res.T_world_cam = status, np.array(T_world_cam, dtype=float)
+    res.track, res.keyframe_index = track, keyframe_index
+
 
 def _result(frame: Frame, idx: int, T_world_cam: np.ndarray, status: FrameStatus,
             **kwargs) -> FrameResult:
