@@ -31,7 +31,7 @@ import numpy as np
 
 def clip_arguments(ap: argparse.ArgumentParser) -> None:
     """``--data``, ``--dataset``, ``--frames`` (the clip), ``--mapping`` and
-    ``--schedule`` (also :mod:`paced_camera`'s)."""
+    ``--schedule``."""
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent
                                           / "shared/data/7scenes_redkitchen_dev"))
     ap.add_argument("--dataset", default="7scenes")

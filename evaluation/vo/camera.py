@@ -127,8 +127,9 @@ class CameraRun:
 def drop_summary(dropped: Sequence[int], frames: int, init_frame: Optional[int]) -> dict:
     """Dropped frame numbers summarised: ``dropped`` (all), ``dropped_after_init``
     (numbers above ``init_frame``, the last frame arrived when the map started;
-    all when None: no map), its percentage of the frames after ``init_frame``, the longest run of consecutive drops after it
-    and the first dropped numbers (at most 40)."""
+    all when None: no map), its percentage of the frames after ``init_frame``,
+    the longest run of consecutive drops after it and the first dropped numbers
+    (at most 40)."""
     from spgeo.datasets.capture import longest_run
 
     after = [n for n in sorted(dropped) if init_frame is None or n > init_frame]

@@ -9,14 +9,15 @@ for a :class:`~spgeo.vo.tracking.TrackResult` and decides what follows.
 from __future__ import annotations
 
 import dataclasses
-from typing import Optional, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry import rotation_angle_deg
+from ..geometry import invert_pose, rotation_angle_deg
 from .config import OdometryConfig
 from .feature_retry import FeaturePose, FeatureRetry
+from .initialisation import RetrackedFrame
 from .map import MapKeyframe
 from .motion import MotionModel
 from .tracking import Keyframe, TrackResult, track_frame
@@ -73,6 +74,24 @@ class FrameTracker:
                 and pnp.agrees(tr.T_world_frame, self._retry.camera, self.config.feature_retry)):
             tr = dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
         return tr
+
+    def retrack(self, kf: MapKeyframe, frames: Sequence[Tuple[int, np.ndarray, float]]
+                ) -> List[RetrackedFrame]:
+        """``(frame number, image, timestamp)`` frames, in order, tracked against
+        ``kf`` from the motion model's guesses (each one tracked becomes the last
+        good); one not tracked gets the last good pose."""
+        out: List[RetrackedFrame] = []
+        T_kf_world = invert_pose(kf.keyframe.T_world_kf)
+        for i, image, stamp in frames:
+            tr = self.track(kf.keyframe, image, timestamp=stamp)
+            if tr.ok:
+                self.motion.accept(tr, float(stamp))
+                out.append(RetrackedFrame(i, image, True, tr.T_world_frame.copy(),
+                                          T_kf_world @ tr.T_world_frame,
+                                          np.asarray(tr.brightness, float)))
+            else:
+                out.append(RetrackedFrame(i, image, False, self.motion.last_good.copy()))
+        return out
 
     def relocalise(self, older: Sequence[MapKeyframe], image: np.ndarray
                    ) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:

@@ -332,17 +332,19 @@ class KeyframeMap:
         return {k: kf for k, kf in changed.items() if not self.kfs[k].retired}
 
     def adopt_retracked(self, kf0: MapKeyframe, retracked: Sequence,
-                        frames: Sequence[FrameResult]) -> None:
+                        frames: Sequence[FrameResult],
+                        status: FrameStatus = FrameStatus.INIT) -> None:
         """An initialisation's re-tracked frames (``retracked``:
         :class:`~spgeo.vo.initialisation.RetrackedFrame`, against the solved keyframe
-        0 ``kf0``) written into their :class:`FrameResult` in ``frames`` (pose
-        and status ``INIT`` / ``LOST``); the ones tracked become anchored to
-        ``kf0`` and supporting-frame candidates, the others lose their anchor."""
+        0 ``kf0``, or against keyframe 1 for the frames of a solve that ran beside
+        the tracker) written into their :class:`FrameResult` in ``frames`` (pose
+        and ``status`` / ``LOST``); the ones tracked become anchored to ``kf0`` and
+        supporting-frame candidates, the others lose their anchor."""
         for r in retracked:
             res = frames[r.frame]
             res.T_world_cam = r.T_world_frame
             if r.ok:
-                res.status = FrameStatus.INIT
+                res.status = status
                 self.anchors[r.frame] = (kf0.index, r.T_kf0_frame, kf0.keyframe.median_depth)
                 self.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
                                                         r.brightness))

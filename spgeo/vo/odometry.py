@@ -1,23 +1,16 @@
 """Keyframe-based monocular visual odometry on SuperPrimitives (docs/design.md §5):
 the per-frame state machine (initialise, track, lose, re-initialise).
 
-One call per frame (:meth:`Odometry.track`).  The states and
-their rules (initialisation, tracking with its retries, relocalisation,
-re-initialisation, keyframe decisions, the trajectory that
-:meth:`Odometry.result` reports) are stated in docs/design.md §5.1; options
-are :class:`~spgeo.vo.config.OdometryConfig`'s.  ``Odometry`` drives them over
-the objects that own the state: the keyframe map (:class:`spgeo.vo.map.KeyframeMap`:
-keyframes, segments, the store of retired keyframes, anchored and supporting
-frames), the frame tracker (:class:`spgeo.vo.frame_tracker.FrameTracker`: the motion
-model's guesses, the retries, relocalisation, the keyframe decision), the
-initialiser (:class:`spgeo.vo.initialisation.Initialiser`, whose
-:class:`~spgeo.vo.initialisation.InitDecision` ``Odometry`` applies: a keyframe pair
-without parallax never initialises a map, :attr:`Odometry.init_failure`), the
-keyframe maker (:class:`spgeo.vo.keyframing.KeyframeMaker`) and the mapping port
-(:mod:`spgeo.vo.mapping_port`): a new keyframe's back end (landmarks, loop closure,
-the window smoother over the last ``window`` keyframes and their supporting frames)
-runs in a worker process while the next frames are tracked, or in this process; its
-update is applied to the map at the port's schedule.
+One call per frame (:meth:`Odometry.track`); the states and their rules are stated
+in docs/design.md §5.1, options are :class:`~spgeo.vo.config.OdometryConfig`'s.
+``Odometry`` drives them over the objects that own the state: the keyframe map
+(:class:`spgeo.vo.map.KeyframeMap`), the frame tracker
+(:class:`spgeo.vo.frame_tracker.FrameTracker`: the motion model's guesses, the
+retries, relocalisation, the keyframe decision), the initialiser
+(:class:`spgeo.vo.initialisation.Initialiser`, whose
+:class:`~spgeo.vo.initialisation.InitDecision` ``Odometry`` applies), the keyframe
+maker (:class:`spgeo.vo.keyframing.KeyframeMaker`) and the mapping port
+(:mod:`spgeo.vo.mapping_port`: where and when a new keyframe's back end runs).
 
 Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
 the ``"depth"`` front-end.
@@ -45,7 +38,7 @@ from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_port import MappingPort, make_port
 from .processing import checked_frame, opencv_threads
 from .readout import OdometryReadout
-from .result import FrameResult, FrameStatus
+from .result import FrameResult, FrameStatus, add_seconds, frame_result, timed
 from .tracking import TrackResult, track_frame
 
 __all__ = ["Odometry", "MAX_LEAD_FRAMES"]
@@ -77,11 +70,10 @@ class Odometry(OdometryReadout):
         port: the :class:`~spgeo.vo.mapping_port.MappingPort` (default None: the
             one of ``config.mapping``, :func:`~spgeo.vo.mapping_port.make_port`).
 
-    Mapping and its schedule: docs/design.md §5.1, *The mapping port*.  Reads
-    (:class:`~spgeo.vo.readout.OdometryReadout`) apply the pending update first.
-    :meth:`close` (or ``with Odometry(...) as vo:``) stops a worker.  Memory: after
-    a frame only its :class:`FrameResult` and anchor stay; keyframes outside the
-    window are retired to the store (:meth:`spgeo.vo.map.MapKeyframe.retire`).
+    Mapping: docs/design.md §5.1, *The mapping port*; reads apply the pending
+    update first; :meth:`close` (or ``with``) stops a worker.  Memory: after a frame
+    only its :class:`FrameResult` and anchor stay; keyframes outside the window are
+    retired to the store (:meth:`spgeo.vo.map.MapKeyframe.retire`).
     """
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
@@ -119,9 +111,11 @@ class Odometry(OdometryReadout):
         final except for one case: a frame returned while its segment waits for
         keyframe 1 (``INIT`` / ``LOST``, buffered by the
         :class:`~spgeo.vo.initialisation.Initialiser`) gets its ``status``
-        (``INIT`` or ``LOST``) and ``T_world_cam`` rewritten once, in place, by
-        the call that creates keyframe 1 (it is re-tracked against the solved
-        keyframe 0); nothing else changes.  The trajectory's authority is
+        and ``T_world_cam`` rewritten once, in place, by the call that creates
+        keyframe 1: re-tracked against the solved keyframe 0 (``INIT`` or
+        ``LOST``); on the ``"ready"`` schedule keyframe 1 may be such an earlier
+        frame (``KEYFRAME``), and the frames after it are re-tracked against it
+        (``OK`` or ``LOST``).  The trajectory's authority is
         :meth:`result` (it follows the map's smoothed poses and scales).
 
         Raises:
@@ -183,72 +177,54 @@ class Odometry(OdometryReadout):
         self._motion.reset(T_world, float(frame.timestamp))
         self._n_lost = 0
         status = FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT
-        return _result(frame, idx, T_world, status, keyframe_index=k)
+        return frame_result(frame, idx, T_world, status, keyframe_index=k)
 
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it, then
         the :class:`Initialiser`'s decision applied."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
-        t = time.perf_counter()
-        tr = self._tracker.track(kf0.keyframe, frame.image, timestamp=frame.timestamp)
-        timings["track"] = time.perf_counter() - t
+        with timed(timings, "track"):
+            tr = self._tracker.track(kf0.keyframe, frame.image, timestamp=frame.timestamp)
         if tr.ok:
             self._motion.accept(tr, float(frame.timestamp))
         self._n_lost = 0 if tr.ok else self._n_lost + 1
         dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
                                      self._map.segment, timings)
-        if dec.action == START and dec.keyframe1 != idx:
-            return self._start_map_late(frame, idx, kf0, dec, timings)
         if dec.action == START:
             return self._start_map(frame, idx, kf0, dec, tr, timings)
         last_good = self._motion.last_good
         if dec.action == FAILED:
             self._n_lost += 1
-            return _result(frame, idx, last_good, FrameStatus.LOST, track=tr)
+            return frame_result(frame, idx, last_good, FrameStatus.LOST, track=tr)
         if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
             self._map.anchor(idx, kf0.index, dec.T_kf0_frame, kf0.keyframe.median_depth)
-        pose = tr.T_world_frame if tr.ok else last_good
-        return _result(frame, idx, pose, FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
+        return frame_result(frame, idx, tr.T_world_frame if tr.ok else last_good,
+                            FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
 
     def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
                    tr: TrackResult, timings: Dict[str, float]) -> FrameResult:
         """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
-        re-tracked frames their poses and statuses, this frame is keyframe 1."""
+        re-tracked frames their poses and statuses, and this frame is keyframe 1;
+        or (an earlier keyframe 1, whose solve ran beside the tracker) that frame
+        is, its returned result rewritten in place, the frames after it are
+        tracked again against it, and this frame is tracked against it."""
+        j = dec.keyframe1
+        frame1 = frame if j == idx else Frame(dec.image1, self.camera, self._frames[j].timestamp)
         self._map.replace_keyframe(kf0.index, dec.keyframe0)
         self._map.adopt_retracked(kf0, dec.retracked, self._frames)
         good = [r.frame for r in dec.retracked if r.ok]
         t_last = self._frames[good[-1] if good else kf0.frame].timestamp
-        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame.timestamp), t_last)
+        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame1.timestamp), t_last)
         self._n_lost = 0
-        return self._new_keyframe(frame, idx, dec.T_world_kf1, timings, track=tr)
-
-    def _start_map_late(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
-                        timings: Dict[str, float]) -> FrameResult:
-        """A ``"start"`` decision for an earlier frame (its solve ran beside the
-        tracker): that frame becomes keyframe 1 and the buffered frames tracked
-        during the solve are tracked again against it (their returned results
-        rewritten in place, as the re-tracked frames before it), then this frame
-        is tracked against keyframe 1."""
-        j = dec.keyframe1
-        frame1 = Frame(dec.image1, self.camera, self._frames[j].timestamp)
-        res1 = self._start_map(frame1, j, kf0, dec, dec.track1, timings)
+        res1 = self._new_keyframe(frame1, j, dec.T_world_kf1, timings, track=dec.track1)
+        if j == idx:
+            return res1
         if res1 is not None:
-            _rewrite(self._frames[j], res1.status, res1.T_world_cam, res1.track,
-                     res1.keyframe_index)
-        t = time.perf_counter()
-        latest = self._map.latest
-        for i, image in dec.since:
-            res = self._frames[i]
-            tr = self._tracker.track(latest.keyframe, image, timestamp=res.timestamp)
-            if tr.ok:
-                self._motion.accept(tr, res.timestamp)
-                T_kf_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
-                self._map.anchor(i, latest.index, T_kf_f, latest.keyframe.median_depth)
-                _rewrite(res, FrameStatus.OK, tr.T_world_frame, tr)
-            else:
-                self._map.unanchor(i)
-                _rewrite(res, FrameStatus.LOST, self._motion.last_good, tr)
-        timings["init"] = timings.get("init", 0.0) + time.perf_counter() - t
+            self._frames[j].rewrite(res1.status, res1.T_world_cam, res1.track, res1.keyframe_index)
+        with timed(timings, "init"):
+            since = self._tracker.retrack(self._map.latest, [(i, image, self._frames[i].timestamp)
+                                                             for i, image in dec.since])
+        self._map.adopt_retracked(self._map.latest, since, self._frames, FrameStatus.OK)
         return self._track(frame, idx, timings)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
@@ -291,7 +267,7 @@ class Odometry(OdometryReadout):
         if ref is latest:
             self._map.add_candidate(SupportCandidate(idx, np.asarray(frame.image), T_ref_f,
                                                      np.asarray(tr.brightness, float)))
-        return _result(frame, idx, tr.T_world_frame, status, track=tr)
+        return frame_result(frame, idx, tr.T_world_frame, status, track=tr)
 
     def _lost(self, frame: Frame, idx: int, tr: TrackResult,
               timings: Dict[str, float]) -> FrameResult:
@@ -301,11 +277,11 @@ class Odometry(OdometryReadout):
         self._n_lost += 1
         log.info("frame %d lost (%s)", idx, tr.reason)
         if self._n_lost < self.config.max_lost_frames:
-            return _result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
+            return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
         log.warning("frame %d: %d frames lost; re-initialising the map", idx, self._n_lost)
         grey = np.asarray(frame.image, dtype=np.float64)
         if float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0):
-            return _result(frame, idx, self._motion.last_good, FrameStatus.LOST)
+            return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST)
         self._sync(timings)
         med = self._map.latest.keyframe.median_depth
         self._map.begin_segment()
@@ -316,9 +292,8 @@ class Odometry(OdometryReadout):
                       timings: Dict[str, float], track: Optional[TrackResult],
                       prims: Optional[PrimitiveSet] = None) -> Optional[FrameResult]:
         """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`;
-        ``prims``: its front-end primitives, already made) and send its back-end
-        job to the port.  A pending update is applied first: the keyframe is
-        made on the updated map (the frame's pose moved with the keyframe it was
+        ``prims``: its primitives, already made) and send its job to the port, on
+        the map updated first (the frame's pose moved with the keyframe it was
         tracked against).  None when the render gives no scale."""
         if self._sync(timings) and idx in self._map.anchors:
             T_world = nearest_rigid(self._map.frame_pose(*self._map.anchors[idx]))
@@ -335,8 +310,8 @@ class Odometry(OdometryReadout):
         self._motion.brightness = np.zeros(2)    # the next frames: relative to keyframe k
         if self._port.due(len(self._frames)):
             self._sync(timings)
-        return _result(frame, idx, self._map.kfs[k].keyframe.T_world_kf, FrameStatus.KEYFRAME,
-                       keyframe_index=k, track=track)
+        return frame_result(frame, idx, self._map.kfs[k].keyframe.T_world_kf,
+                            FrameStatus.KEYFRAME, keyframe_index=k, track=track)
 
     def _redecided(self, frame: Frame, idx: int, tr: TrackResult, timings: Dict[str, float]
                    ) -> Tuple[TrackResult, np.ndarray, Optional[FrameResult]]:
@@ -344,15 +319,13 @@ class Odometry(OdometryReadout):
         primitives made, update applied, tracked and decided again.  Returns
         ``(track result, T_latest_frame, keyframe FrameResult or None)``."""
         latest = self._map.latest
-        t = time.perf_counter()
-        prims = self._maker.primify(frame)
-        timings["frontend"] = time.perf_counter() - t
+        with timed(timings, "frontend"):
+            prims = self._maker.primify(frame)
         ref, _, median_then = self._map.anchors[idx]
         self._sync(timings)
-        t = time.perf_counter()
         T0 = self._map.frame_pose(*self._map.anchors[idx])    # moved with the update
-        tr2 = track_frame(latest.keyframe, frame.image, T0, tr.brightness, self.config.tracker)
-        timings["track"] = timings.get("track", 0.0) + time.perf_counter() - t
+        with timed(timings, "track"):
+            tr2 = track_frame(latest.keyframe, frame.image, T0, tr.brightness, self.config.tracker)
         if tr2.ok:
             tr = tr2
             self._motion.replace_last(tr)
@@ -373,21 +346,5 @@ class Odometry(OdometryReadout):
         if not self._port.pending:
             return False
         seconds = self._port.apply_pending(self._map, self._motion, len(self._frames))
-        if timings is not None:
-            for key, sec in seconds.items():
-                timings[key] = timings.get(key, 0.0) + sec
+        add_seconds({} if timings is None else timings, seconds)
         return True
-
-def _rewrite(res: FrameResult, status: FrameStatus, T_world_cam: np.ndarray,
-             track: Optional[TrackResult], keyframe_index: Optional[int] = None) -> None:
-    """A returned :class:`FrameResult` rewritten in place (an initialisation's
-    frames, once: :meth:`Odometry.track`)."""
-    res.status, res.T_world_cam = status, np.array(T_world_cam, dtype=float)
-    res.track, res.keyframe_index = track, keyframe_index
-
-
-def _result(frame: Frame, idx: int, T_world_cam: np.ndarray, status: FrameStatus,
-            **kwargs) -> FrameResult:
-    """The :class:`FrameResult` of frame ``idx`` at a copy of ``T_world_cam``."""
-    return FrameResult(idx, float(frame.timestamp), np.array(T_world_cam, dtype=float), status,
-                       **kwargs)

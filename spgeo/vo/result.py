@@ -6,10 +6,12 @@
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -19,6 +21,7 @@ from ..trajectory import STATUSES, FrameStatus, Trajectory
 from .tracking import Keyframe, TrackResult
 
 __all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "timing_statistics",
+           "frame_result", "timed", "add_seconds",
            "frame_records", "save_run", "write_keyframe_clouds"]
 
 #: the per-frame stages whose seconds :func:`timing_statistics` adds up
@@ -64,6 +67,37 @@ class FrameResult:
 
     def __post_init__(self) -> None:
         self.status = FrameStatus(self.status)
+
+    def rewrite(self, status: FrameStatus, T_world_cam: np.ndarray,
+                track: Optional[TrackResult] = None, keyframe_index: Optional[int] = None) -> None:
+        """Rewritten in place (an initialisation's frames, once:
+        :meth:`spgeo.vo.Odometry.track`)."""
+        self.status, self.T_world_cam = FrameStatus(status), np.array(T_world_cam, dtype=float)
+        self.track, self.keyframe_index = track, keyframe_index
+
+
+@contextlib.contextmanager
+def timed(timings: Dict[str, float], key: str) -> Iterator[None]:
+    """Adds the seconds of the ``with`` block to ``timings[key]``."""
+    t = time.perf_counter()
+    try:
+        yield
+    finally:
+        add_seconds(timings, {key: time.perf_counter() - t})
+
+
+def add_seconds(timings: Dict[str, float], seconds: Dict[str, float]) -> None:
+    """Adds ``seconds`` (stage -> seconds) to ``timings``."""
+    for key, sec in seconds.items():
+        timings[key] = timings.get(key, 0.0) + float(sec)
+
+
+def frame_result(frame, idx: int, T_world_cam: np.ndarray, status: FrameStatus,
+                 **kwargs) -> FrameResult:
+    """The :class:`FrameResult` of frame ``idx`` (a :class:`~spgeo.frame.Frame`)
+    at a copy of ``T_world_cam``; ``kwargs``: its other fields."""
+    return FrameResult(idx, float(frame.timestamp), np.array(T_world_cam, dtype=float), status,
+                       **kwargs)
 
 
 def timing_statistics(frames: Sequence[FrameResult]) -> Dict[str, object]:
