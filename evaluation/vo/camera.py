@@ -2,6 +2,11 @@
 
     spgeo eval vo_camera --dataset 7scenes PATH [--frames 0:300] [--rates 15,30]
         [--buffers 2,4] [--repeats 2] [--ring 8] [--out DIR]
+    spgeo eval vo_camera --synthetic 200 [...]
+
+``--synthetic N``: N frames of the synthetic room (320x240, seed 0, with its pure
+rotation; :func:`spgeo.evaluation.vo.synthetic.synthetic_sequence`) instead of
+``--dataset``.
 
 A :class:`PacedCamera` gives frame ``n`` of the clip ``n / rate`` seconds after its
 first frame, through a driver ring of ``buffers`` frames (OpenCV's V4L2 capture
@@ -223,21 +228,39 @@ def markdown_table(rows: Sequence[dict]) -> str:
 
 
 def build_parser(prog: Optional[str] = None) -> argparse.ArgumentParser:
-    p = protocol_parser(prog, __doc__.splitlines()[0])
+    p = protocol_parser(prog, __doc__.splitlines()[0], dataset=False)
+    p.add_argument("--dataset", nargs=2, metavar=("KIND", "PATH"), default=None,
+                   help="the recorded clip (spgeo.datasets.open_dataset)")
+    p.add_argument("--frames", default=None, help="frame selection A:B[:S] (default all)")
     p.add_argument("--rates", default="15,30", help="camera rates, Hz (comma-separated)")
     p.add_argument("--buffers", default="2,4", help="driver rings (comma-separated)")
     p.add_argument("--ring", type=int, default=None,
                    help="capture ring (default: VORunConfig.capture_ring)")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--out", default=None, help="folder for camera.json and camera.md")
+    p.add_argument("--synthetic", type=int, default=None, metavar="N",
+                   help="N frames of the synthetic room instead of --dataset")
     return p
+
+
+def _frames(args: argparse.Namespace) -> list:
+    """The clip: ``--synthetic`` frames or ``--dataset``'s (``ValueError`` with neither)."""
+    if args.synthetic is not None:
+        from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, synthetic_sequence
+
+        n = int(args.synthetic)
+        return synthetic_sequence(SyntheticVOConfig(n_frames=n, size=(320, 240),
+                                                    rotation=(int(0.6 * n), int(0.8 * n))))
+    if not getattr(args, "dataset", None):
+        raise ValueError("vo_camera: give --dataset KIND PATH or --synthetic N")
+    return list(open_sequence(args))
 
 
 def run(args: argparse.Namespace) -> int:
     from spgeo.apps.vo_run import VORunConfig
     from spgeo.evaluation.jobs import provenance
 
-    frames = list(open_sequence(args))
+    frames = _frames(args)
     rates = [float(x) for x in str(args.rates).split(",")]
     buffers = [int(x) for x in str(args.buffers).split(",")]
     ring = VORunConfig().capture_ring if args.ring is None else int(args.ring)
