@@ -219,3 +219,46 @@ def test_the_ready_schedule_applies_updates_as_they_come(frames, inline):
     assert record["latency_frames_max"] >= _LatePort.AFTER // 2
     assert rep["n_keyframes"] >= 3 and not any(s == "lost" for s in res.statuses)
     assert _ate(frames, res) < max(1.5 * _ate(frames, inline[0]), 0.01)
+
+
+class _LateInitPort(_FastPort):
+    """Ready-schedule port whose initialisation solve comes back only at the
+    ``AFTER``-th frame after it was sent (a solve beside the tracker)."""
+
+    AFTER = 5
+
+    def _submit_init(self, job):
+        self.polls = 0
+        super()._submit_init(job)
+
+    def _init_result(self):
+        self.polls += 1
+        return super()._init_result() if self.polls >= self.AFTER else None
+
+
+def test_the_initialisation_solved_beside_the_tracker(frames, inline):
+    """Issue 41: on the ready schedule the keyframe-1 solve runs beside the tracker.
+    Back at the next frame, the map is the inline one bit for bit (the same solve,
+    the same frames after it); back five frames later, the earlier frame is keyframe
+    1 (its returned result rewritten to keyframe), the frames of the solve are
+    tracked again against it (ok, not init) and the map stays accurate."""
+    res, _ = _run_port(frames, lambda cam, cfg: _FastPort(cam, cfg, lead=3, schedule="ready"))
+    assert np.array_equal(res.poses, inline[0].poses)
+    seen = []
+
+    def late(cam, cfg):
+        seen.append(_LateInitPort(cam, cfg, lead=3, schedule="ready"))
+        return seen[-1]
+
+    fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1), mapping_lead=3)
+    cam = CAM.resized(*cfg.processing_size_for(CAM.size))
+    with Odometry(CAM, cfg, fe, port=late(cam, cfg)) as vo:
+        returned = [vo.track(f) for f in frames]
+        res = vo.result()
+    k1 = next(i for i, r in enumerate(inline[0].statuses) if r == "keyframe" and i > 0)
+    assert returned[k1].status == "keyframe" and returned[k1].keyframe_index == 1
+    after = [str(r.status) for r in returned[k1 + 1:k1 + _LateInitPort.AFTER]]
+    assert after == ["ok"] * (_LateInitPort.AFTER - 1)
+    assert not any(s in ("lost", "init") for s in res.statuses[k1 + 1:])
+    assert _ate(frames, res) < max(1.5 * _ate(frames, inline[0]), 0.01)

@@ -78,12 +78,13 @@ class FrameTracker:
     def retrack(self, kf: MapKeyframe, frames: Sequence[Tuple[int, np.ndarray, float]]
                 ) -> List[RetrackedFrame]:
         """``(frame number, image, timestamp)`` frames, in order, tracked against
-        ``kf`` from the motion model's guesses (each one tracked becomes the last
-        good); one not tracked gets the last good pose."""
+        ``kf`` as :meth:`track` does (the motion model's guesses, the feature
+        retry; each one tracked becomes the last good); one not tracked gets the
+        last good pose."""
         out: List[RetrackedFrame] = []
         T_kf_world = invert_pose(kf.keyframe.T_world_kf)
         for i, image, stamp in frames:
-            tr = self.track(kf.keyframe, image, timestamp=stamp)
+            tr = self.track(kf.keyframe, image, kf, stamp)
             if tr.ok:
                 self.motion.accept(tr, float(stamp))
                 out.append(RetrackedFrame(i, image, True, tr.T_world_frame.copy(),
