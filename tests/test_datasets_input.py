@@ -369,6 +369,9 @@ def test_vo_on_a_camera_stops_on_ctrl_c_with_everything_written(video, tmp_path,
     assert rc == 130
     assert "interrupted" in capsys.readouterr().err
     report = json.loads((out / "report.json").read_text())
-    assert report["run"]["status"] == "interrupted" and report["run"]["n_frames"] == 11
+    n = report["run"]["n_frames"]
+    # the capture ring (issue 41) drops frames a device gives faster than the VO takes them
+    assert report["run"]["status"] == "interrupted"
+    assert n + report["capture"]["dropped"] == report["capture"]["arrived"] == 11
     assert report["intrinsics"]["source"] == "given"
-    assert len((out / "trajectory.txt").read_text().strip().splitlines()) >= 11
+    assert len((out / "trajectory.txt").read_text().strip().splitlines()) >= n

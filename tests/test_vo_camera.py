@@ -208,3 +208,25 @@ def test_a_paced_camera_drops_no_frame_after_initialisation(frames):
     assert row["lost"] == 0
     assert row["ate_m"] < max(1.3 * ref["ate_m"], 0.01)
     assert row["latency_ms_median"] < 100
+
+
+@pytest.mark.slow
+def test_a_source_faster_than_the_vo_reports_its_drops(frames, tmp_path):
+    """A list given to run_live arrives at once: the ring keeps the newest frames, and
+    every frame is either in trajectory.txt or listed by name in report.json's
+    "capture" (never silent)."""
+    import json
+
+    from spgeo.apps.vo_run import VORunConfig, run_live
+
+    run = run_live(frames[:24], VORunConfig(progress=False, odometry=CONFIG, capture_ring=4))
+    try:
+        run.save(tmp_path, with_ate=False)
+    finally:
+        run.odometry.close()
+    report = json.loads((tmp_path / "report.json").read_text())
+    cap = report["capture"]
+    dropped = [d["name"] for d in cap["dropped_frames"]]
+    assert cap["arrived"] == 24 and cap["dropped"] == len(dropped) > 0
+    assert sorted(dropped + list(run.names)) == sorted(f.name for f in frames[:24])
+    assert run.names[-4:] == [f.name for f in frames[20:24]]
