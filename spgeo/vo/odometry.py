@@ -191,7 +191,7 @@ class Odometry(OdometryReadout):
         dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
                                      self._map.segment, timings)
         if dec.action == START:
-            return self._start_map(frame, idx, kf0, dec, tr, timings)
+            return self._start_map(frame, idx, kf0, dec, timings)
         last_good = self._motion.last_good
         if dec.action == FAILED:
             self._n_lost += 1
@@ -202,7 +202,7 @@ class Odometry(OdometryReadout):
                             FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
 
     def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
-                   tr: TrackResult, timings: Dict[str, float]) -> FrameResult:
+                   timings: Dict[str, float]) -> FrameResult:
         """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
         re-tracked frames their poses and statuses, and this frame is keyframe 1;
         or (an earlier keyframe 1, whose solve ran beside the tracker) that frame
