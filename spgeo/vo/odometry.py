@@ -204,16 +204,16 @@ class Odometry(OdometryReadout):
     def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
                    timings: Dict[str, float]) -> FrameResult:
         """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
-        re-tracked frames their poses and statuses, and this frame is keyframe 1;
-        or (an earlier keyframe 1, whose solve ran beside the tracker) that frame
-        is, its returned result rewritten in place, the frames after it are
-        tracked again against it, and this frame is tracked against it."""
+        re-tracked frames their poses and statuses, this frame is keyframe 1; or
+        (solved beside the tracker) an earlier frame is, rewritten in place, the
+        frames after it are tracked again against it (``OK``, else left ``INIT``)
+        and this frame is tracked against it."""
         j = dec.keyframe1
         frame1 = frame if j == idx else Frame(dec.image1, self.camera, self._frames[j].timestamp)
         self._map.replace_keyframe(kf0.index, dec.keyframe0)
         self._map.adopt_retracked(kf0, dec.retracked, self._frames)
-        good = [r.frame for r in dec.retracked if r.ok]
-        t_last = self._frames[good[-1] if good else kf0.frame].timestamp
+        good = [kf0.frame] + [r.frame for r in dec.retracked if r.ok]
+        t_last = self._frames[good[-1]].timestamp
         self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame1.timestamp), t_last)
         self._n_lost = 0
         res1 = self._new_keyframe(frame1, j, dec.T_world_kf1, timings, track=dec.track1)
@@ -224,7 +224,8 @@ class Odometry(OdometryReadout):
         with timed(timings, "init"):
             since = self._tracker.retrack(self._map.latest, [(i, image, self._frames[i].timestamp)
                                                              for i, image in dec.since])
-        self._map.adopt_retracked(self._map.latest, since, self._frames, FrameStatus.OK)
+        self._map.adopt_retracked(self._map.latest, [r for r in since if r.ok], self._frames,
+                                  FrameStatus.OK)
         return self._track(frame, idx, timings)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
@@ -234,8 +235,7 @@ class Odometry(OdometryReadout):
         t = time.perf_counter()
         tr = self._tracker.track(latest.keyframe, frame.image, latest, frame.timestamp)
         if not tr.ok and self._port.pending:
-            # lost against the map before its update: tracked again after it (the
-            # wait is mapping's time, not tracking's)
+            # lost against the pending map: tracked again after the update (a wait of mapping's)
             tracked = time.perf_counter() - t
             self._sync(timings)
             t = time.perf_counter() - tracked
