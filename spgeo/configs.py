@@ -34,10 +34,13 @@ class UnknownFieldError(ConfigError, TypeError):
 
 
 def parse_value(text: str, strict: bool = False) -> Any:
-    """A Python literal (``1e-4``, ``None``, ``(1, 2)``, ``'x'``, ``True``) or,
-    when ``text`` is not one, the stripped string itself (with ``strict``:
+    """A Python literal (``1e-4``, ``None``, ``(1, 2)``, ``'x'``, ``True``), a
+    TOML boolean (``true`` / ``false``, any case: what a config file writes) or,
+    when ``text`` is none of these, the stripped string itself (with ``strict``:
     ``ValueError`` / ``SyntaxError`` instead)."""
     s = text.strip()
+    if s.lower() in ("true", "false"):
+        return s.lower() == "true"
     try:
         return ast.literal_eval(s)
     except (ValueError, SyntaxError, MemoryError, RecursionError):

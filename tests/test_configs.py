@@ -30,6 +30,9 @@ class Outer:
 def test_parse_value_literals_else_strings():
     assert parse_value("1e-4") == 1e-4 and parse_value(" 7 ") == 7
     assert parse_value("None") is None and parse_value("True") is True
+    # TOML's booleans too (issue 42: --set landmarks.enabled=true was refused)
+    assert parse_value("true") is True and parse_value(" FALSE ") is False
+    assert parse_value("'true'") == "true"
     assert parse_value("(1, 2)") == (1, 2) and parse_value("'x'") == "x"
     assert parse_value("classical") == "classical" and parse_value("a b") == "a b"
     assert parse_assignments(["a=1", "b.c = x", "a=2"]) == {"a": 2, "b.c": "x"}
@@ -195,3 +198,15 @@ def test_feature_options_of_feature_retry_and_loop_closure():
     for bad in ({"features": "surf"}, {"max_features": 4}, {"ratio": 1.5}):
         with pytest.raises(ValueError, match="FeatureOptions"):
             FeatureOptions(**bad)
+
+
+def test_set_accepts_toml_booleans_as_the_cli_does():
+    """``--set landmarks.enabled=true`` (issue 42) sets the nested bool, as TOML's
+    ``enabled = true`` does; a bool field still refuses a string."""
+    from spgeo.vo import OdometryConfig
+
+    cfg = apply_overrides(OdometryConfig(), ["landmarks.enabled=false",
+                                             "loop_closure.enabled=TRUE"])
+    assert cfg.landmarks.enabled is False and cfg.loop_closure.enabled is True
+    with pytest.raises(ConfigError, match="True or False"):
+        apply_overrides(OdometryConfig(), ["landmarks.enabled=yes"])
