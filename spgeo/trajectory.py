@@ -105,6 +105,18 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.timestamps)
 
+    def __repr__(self) -> str:
+        """One line (issue 42): frames, keyframes, time span, the statuses that
+        occur, segments and the length of the posed path (the poses' units)."""
+        n = len(self)
+        span = f"{self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f}" if n else "-"
+        counts = ", ".join(f"{k}={v}" for k, v in self.status_counts().items() if v)
+        c = self.poses[self.finite][:, :3, 3]
+        path = float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
+        return (f"Trajectory({n} frames, {int(self.is_keyframe.sum())} keyframes, "
+                f"t {span}, status {{{counts}}}, {len(set(self.segment.tolist()))} "
+                f"segment(s), path {path:.3f})")
+
     @property
     def statuses(self) -> List[FrameStatus]:
         """Alias of :attr:`status`."""

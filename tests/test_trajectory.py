@@ -45,3 +45,23 @@ def test_properties_and_errors():
         Trajectory([0.0, 1.0], np.eye(4)[None])
     with pytest.raises(ValueError, match="'segment' has 1 values for 2 frames"):
         Trajectory([0.0, 1.0], np.tile(np.eye(4), (2, 1, 1)), segment=[0])
+
+
+def test_trajectory_repr_is_one_bounded_line_with_the_key_numbers():
+    """Issue 42: ``repr`` no longer dumps the arrays (13 KB for 300 frames)."""
+    import numpy as np
+
+    from spgeo.trajectory import Trajectory
+
+    n = 300
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * 0.01
+    status = ["ok"] * n
+    status[5] = "lost"
+    kf = np.zeros(n, bool)
+    kf[::10] = True
+    text = repr(Trajectory(np.arange(n) / 30.0, poses, status, kf))
+    assert "\n" not in text and len(text) < 200
+    for part in ("300 frames", "30 keyframes", "t 0.000-9.967", "lost=1", "ok=299",
+                 "1 segment(s)", "path 2.990"):
+        assert part in text, (part, text)
