@@ -150,11 +150,9 @@ def camera_run(frames: Sequence, rate: float, buffers: int, ring: int, repeat: i
     """One paced run (module docstring) of ``frames`` at ``rate`` Hz through a
     driver ring of ``buffers`` and a capture ring of ``ring`` frames
     (``odometry``: an :class:`~spgeo.vo.OdometryConfig`, default the defaults)."""
-    from spgeo.apps.vo_run import VORunConfig, run_live
-    from spgeo.vo import OdometryConfig
+    from spgeo.apps.vo_run import run_live
 
-    config = VORunConfig(progress=False, capture_ring=ring,
-                         odometry=OdometryConfig() if odometry is None else odometry)
+    config = dataclasses.replace(_run_config(odometry), capture_ring=ring)
     cam = PacedCamera(frames, rate, buffers)
     latency: List[float] = []
     started: List[int] = []     # the last frame arrived when keyframe 1 came back
@@ -185,17 +183,25 @@ def camera_run(frames: Sequence, rate: float, buffers: int, ring: int, repeat: i
         run.odometry.close()
 
 
+def _run_config(odometry=None):
+    """The runs' :class:`~spgeo.apps.vo_run.VORunConfig`: no progress bar,
+    ``odometry`` (default the defaults)."""
+    from spgeo.apps.vo_run import VORunConfig
+    from spgeo.vo import OdometryConfig
+
+    return VORunConfig(progress=False,
+                       odometry=OdometryConfig() if odometry is None else odometry)
+
+
 def every_frame_run(frames: Sequence, rate: float, odometry=None) -> dict:
     """The reference: every frame processed (recorded input, fixed schedule),
     stamped ``n / rate``: ``{"ate_m", "fps", "keyframes"}`` (``odometry`` as
     :func:`camera_run`)."""
-    from spgeo.apps.vo_run import VORunConfig, run_odometry
-    from spgeo.vo import OdometryConfig
+    from spgeo.apps.vo_run import run_odometry
 
     stamped = [dataclasses.replace(f, timestamp=n / rate, name=f"{n:06d}")
                for n, f in enumerate(frames)]
-    run = run_odometry(stamped, VORunConfig(
-        progress=False, odometry=OdometryConfig() if odometry is None else odometry))
+    run = run_odometry(stamped, _run_config(odometry))
     try:
         ate = run.ate()
         return {"ate_m": None if ate is None else float(ate["per-frame"].rmse),

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import collections
 import threading
-import time
 from dataclasses import dataclass
 from typing import Deque, Iterable, Iterator, List, Optional, Tuple
 
@@ -153,11 +152,7 @@ class CaptureRing:
         self._stop.set()
         th = self._thread
         if th is not None and th.is_alive() and th is not threading.current_thread():
-            deadline = time.monotonic() + timeout
-            while th.is_alive() and time.monotonic() < deadline:
-                with self._cond:     # free the ring for a frame being put
-                    self._ring.clear()
-                th.join(0.05)
+            th.join(timeout)     # putting never blocks: only the source's read can
 
     def report(self) -> dict:
         """JSON-ready: ``capacity``, frames ``arrived``, ``dropped`` (count),

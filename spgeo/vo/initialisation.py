@@ -360,10 +360,10 @@ class Initialiser:
         at = len(self.buffer)
         while at > 0 and self.buffer[at - 1][0] > idx:
             at -= 1
-        self.buffer.insert(at, (idx, np.asarray(image)))
-        if at == len(self.buffer) - 1:
-            self.buffer.pop()
+        if at == len(self.buffer):
             append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
+        else:
+            self.buffer.insert(at, (idx, np.asarray(image)))
 
     def step(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
              brightness: np.ndarray, segment: int,
