@@ -46,7 +46,7 @@ import numpy as np
 import gtsam
 
 from spgeo.camera import PinholeCamera
-from spgeo.configs import config_repr
+from spgeo.configs import config_class
 
 from . import kernels
 
@@ -57,7 +57,7 @@ __all__ = [
 ]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class PhotometricConfig:
     """Options of :class:`PrimitivePhotometricFactor`.

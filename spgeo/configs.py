@@ -1,7 +1,7 @@
 """Config dataclasses set from text: ``FIELD=VALUE`` overrides (nested fields
 with dots: ``tracker.relative_cost_tol=1e-4``) and TOML (or YAML, when PyYAML is
 installed) files, applied to frozen or plain dataclass instances with
-:func:`dataclasses.replace`; and :func:`config_repr`, the ``repr`` that shows only
+:func:`dataclasses.replace`; and :func:`config_class`, the ``repr`` that shows only
 the fields that differ from the defaults.  The library home of the command line's
 ``--set`` / ``--config`` (:mod:`spgeo.cli.config_args`); notebooks and evaluation
 scripts use it directly.
@@ -12,20 +12,33 @@ message naming the offending field or file.
 from __future__ import annotations
 
 import ast
+import collections.abc
 import dataclasses
+import functools
+import json
+import logging
+import numbers
 import typing
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
-__all__ = ["ConfigError", "UnknownFieldError", "parse_value", "parse_assignments", "nest",
+import numpy as np
+
+__all__ = ["ConfigError", "ConfigTypeError", "UnknownFieldError", "check_field_types", "parse_value", "parse_assignments", "nest",
            "flatten", "apply_overrides",
-           "load_config_file", "config_to_dict", "resolve_config", "config_repr", "changed_fields"]
+           "own_section", "load_config_file", "config_to_dict", "config_to_toml", "resolve_config", "config_class", "changed_fields"]
+
+log = logging.getLogger(__name__)
 
 Overrides = Union[Mapping[str, Any], Iterable[str]]
 
 
 class ConfigError(ValueError):
     """A bad ``--set`` / ``--config`` entry (unknown field, wrong type, unreadable file)."""
+
+
+class ConfigTypeError(ConfigError, TypeError):
+    """A field given a value of the wrong type (also a ``TypeError``)."""
 
 
 class UnknownFieldError(ConfigError, TypeError):
@@ -205,12 +218,21 @@ def apply_overrides(config: Any, overrides: Overrides, route: Optional[str] = No
             (e.g. from :func:`load_config_file`).  Later entries win.
         route: name of a nested-dataclass field of ``config`` that receives
             every key whose first part is not a field of ``config`` (``vo``:
-            ``"odometry"``, so ``window=7`` means ``odometry.window=7``).
+            ``"odometry"``, so ``window=7`` means ``odometry.window=7``); default
+            the class's ``config_route`` (``VORunConfig``: ``"odometry"``), if any.
+
+    A mapping written for an enclosing config (a ``spgeo vo`` file, with an
+    ``[odometry]`` table, given to an ``OdometryConfig``) is first reduced to
+    this config's part by :func:`own_section`.
 
     Values must match the field's current type (an int is accepted for a
     float field, a list for a tuple field; None only for optional fields).
     Raises ``ConfigError`` naming an unknown field and listing the valid ones.
     """
+    if route is None:
+        route = getattr(type(config), "config_route", None)
+    if isinstance(overrides, Mapping):
+        overrides = own_section(config, overrides)
     top = {f.name for f in dataclasses.fields(config)}
     out = config
     for key, value in _as_dotted(overrides).items():
@@ -224,6 +246,26 @@ def apply_overrides(config: Any, overrides: Overrides, route: Optional[str] = No
             path = [route] + path
         out = _set(out, path, value, "")
     return out
+
+
+def own_section(config: Any, data: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The part of ``data`` (a nested mapping, e.g. from :func:`load_config_file`)
+    that is ``config``'s, for a class declaring ``config_section`` (``OdometryConfig``:
+    ``"odometry"``) when ``data`` holds a table of that name that is not one of its
+    fields: the keys of ``data`` that are ``config``'s fields, then that table
+    (it wins).  The other keys belong to the enclosing config (``spgeo vo``'s run
+    fields) and are left out, with an INFO log naming them.  Any other ``data``
+    is returned as it is."""
+    name = getattr(type(config), "config_section", None)
+    fields = {f.name for f in dataclasses.fields(config)}
+    if name is None or name in fields or not isinstance(data.get(name), Mapping):
+        return data
+    others = sorted(k for k in data if k != name and k not in fields)
+    if others:
+        log.info("%s reads the [%s] table; not its fields, left out: %s",
+                 type(config).__name__, name, ", ".join(others))
+    flat = {k: v for k, v in data.items() if k in fields}
+    return {**flatten(flat), **flatten(data[name])}
 
 
 def load_config_file(path: Union[str, Path]) -> Dict[str, Any]:
@@ -271,16 +313,66 @@ def config_to_dict(config: Any) -> Dict[str, Any]:
     return plain(dataclasses.asdict(config))
 
 
-def resolve_config(config: Any, config_file: Optional[str] = None,
+def resolve_config(config: Any, config_file: Optional[Union[str, Path]] = None,
                    sets: Sequence[str] = (), route: Optional[str] = None) -> Any:
     """``config`` with ``config_file`` (:func:`load_config_file`) and then
     ``sets`` (``FIELD=VALUE`` strings; they override the file) applied by
-    :func:`apply_overrides`."""
+    :func:`apply_overrides`.  One file serves the command line and Python: a
+    ``spgeo vo --dump-config`` file (run fields, ``[odometry]`` table) gives
+    ``resolve_config(VORunConfig(), f)`` everything and ``resolve_config(
+    OdometryConfig(), f)`` its ``[odometry]`` table; a file without tables gives
+    a ``VORunConfig`` its fields and the odometry's (``config_route``)."""
     if config_file:
         config = apply_overrides(config, load_config_file(config_file), route)
     if sets:
         config = apply_overrides(config, list(sets), route)
     return config
+
+
+def _toml_value(value: Any) -> str:
+    """One TOML value (bool, number, string, array); ``TypeError`` for None or
+    another type."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return repr(float(value))       # 'inf', '-inf' and 'nan' are TOML too
+    if isinstance(value, str):
+        return json.dumps(value)        # a TOML basic string: JSON's escapes are TOML's
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {value!r}")
+
+
+def _toml_lines(config: Any, table: str) -> List[str]:
+    """``config``'s fields as TOML: its values, then a ``[table.sub]`` per nested config."""
+    lines: List[str] = []
+    nested = []
+    for f in dataclasses.fields(config):
+        if not f.init:
+            continue
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            nested.append((f.name, value))
+            continue
+        try:
+            lines.append(f"{f.name} = {_toml_value(value)}")
+        except TypeError:
+            lines.append(f"# {f.name} = {value!r}  (TOML cannot write it: leave the line out)")
+    for name, sub in nested:
+        path = f"{table}.{name}" if table else name
+        lines += ["", f"[{path}]"] + _toml_lines(sub, path)
+    return lines
+
+
+def config_to_toml(config: Any, title: str = "") -> str:
+    """The dataclass instance ``config`` as a TOML document that
+    :func:`resolve_config` (and ``--config``) reads back to an equal config:
+    fields with a value TOML cannot hold (None) are written as comments, so
+    reading the file keeps their defaults.  ``title``: a first comment line."""
+    head = [f"# {line}" for line in title.splitlines()]
+    return "\n".join(head + _toml_lines(config, "")) + "\n"
 
 
 def changed_fields(config: Any) -> Dict[str, Any]:
@@ -308,13 +400,105 @@ def changed_fields(config: Any) -> Dict[str, Any]:
     return out
 
 
-def config_repr(cls: type) -> type:
-    """Class decorator (above ``@dataclass``): ``repr`` shows only the fields that
-    differ from the defaults, e.g. ``OdometryConfig(window=7)``; a default
-    instance prints as ``OdometryConfig()``."""
+def _type_name(hint: Any) -> str:
+    """``hint`` in words for an error message (``an integer``, ``a str or None``)."""
+    if hint is type(None):
+        return "None"
+    origin = typing.get_origin(hint)
+    if origin is Union:
+        return " or ".join(_type_name(h) for h in typing.get_args(hint))
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(hint))
+    words = {bool: "True or False", int: "an integer", float: "a number", str: "a string",
+             tuple: "a tuple", list: "a list", dict: "a table"}
+    base = origin if origin is not None else hint
+    return words.get(base, f"a {getattr(base, '__name__', str(base))}")
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    """Whether ``value`` is of type ``hint`` (typing constructs included; a
+    hint that cannot be checked, such as ``Any`` or a ``Callable``, matches)."""
+    if hint is Any or isinstance(hint, (str, typing.TypeVar)):
+        return True
+    if hint is type(None):
+        return value is None
+    origin = typing.get_origin(hint)
+    if origin is Union:
+        return any(_matches(value, h) for h in typing.get_args(hint))
+    if origin is typing.Literal:
+        return value in typing.get_args(hint)
+    base = origin if origin is not None else hint
+    if base is bool:
+        return isinstance(value, (bool, np.bool_))
+    if base is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+    if base is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    if base in (tuple, list, collections.abc.Sequence):
+        return isinstance(value, (tuple, list))
+    if not isinstance(base, type) or base is collections.abc.Callable:
+        return True
+    return isinstance(value, base)
+
+
+@functools.lru_cache(maxsize=None)
+def _class_hints(cls: type) -> Dict[str, Any]:
+    try:
+        return typing.get_type_hints(cls)
+    except Exception:       # unresolvable annotation: no type information
+        return {}
+
+
+def check_field_types(config: Any) -> None:
+    """Raise :class:`ConfigTypeError` naming the first init field of the dataclass
+    instance ``config`` whose value does not match its annotation (an int is a
+    number; a list passes for a tuple; ``Optional`` admits None; annotations that
+    cannot be checked, such as ``Any`` or a ``Callable``, admit anything)."""
+    hints = _class_hints(type(config))
+    for f in dataclasses.fields(config):
+        hint = hints.get(f.name)
+        if not f.init or hint is None:
+            continue
+        value = getattr(config, f.name)
+        if not _matches(value, hint):
+            raise ConfigTypeError(f"{type(config).__name__}.{f.name} expects "
+                                  f"{_type_name(hint)}, got {value!r} "
+                                  f"({type(value).__name__})")
+
+
+def _checked_init(cls: type) -> None:
+    """Run :func:`check_field_types` first at construction: before the class's own
+    ``__post_init__`` (whose value checks assume the types), else after ``__init__``."""
+    if "__post_init__" in cls.__dict__:
+        post = cls.__dict__["__post_init__"]
+
+        @functools.wraps(post)
+        def __post_init__(self, *args) -> None:
+            check_field_types(self)
+            post(self, *args)
+
+        cls.__post_init__ = __post_init__
+    elif not hasattr(cls, "__post_init__"):
+        init = cls.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs) -> None:
+            init(self, *args, **kwargs)
+            check_field_types(self)
+
+        cls.__init__ = __init__
+
+
+def config_class(cls: type) -> type:
+    """Class decorator (above ``@dataclass``) of the config dataclasses: field types
+    are checked at construction (:func:`check_field_types`: ``OdometryConfig(window="7")``
+    raises :class:`ConfigTypeError` naming the field and the expected type), and
+    ``repr`` shows only the fields that differ from the defaults, e.g.
+    ``OdometryConfig(window=7)``; a default instance prints as ``OdometryConfig()``."""
     def __repr__(self) -> str:
         items = ", ".join(f"{k}={v!r}" for k, v in changed_fields(self).items())
         return f"{type(self).__name__}({items})"
 
     cls.__repr__ = __repr__
+    _checked_init(cls)
     return cls

@@ -44,7 +44,7 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
 from .camera import PinholeCamera
-from .configs import config_repr
+from .configs import config_class
 from .validation import InputError, check_camera, check_mask_stack, check_normals
 
 __all__ = ["IntegrationConfig", "IntegrationResult", "integrate_normals",
@@ -53,7 +53,7 @@ __all__ = ["IntegrationConfig", "IntegrationResult", "integrate_normals",
 log = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class IntegrationConfig:
     """Options of the batched normal integration.

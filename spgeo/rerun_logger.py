@@ -40,7 +40,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
-from .configs import config_repr
+from .configs import config_class
 from .viz import colorize_normals
 
 __all__ = ["RerunLoggerConfig", "RerunLogger", "RERUN_MODES"]
@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 RERUN_MODES = ("spawn", "save", "connect", "none")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class RerunLoggerConfig:
     """Options of :class:`RerunLogger`.

@@ -105,17 +105,32 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.timestamps)
 
-    def __repr__(self) -> str:
-        """One line (issue 42): frames, keyframes, time span, the statuses that
-        occur, segments and the length of the posed path (the poses' units)."""
+    def overview(self) -> Dict[str, str]:
+        """The key numbers as text, for :meth:`__repr__` and :meth:`_repr_html_`:
+        frames, keyframes, time span, the statuses that occur, segments and the
+        length of the posed path (the poses' units)."""
         n = len(self)
-        span = f"{self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f}" if n else "-"
-        counts = ", ".join(f"{k}={v}" for k, v in self.status_counts().items() if v)
         c = self.poses[self.finite][:, :3, 3]
         path = float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
-        return (f"Trajectory({n} frames, {int(self.is_keyframe.sum())} keyframes, "
-                f"t {span}, status {{{counts}}}, {len(set(self.segment.tolist()))} "
-                f"segment(s), path {path:.3f})")
+        return {"frames": str(n), "keyframes": str(int(self.is_keyframe.sum())),
+                "t": f"{self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f}" if n else "-",
+                "status": ", ".join(f"{k}={v}" for k, v in self.status_counts().items() if v),
+                "segments": str(len(set(self.segment.tolist()))), "path": f"{path:.3f}"}
+
+    def __repr__(self) -> str:
+        """One line: :meth:`overview`."""
+        o = self.overview()
+        return (f"Trajectory({o['frames']} frames, {o['keyframes']} keyframes, t {o['t']}, "
+                f"status {{{o['status']}}}, {o['segments']} segment(s), path {o['path']})")
+
+    def _repr_html_(self) -> str:
+        """:meth:`overview` as a table (notebooks)."""
+        from .html_table import html_table
+
+        o = self.overview()
+        names = {"t": "time span (s, or frame numbers)", "status": "frames per status",
+                 "path": "path length (the poses' units)"}
+        return html_table("Trajectory", [(names.get(k, k), v) for k, v in o.items()])
 
     @property
     def statuses(self) -> List[FrameStatus]:

@@ -7,7 +7,7 @@ from typing import Optional, Tuple
 import pytest
 
 from spgeo.cli import build_parser, main
-from spgeo.configs import (ConfigError, apply_overrides, config_repr, config_to_dict, load_config_file,
+from spgeo.configs import (ConfigError, apply_overrides, config_class, config_to_dict, load_config_file,
                            parse_assignments, parse_value, resolve_config)
 from spgeo.odometry import OdometryConfig
 
@@ -165,7 +165,7 @@ def test_eval_protocol_help_exits_cleanly(capsys):
 
 
 def test_config_repr_shows_only_changed_fields():
-    @config_repr
+    @config_class
     @dataclass(frozen=True)
     class Shown:
         a: int = 1
@@ -210,3 +210,66 @@ def test_set_accepts_toml_booleans_as_the_cli_does():
     assert cfg.landmarks.enabled is False and cfg.loop_closure.enabled is True
     with pytest.raises(ConfigError, match="True or False"):
         apply_overrides(OdometryConfig(), ["landmarks.enabled=yes"])
+
+
+@pytest.mark.parametrize("make", ["vo", "sfm", "complete", "demo"])
+def test_dump_config_reads_back_equal(make, tmp_path, capsys):
+    """`spgeo CMD --dump-config FILE` writes TOML that --config and resolve_config read
+    back to the defaults (None fields are comments), with no other argument given."""
+    from spgeo.apps.demo import DemoConfig
+    from spgeo.apps.vo_run import VORunConfig
+    from spgeo.completion import CompletionConfig
+    from spgeo.sfm import SfMConfig
+
+    cls = {"vo": VORunConfig, "sfm": SfMConfig, "complete": CompletionConfig,
+           "demo": DemoConfig}[make]
+    path = tmp_path / "defaults.toml"
+    with pytest.raises(SystemExit) as exit_:
+        main([make, "--dump-config", str(path)])
+    assert exit_.value.code == 0 and str(path) in capsys.readouterr().out
+    assert resolve_config(cls(), path) == cls()
+    with pytest.raises(SystemExit):
+        main([make, "--dump-config"])
+    assert capsys.readouterr().out == path.read_text()
+
+
+def test_config_round_trip_dump_edit_load_cli_and_python(tmp_path):
+    """One file for both: the vo dump, edited, sets the same odometry from the
+    command line (`_run_config`) and from Python (VORunConfig and OdometryConfig)."""
+    from spgeo.apps.vo_run import VORunConfig
+    from spgeo.cli.vo import _run_config
+
+    path = tmp_path / "vo.toml"
+    with pytest.raises(SystemExit):
+        main(["vo", "--dump-config", str(path)])
+    text = path.read_text().replace("\nwindow = 5\n", "\nwindow = 7\n")
+    text = text.replace("\nprogress = true\n", "\nprogress = false\n")
+    path.write_text(text.replace("[odometry.landmarks]\nenabled = true",
+                                 "[odometry.landmarks]\nenabled = false"))
+    args = build_parser().parse_args(["vo", "--dataset", "tum", "x", "--out", "y",
+                                      "--config", str(path)])
+    cli = _run_config(args)
+    assert (cli.odometry.window, cli.progress, cli.odometry.landmarks.enabled) == (7, False, False)
+    assert resolve_config(VORunConfig(), path) == cli
+    assert resolve_config(OdometryConfig(), path) == cli.odometry   # its [odometry] table
+    flat = tmp_path / "flat.toml"      # no tables: run fields and odometry fields side by side
+    flat.write_text("progress = false\nwindow = 7\n")
+    assert resolve_config(VORunConfig(), flat).odometry.window == 7
+    assert resolve_config(OdometryConfig(), flat.parent / "vo.toml").window == 7
+
+
+def test_wrong_type_at_construction_names_field_and_type():
+    from spgeo.configs import ConfigTypeError
+    from spgeo.vo import TrackerConfig
+
+    with pytest.raises(ConfigTypeError, match=r"OdometryConfig\.window expects an integer, "
+                                              r"got '7' \(str\)"):
+        OdometryConfig(window="7")
+    with pytest.raises(TypeError, match=r"OdometryConfig\.tracker expects a TrackerConfig"):
+        OdometryConfig(tracker={"max_iterations": 3})
+    with pytest.raises(TypeError, match=r"OdometryConfig\.resolution expects a tuple or None"):
+        OdometryConfig(resolution="320x240")
+    import numpy as np
+
+    assert OdometryConfig(window=np.int64(7), resolution=(320, 240)).window == 7
+    assert TrackerConfig() == TrackerConfig(**{})      # defaults satisfy their own types

@@ -18,7 +18,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame, resize_frame
 from ..frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
 
@@ -28,7 +28,7 @@ __all__ = ["DemoConfig", "DemoRow", "DemoResult", "VORow", "VODemoResult", "run_
            "run_vo_demo"]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class DemoConfig:
     """Options of :func:`run_demo`.

@@ -49,7 +49,7 @@ from typing import Any, Callable, Iterable, Iterator, List, Optional, Tuple, Uni
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
                         PrimitiveFrontEnd, build_frontend, check_model_options)
@@ -74,7 +74,7 @@ FrameHook = Callable[[Frame, Any, Any], None]
 
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class VORunConfig:
     """Options of :func:`run_odometry` / :func:`run_dataset`.
@@ -130,6 +130,10 @@ class VORunConfig:
             when it is full).  Default 8; docs/results.md, "Real time with a
             camera", says why.
     """
+
+    #: keys of a config file or ``--set`` that are not run fields are odometry
+    #: fields (:func:`spgeo.configs.apply_overrides`)
+    config_route = "odometry"
 
     strict: bool = False
     frontend: str = "classical"

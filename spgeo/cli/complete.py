@@ -89,6 +89,6 @@ def add_complete_cli(subparsers) -> argparse.ArgumentParser:
                         "'spgeo models list' / 'spgeo models register', or an .onnx path "
                         "(preset fastdepth)")
     add_rerun_argument(p, "the image, sparse and completed depth, primitives and cloud")
-    add_config_arguments(p, "CompletionConfig")
+    add_config_arguments(p, "CompletionConfig", CompletionConfig)
     p.set_defaults(func=_cmd_complete)
     return p

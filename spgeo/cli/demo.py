@@ -20,6 +20,12 @@ from .config_args import add_config_arguments
 __all__ = ["add_demo_cli"]
 
 
+def _default_demo_config():
+    from ..apps.demo import DemoConfig
+
+    return DemoConfig()
+
+
 def _demo_config(args: argparse.Namespace):
     """The effective ``DemoConfig``: defaults < --config < explicit options < --set."""
     from ..apps.demo import DemoConfig
@@ -77,6 +83,6 @@ def add_demo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="synthetic scene seed (default 0)")
     p.add_argument("--no-sfm", action="store_true", help="skip the few-view SfM part")
     p.add_argument("--no-vo", action="store_true", help="skip the monocular VO part")
-    add_config_arguments(p, "DemoConfig")
+    add_config_arguments(p, "DemoConfig", _default_demo_config)
     p.set_defaults(func=_cmd_demo)
     return p

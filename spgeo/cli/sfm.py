@@ -44,6 +44,12 @@ from .rerun_args import add_rerun_argument, open_rerun
 __all__ = ["add_sfm_cli"]
 
 
+def _default_sfm_config():
+    from ..sfm import SfMConfig
+
+    return SfMConfig()
+
+
 def _sfm_config(args: argparse.Namespace):
     """The effective ``SfMConfig``: defaults < --config < explicit options < --set."""
     from ..sfm import SfMConfig
@@ -152,6 +158,6 @@ def add_sfm_cli(subparsers) -> argparse.ArgumentParser:
                    help="also write a COLMAP model: DIR/images/*.png (working resolution) and "
                         "DIR/sparse/0/{cameras,images,points3D}.bin")
     add_rerun_argument(p, "the reference camera, views, depth and cloud")
-    add_config_arguments(p, "SfMConfig")
+    add_config_arguments(p, "SfMConfig", _default_sfm_config)
     p.set_defaults(func=_run)
     return p

@@ -68,6 +68,12 @@ OUT/trajectory.status.txt, no pose, not in the ATE, listed under "skipped" in
 OUT/report.json; --strict stops instead (exit code 2)."""
 
 
+def _default_run_config():
+    from ..apps.vo_run import VORunConfig
+
+    return VORunConfig()
+
+
 def _run_config(args: argparse.Namespace):
     """The effective ``VORunConfig``: defaults < --config < explicit options < --set."""
     from ..apps.vo_run import VORunConfig
@@ -263,7 +269,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="fuse the keyframes' depth maps at their final poses (TSDF) into "
                         "OUT/mesh.ply and OUT/cloud.ply (VO world and units; metres with "
                         "--metric-scale)")
-    add_config_arguments(p, "VORunConfig / OdometryConfig")
+    add_config_arguments(p, "VORunConfig / OdometryConfig", _default_run_config)
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")
     p.set_defaults(func=_run)

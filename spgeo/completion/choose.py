@@ -47,7 +47,7 @@ from typing import Callable, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 
 __all__ = ["ChooseConfig", "HeldoutChoice", "Candidate", "fold_ids", "heldout_log_residuals",
            "blend_weights", "region_labels", "region_scores", "choose_by_heldout",
@@ -59,7 +59,7 @@ log = logging.getLogger(__name__)
 Candidate = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class ChooseConfig:
     """Options of :func:`choose_by_heldout`.
@@ -130,6 +130,14 @@ class HeldoutChoice:
     folds: np.ndarray
     regions: np.ndarray
     maps: Dict[str, np.ndarray]
+
+    def __repr__(self) -> str:
+        """One line: candidates with their held-out error and regions won."""
+        won = self.region_counts()
+        items = ", ".join(f"{n} {e:.3f} ({won.get(n, 0)} regions)"
+                          for n, e in zip(self.names, self.heldout_error))
+        return (f"HeldoutChoice({self.regions.max() + 1 if self.regions.size else 0} regions, "
+                f"{self.point_errors.shape[1]} points; held-out |log error|: {items})")
 
     def pixel_counts(self) -> Dict[str, int]:
         """Pixels whose blend weighs each candidate most (name -> count)."""

@@ -157,6 +157,12 @@ class CompletionResult:
     modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
     choice: Optional[HeldoutChoice] = None
 
+    def __repr__(self) -> str:
+        """One line: :meth:`summary` and the depth map's size and range (metres)."""
+        h, w = self.depth.shape
+        lo, hi = (np.nanmin(self.depth), np.nanmax(self.depth)) if self.depth.size else (0, 0)
+        return f"CompletionResult({self.summary()}; depth {w}x{h}, {lo:.2f}-{hi:.2f} m)"
+
     def summary(self) -> str:
         """One line for logs."""
         tag = " [uses depth: oracle/RGB-D]" if self.uses_depth else ""

@@ -7,7 +7,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from .choose import ChooseConfig
 from .network import ALIGNMENTS
 
@@ -22,7 +22,7 @@ CANDIDATES = ("primitives", "linear", "ip_basic", "colorization") + tuple(
     f"network:{a}" for a in ALIGNMENTS)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class CompletionConfig:
     """Options of :func:`spgeo.completion.complete_depth`.

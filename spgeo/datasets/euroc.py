@@ -32,7 +32,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..geometry import pose_from_tum
 from ..validation import InputError, check_input_file
@@ -45,7 +45,7 @@ __all__ = ["EuRoCConfig", "EuRoCSequence", "read_euroc_sensor", "read_euroc_csv"
 logger = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass
 class EuRoCConfig:
     """Options of :class:`EuRoCSequence`.

@@ -30,7 +30,7 @@ from typing import List, Optional, Tuple, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..validation import InputError
 from .calibration import CameraSpec
@@ -66,7 +66,7 @@ def read_intrinsics_txt(path: PathLike, width: int, height: int) -> PinholeCamer
                      f"got {len(vals)} numbers")
 
 
-@config_repr
+@config_class
 @dataclass
 class FolderConfig:
     """Options of :class:`FolderSequence`.

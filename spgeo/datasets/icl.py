@@ -30,7 +30,7 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..geometry import pose_from_tum
 from .common import FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames
@@ -90,7 +90,7 @@ def read_icl_poses(path: PathLike, first_frame: int = 1) -> Dict[int, np.ndarray
     return poses
 
 
-@config_repr
+@config_class
 @dataclass
 class ICLConfig:
     """Options of :class:`ICLSequence`.

@@ -34,7 +34,7 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..validation import InputError, check_input_file
 from .common import FileRecord, FrameSelection, FrameSequence, numbered_frames
@@ -50,7 +50,7 @@ KITTI_FPS = 10.0
 _IMAGE_RE = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 
 
-@config_repr
+@config_class
 @dataclass
 class KITTIConfig:
     """Options of :class:`KITTISequence`.

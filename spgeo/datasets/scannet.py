@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..images import read_raw_image
 from .common import FileRecord, FrameSelection, FrameSequence, numbered_frames
@@ -78,7 +78,7 @@ def _image_size(path: Path) -> Tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
-@config_repr
+@config_class
 @dataclass
 class ScanNetConfig:
     """Options of :class:`ScanNetScene`.

@@ -29,7 +29,7 @@ from typing import List, Optional
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from .common import FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames
 from .files import PathLike, read_depth_png, read_matrix_file, read_pose_file, read_rgb
@@ -45,7 +45,7 @@ SEVEN_SCENES_CAMERA = PinholeCamera(585.0, 585.0, 320.0, 240.0, 640, 480)
 _COLOR_RE = re.compile(r"^frame-(\d+)\.color\.(png|jpg|jpeg)$", re.IGNORECASE)
 
 
-@config_repr
+@config_class
 @dataclass
 class SevenScenesConfig:
     """Options of :class:`SevenScenesSequence`.

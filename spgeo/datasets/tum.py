@@ -37,7 +37,7 @@ from typing import Any, Callable, List, Optional, Tuple, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..geometry import pose_from_tum
 from .common import FileRecord, FrameSelection, FrameSequence, select_frames
@@ -79,7 +79,7 @@ def detect_tum_calibration(folder: PathLike) -> Optional[str]:
     return f"fr{m.group(1)}" if m else None
 
 
-@config_repr
+@config_class
 @dataclass
 class TUMConfig:
     """Options of :class:`TUMSequence`.

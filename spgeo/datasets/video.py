@@ -34,7 +34,7 @@ from typing import Iterator, List, Optional, Tuple, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..frame import Frame
 from ..validation import InputError, check_input_file
 from .calibration import CameraSpec
@@ -47,7 +47,7 @@ __all__ = ["VideoConfig", "VideoSequence", "CameraStream", "open_capture"]
 logger = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass
 class VideoConfig:
     """Options of :class:`VideoSequence` and :class:`CameraStream`.

@@ -48,7 +48,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import to_float_image
 from .base import Segmentation, config_with_overrides
 
@@ -63,7 +63,7 @@ METHODS = ("slic", "slico", "mslic", "seeds", "lsc", "graph")
 _SLIC_ALGORITHMS = {"slic": "SLIC", "slico": "SLICO", "mslic": "MSLIC"}
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class ClassicalSegmenterConfig:
     """Configuration of :class:`ClassicalSegmenter`.

@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from .base import config_with_overrides
 
 __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallelNormals",
@@ -31,7 +31,7 @@ __all__ = ["DepthNormalEstimatorConfig", "DepthNormalEstimator", "FrontoParallel
 logger = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class DepthNormalEstimatorConfig:
     """Configuration of :class:`DepthNormalEstimator`.

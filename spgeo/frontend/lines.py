@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import to_float_image
 
 __all__ = ["LineDetectorConfig", "LineSegments", "detect_line_segments"]
@@ -22,7 +22,7 @@ __all__ = ["LineDetectorConfig", "LineSegments", "detect_line_segments"]
 logger = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class LineDetectorConfig:
     """Options of :func:`detect_line_segments`.

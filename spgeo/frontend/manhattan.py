@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import to_float_image
 from .base import Segmentation, Segmenter, config_with_overrides
 from .lines import LineDetectorConfig, LineSegments, detect_line_segments
@@ -52,7 +52,7 @@ logger = logging.getLogger(__name__)
 _FRONTO = np.array([0.0, 0.0, -1.0])
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class ManhattanNormalsConfig:
     """Options of :class:`ManhattanNormals`.

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from .base import Segmentation
 
 if TYPE_CHECKING:  # annotations only
@@ -80,7 +80,7 @@ def box_nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.n
 
 
 # ---------------------------------------------------------- mask generator
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class SamMaskGeneratorConfig:
     """docs/design.md §3 segment generation.

@@ -49,7 +49,7 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from .depth_normals import DepthNormalEstimatorConfig, normals_from_depth
 from .onnx_runtime import (ImageIOConfig, as_rgb01, check_size, image_input, io_nodes,
                            open_session, resize_map, to_hwc, uncrop)
@@ -63,7 +63,7 @@ DEPTH_OUTPUT_KINDS = ("depth", "inverse_depth", "disparity")
 _PERCENTILE = 99.0
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class DepthOnnxConfig(ImageIOConfig):
     """The I/O contract of a single-image depth network and the depth -> normals step.

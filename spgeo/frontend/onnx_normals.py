@@ -24,7 +24,7 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from .normal_conventions import (NORMAL_CONVENTIONS, ConventionScore, RawNormalModel,
                                  check_convention_on_plane, parse_convention, render_synthetic_room,
                                  signed_permutations)
@@ -41,7 +41,7 @@ logger = logging.getLogger(__name__)
 
 
 # ----------------------------------------------------------------- config
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class NormalOnnxConfig(ImageIOConfig):
     """The I/O contract and convention of a single-image normal network.

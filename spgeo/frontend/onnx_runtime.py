@@ -12,7 +12,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import to_float_image
 
 __all__ = ["open_session", "io_nodes", "np_type", "check_rank", "require_names", "check_size",
@@ -148,7 +148,7 @@ def as_rgb01(image: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------ dense image-to-map networks
-@config_repr
+@config_class
 @dataclass(frozen=True, kw_only=True)
 class ImageIOConfig:
     """Keyword-only I/O fields shared by the configs of dense image -> map networks

@@ -49,7 +49,7 @@ from typing import Mapping, Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from .onnx_runtime import (as_rgb01, check_rank, check_size, io_nodes, np_type, open_session,
                            require_names, resize_map, resize_stack)
 
@@ -66,7 +66,7 @@ EFFICIENTSAM_DECODER_OUTPUTS = ("output_masks", "iou_predictions")
 
 
 # --------------------------------------------------------------------------- config
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class SamOnnxConfig:
     """The I/O contract of a SAM-style encoder/decoder pair.

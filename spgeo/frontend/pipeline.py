@@ -17,7 +17,7 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import to_float_image
 from ..integration import IntegrationConfig, integrate_normals_regions
 from ..primitives import PrimitiveSet, interior_anchor
@@ -28,7 +28,7 @@ __all__ = ["FrontEndConfig", "PrimitiveFrontEnd", "split_regions", "LabelSegment
 log = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class FrontEndConfig:
     """Options of :class:`PrimitiveFrontEnd`.

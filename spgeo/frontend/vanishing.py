@@ -32,7 +32,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..geometry import nearest_rotation
 from .lines import LineSegments
 
@@ -42,7 +42,7 @@ __all__ = ["VanishingConfig", "VanishingResult", "estimate_vanishing_directions"
 logger = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class VanishingConfig:
     """Options of :func:`estimate_vanishing_directions`.

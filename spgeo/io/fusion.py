@@ -41,7 +41,7 @@ from typing import Any, Dict, Iterable, Iterator, Optional, Tuple, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 
 __all__ = ["FusionConfig", "FusionResult", "FusionView", "fuse_views", "fuse_odometry",
            "odometry_views", "MESH_FILE", "CLOUD_FILE"]
@@ -56,7 +56,7 @@ CLOUD_FILE = "cloud.ply"
 FusionView = Tuple[Optional[np.ndarray], np.ndarray, PinholeCamera, np.ndarray]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class FusionConfig:
     """Options of :func:`fuse_views` (lengths in the poses' world unit).

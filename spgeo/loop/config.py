@@ -5,14 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Tuple
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..twoview.config import FeatureOptions
 
 __all__ = ["PlaceRecognitionConfig", "VerificationConfig", "PoseGraphConfig",
            "LoopClosureConfig"]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class PlaceRecognitionConfig:
     """Keyframe database and candidate retrieval (:class:`spgeo.loop.KeyframeDatabase`).
@@ -39,7 +39,7 @@ class PlaceRecognitionConfig:
                              f"min_matches >= 3, max_candidates >= 1, got {self}")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class VerificationConfig:
     """Geometric verification of a candidate (:func:`spgeo.loop.verify_sim3`) and its
@@ -87,7 +87,7 @@ class VerificationConfig:
             raise ValueError(f"VerificationConfig: invalid values in {self}")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class PoseGraphConfig:
     """Sim(3) pose-graph optimisation (:func:`spgeo.loop.optimise_sim3_pose_graph`).
@@ -120,7 +120,7 @@ class PoseGraphConfig:
             raise ValueError(f"PoseGraphConfig: invalid values in {self}")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class LoopClosureConfig:
     """Loop closure (:class:`spgeo.loop.LoopCloser`), docs/design.md §5.2.

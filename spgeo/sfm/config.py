@@ -4,14 +4,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Tuple
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..factors.photometric import PhotometricConfig
 from ..twoview.config import TwoViewConfig
 
 __all__ = ["SfMConfig"]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class SfMConfig:
     """Options of :func:`spgeo.sfm.few_view_sfm` (defaults follow the paper where it says).

@@ -85,6 +85,34 @@ class SfMResult:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    def view_rows(self) -> List[tuple]:
+        """Per supporting view: ``(view, status, rotation deg, |t|)``
+        (translation in the map's units), for :meth:`_repr_html_`."""
+        return [(j + 1, s, f"{rotation_angle_deg(T[:3, :3]):.2f}",
+                 f"{np.linalg.norm(T[:3, 3]):.3f}")
+                for j, (s, T) in enumerate(zip(self.view_status, self.T_ref_view))]
+
+    def __repr__(self) -> str:
+        """One line: status, views, primitives (unconstrained), the depth's size
+        and coverage, the views' rotations (degrees) and baselines (map units)."""
+        h, w = self.depth.shape
+        cover = float(np.isfinite(self.depth).mean()) if self.depth.size else 0.0
+        views = ", ".join(f"{s} {r}deg {t}" for _, s, r, t in self.view_rows()[:6])
+        more = ", ..." if len(self.view_status) > 6 else ""
+        return (f"SfMResult({self.status}, {len(self.primitives)} primitives "
+                f"({len(self.unconstrained)} unconstrained), depth {w}x{h} covering "
+                f"{100 * cover:.0f} %, {len(self.view_status)} views: {views}{more})")
+
+    def _repr_html_(self) -> str:
+        """The per-view table (notebooks)."""
+        from ..html_table import html_table
+
+        h, w = self.depth.shape
+        title = (f"SfMResult: {self.status}, {len(self.primitives)} primitives "
+                 f"({len(self.unconstrained)} unconstrained), depth {w}x{h}")
+        return html_table(title, self.view_rows(),
+                          ("view", "status", "rotation (deg)", "baseline (map units)"))
+
     @property
     def supported_primitives(self) -> PrimitiveSet:
         """The primitives that ``depth`` reports (all but ``unconstrained``, in

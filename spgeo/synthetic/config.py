@@ -7,12 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
-from ..configs import config_repr
+from ..configs import config_class
 
 __all__ = ["TextureConfig", "SceneConfig", "TrajectoryConfig"]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class TextureConfig:
     """Parameters of the per-surface solid textures.
@@ -39,7 +39,7 @@ class TextureConfig:
     patterns: Tuple[str, ...] = ("stripes", "checker", "blobs")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class SceneConfig:
     """Parameters of :meth:`SyntheticScene.generate` (all lengths in metres).
@@ -101,7 +101,7 @@ class SceneConfig:
     diffuse: float = 0.5
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class TrajectoryConfig:
     """Parameters of :func:`make_trajectory` (hand-held-like camera motion).
@@ -153,7 +153,7 @@ class TrajectoryConfig:
     start_yaw_deg: Optional[float] = None
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class ForwardTrajectoryConfig:
     """Parameters of :func:`~spgeo.synthetic.poses.make_forward_trajectory`: a

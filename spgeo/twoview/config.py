@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..configs import config_repr
+from ..configs import config_class
 
 __all__ = ["TWO_VIEW_STATUSES", "FeatureOptions", "TwoViewConfig"]
 
@@ -28,7 +28,7 @@ def _check_feature_fields(owner: str, features: str, max_features: int, ratio: f
         raise ValueError(f"{owner}.ratio must be in (0, 1], got {ratio}")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class FeatureOptions:
     """OpenCV features and their matching (:func:`spgeo.twoview.backends.opencv_features`,
@@ -57,7 +57,7 @@ class FeatureOptions:
         _check_feature_fields("FeatureOptions", self.features, self.max_features, self.ratio)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class TwoViewConfig:
     """Options of :func:`spgeo.twoview.estimate_relative_pose`.

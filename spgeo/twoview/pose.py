@@ -53,6 +53,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..geometry import rotation_angle_deg
 from .backends import (opencv_features, opencv_geometry, pycolmap_features_and_matches,
                        pycolmap_geometry, quiet_colmap, ratio_matches)
 from .config import TwoViewConfig
@@ -119,6 +120,13 @@ class TwoViewResult:
     def ok(self) -> bool:
         """True when ``status == "ok"``."""
         return self.status == "ok"
+
+    def __repr__(self) -> str:
+        """One line: status, matches, inliers, parallax and the rotation (degrees)."""
+        rot = ("" if self.T_ref_tgt is None
+               else f", rotation {rotation_angle_deg(self.T_ref_tgt[:3, :3]):.2f} deg")
+        return (f"TwoViewResult({self.status}, {self.num_inliers}/{self.num_matches} inliers, "
+                f"parallax {self.median_parallax_deg:.2f} deg{rot}, {self.backend})")
 
     @property
     def translation_direction(self) -> Optional[np.ndarray]:

@@ -10,7 +10,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..factors.photometric import PhotometricConfig
 from ..loop.config import LoopClosureConfig
 from ..primitive_models import PRIMITIVE_MODELS
@@ -32,7 +32,7 @@ MAPPING_MODES = ("live", "inline")
 MAPPING_SCHEDULES = ("fixed", "ready")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class TrackerConfig:
     """Options of :func:`spgeo.vo.tracking.track_frame`.
@@ -111,7 +111,7 @@ class TrackerConfig:
                              "required")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class KeyframeDecisionConfig:
     """When a frame tracked against the latest keyframe becomes a keyframe
@@ -137,7 +137,7 @@ class KeyframeDecisionConfig:
     max_rotation_deg: float = 15.0
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class ScaleCheckConfig:
     """The reverse scale check of a new monocular keyframe
@@ -160,7 +160,7 @@ class ScaleCheckConfig:
     max_change: float = 0.2
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class InitConfig:
     """The initialisation of a map segment (``OdometryConfig.init``;
@@ -246,7 +246,7 @@ _ODOMETRY_CHECKS = (
     ("init.parallax_percentile", "in [0, 100]"), ("mapping_lead", ">= 0"))
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class OdometryConfig:
     """Options of :class:`spgeo.vo.Odometry` (defaults: docs/design.md §5 where
@@ -353,6 +353,10 @@ class OdometryConfig:
             unused) and a keyframe wanted before it is deferred
             (:mod:`spgeo.vo.mapping_port`).
     """
+
+    #: the table of a ``spgeo vo`` config file that is this config's
+    #: (:func:`spgeo.configs.own_section`)
+    config_section = "odometry"
 
     resolution: Optional[Tuple[int, int]] = None
     target_pixels: int = DEFAULT_TARGET_PIXELS

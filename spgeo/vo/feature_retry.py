@@ -23,7 +23,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..camera import PinholeCamera
 from ..geometry import invert_pose, transform_points
 from ..primitives import PrimitiveSet
@@ -35,7 +35,7 @@ __all__ = ["FeatureRetryConfig", "FeaturePose", "FeatureRetry"]
 log = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class FeatureRetryConfig:
     """Parameters of :class:`FeatureRetry`.

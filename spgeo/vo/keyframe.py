@@ -106,6 +106,13 @@ class Keyframe:
     _lattice: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _lattice_points: Dict[int, np.ndarray] = field(default_factory=dict, repr=False)
 
+    def __repr__(self) -> str:
+        """One line: primitives, resolution, median depth, position (map units)."""
+        x, y, z = self.T_world_kf[:3, 3]
+        cam = self.primitives.camera
+        return (f"Keyframe({len(self.primitives)} primitives, {cam.width}x{cam.height}, "
+                f"median depth {self.median_depth:.3f}, position [{x:.3f}, {y:.3f}, {z:.3f}])")
+
     @classmethod
     def build(cls, image: np.ndarray, primitives: PrimitiveSet, T_world_kf: np.ndarray,
               levels: int = 3, selection: Optional[PixelSelectionConfig] = None) -> "Keyframe":

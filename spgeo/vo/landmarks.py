@@ -35,7 +35,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_repr
+from ..configs import config_class
 from ..geometry import invert_pose, ray_angles_deg, transform_points
 from ..similarity import moved_frame
 from ..twoview import FeatureOptions, to_gray_uint8
@@ -46,7 +46,7 @@ __all__ = ["LandmarkConfig", "Landmark", "LandmarkMap", "triangulate"]
 log = logging.getLogger(__name__)
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class LandmarkConfig:
     """Parameters of the sparse landmarks (:class:`LandmarkMap`) and their factors.

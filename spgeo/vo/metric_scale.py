@@ -29,7 +29,7 @@ from typing import Callable, Dict, Iterable, Iterator, List, Optional, Tuple
 
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..trajectory import Trajectory
 from .tracking import Keyframe
 from .odometry import Odometry
@@ -46,7 +46,7 @@ _MAD_TO_SIGMA = 1.4826
 DepthPredictor = Callable[[np.ndarray], np.ndarray]
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class MetricScaleConfig:
     """Options of :func:`estimate_metric_scale`.

@@ -37,7 +37,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from ..configs import config_repr
+from ..configs import config_class
 from ..images import scharr_gradients
 
 __all__ = ["PixelSelectionConfig", "PixelSelection", "select_pixels", "gradient_magnitude"]
@@ -46,7 +46,7 @@ __all__ = ["PixelSelectionConfig", "PixelSelection", "select_pixels", "gradient_
 COARSE_MODES = ("select", "all")
 
 
-@config_repr
+@config_class
 @dataclass(frozen=True)
 class PixelSelectionConfig:
     """Options of :func:`select_pixels`.

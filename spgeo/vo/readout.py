@@ -24,6 +24,16 @@ class OdometryReadout:
     it reads (``_frames``, ``_map``, ``_port``, ``_initialiser``, ``_maker``,
     ``config``, ``frontend``) and ``_sync`` are the odometry's."""
 
+    def __repr__(self) -> str:
+        """One line: working size, frames, keyframes, segments, the last frame's
+        status, mapping mode and window (no wait for the back end)."""
+        cam = self.camera
+        last = self._frames[-1].status if self._frames else "no frame yet"
+        segments = len({f.segment for f in self._frames})
+        return (f"{type(self).__name__}({cam.width}x{cam.height}, {len(self._frames)} frames, "
+                f"{len(self._map.order)} keyframes, {segments} segment(s), last {last}, "
+                f"mapping {self.config.mapping}, window {self.config.window})")
+
     def result(self) -> OdometryResult:
         """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
         :meth:`spgeo.vo.map.KeyframeMap.frame_poses`), after the pending window

@@ -68,6 +68,17 @@ class FrameResult:
     def __post_init__(self) -> None:
         self.status = FrameStatus(self.status)
 
+    def __repr__(self) -> str:
+        """One line: frame, time, status, keyframe, segment, position (the map's
+        units), the tracking's summary and the frame's time."""
+        x, y, z = self.T_world_cam[:3, 3]
+        kf = "" if self.keyframe_index is None else f", keyframe {self.keyframe_index}"
+        track = "" if self.track is None else f", {self.track!r}"
+        total = 1e3 * self.timings.get("total", 0.0)
+        return (f"FrameResult(#{self.index}, t={self.timestamp:.3f}, {self.status}{kf}, "
+                f"segment {self.segment}, position [{x:.3f}, {y:.3f}, {z:.3f}]{track}, "
+                f"{total:.1f} ms)")
+
     def rewrite(self, status: FrameStatus, T_world_cam: np.ndarray,
                 track: Optional[TrackResult] = None, keyframe_index: Optional[int] = None) -> None:
         """Rewritten in place (an initialisation's frames, once:

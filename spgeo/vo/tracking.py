@@ -113,6 +113,12 @@ class TrackResult:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    def __repr__(self) -> str:
+        """One line: status (and reason), relative cost, valid fraction, LM steps."""
+        why = "" if self.reason is None else f" ({self.reason})"
+        return (f"TrackResult({self.status}{why}, relative cost {self.relative_cost:.3f}, "
+                f"valid {self.valid_fraction:.2f}, {sum(self.iterations)} iterations)")
+
     def T_kf_frame(self, keyframe: Keyframe) -> np.ndarray:
         """The frame's pose in the keyframe's camera."""
         return invert_pose(keyframe.T_world_kf) @ self.T_world_frame
