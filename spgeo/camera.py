@@ -15,7 +15,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .checks import InputError, check_intrinsics
+from .checks import InputError, check_intrinsics, swapped_size_hint
 
 __all__ = ["PinholeCamera"]
 
@@ -98,12 +98,13 @@ class PinholeCamera:
 
     def check_image(self, image: np.ndarray, name: str = "image") -> np.ndarray:
         """Raise :class:`~spgeo.validation.InputError` unless ``image`` is (H, W) or
-        (H, W, C) of this camera's size."""
+        (H, W, C) of this camera's size (the message says when width and height
+        look swapped)."""
         image = np.asarray(image)
         if image.ndim not in (2, 3) or image.shape[:2] != self.shape:
             raise InputError(
                 f"{name} has shape {image.shape}, expected ({self.height}, {self.width}[, C]) "
-                f"for this camera")
+                f"for this camera{swapped_size_hint(image.shape, self.shape)}")
         return image
 
     # ------------------------------------------------------- scaling/resizing

@@ -10,7 +10,7 @@ import math
 from typing import Tuple
 
 __all__ = ["InputError", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
-           "check_intrinsics"]
+           "check_intrinsics", "swapped_size_hint"]
 
 #: plausible field of view of a pinhole (rectilinear) camera, degrees: each axis at most
 #: the upper bound (wider needs a fisheye model), the wider axis at least the lower one;
@@ -29,6 +29,32 @@ class InputError(ValueError):
 
 def _fov_deg(focal: float, size: int) -> float:
     return math.degrees(2.0 * math.atan(size / (2.0 * focal)))
+
+
+def _flipped_axis_hint(name: str, value: float) -> str:
+    """How to convert a negative focal length ``name`` = ``value`` (a camera axis
+    pointing the other way) to spgeo's OpenCV convention, as the ICL-NUIM reader
+    (:mod:`spgeo.datasets.icl`) converts that data set's negative fy."""
+    axis, flip, c = ("y", "diag(1, -1, 1, 1)", "cy") if name == "fy" else \
+        ("x", "diag(-1, 1, 1, 1)", "cx")
+    icl = (" (ICL-NUIM's fy < 0: its y axis points up the image; "
+           "spgeo.datasets.icl.icl_pose_to_opencv converts its poses)") if name == "fy" else ""
+    return (f": a negative {name} means the data's camera {axis} axis is flipped{icl}; "
+            f"spgeo's camera is OpenCV's (x right, y down): keep the image unchanged, use "
+            f"{name} = {-value:g} ({c} unchanged) and convert camera-to-world poses T to "
+            f"S @ T @ S with S = {flip}")
+
+
+def swapped_size_hint(shape, expected_shape) -> str:
+    """``"; ... look swapped ..."`` when the (H, W) of ``shape`` (an array's
+    shape, (H, W[, C])) is ``expected_shape`` (a camera's (H, W)) reversed,
+    else ``""``: the tail of an image-size error message."""
+    hw, exp = tuple(shape[:2]), tuple(expected_shape)
+    if len(hw) != 2 or hw == exp or hw != exp[::-1]:
+        return ""
+    return (f"; width and height look swapped: the image is {hw[1]}x{hw[0]} (width x height), "
+            f"the camera {exp[1]}x{exp[0]} (PinholeCamera takes width before height; a numpy "
+            "image is (height, width[, channels]))")
 
 
 def check_intrinsics(fx, fy, cx, cy, width, height, what: str = "intrinsics") -> None:
@@ -53,7 +79,9 @@ def check_intrinsics(fx, fy, cx, cy, width, height, what: str = "intrinsics") ->
             raise InputError(f"{what}: {name} must be a number, got {value!r}") from None
         if not math.isfinite(vals[name]) or (name in ("fx", "fy") and vals[name] <= 0):
             kind = "finite and > 0" if name in ("fx", "fy") else "finite"
-            raise InputError(f"{what}: {name} must be {kind}, got {value!r}")
+            hint = _flipped_axis_hint(name, vals[name]) \
+                if name in ("fx", "fy") and -math.inf < vals[name] < 0 else ""
+            raise InputError(f"{what}: {name} must be {kind}, got {value!r}{hint}")
     for name, value in (("width", width), ("height", height)):
         try:
             ok = int(value) == value and int(value) > 0

@@ -7,8 +7,62 @@ from typing import Optional, Tuple
 import numpy as np
 
 from .camera import PinholeCamera
+from .validation import InputError
 
-__all__ = ["Frame", "resize_frame"]
+__all__ = ["Frame", "resize_frame", "frame_label", "check_frame_image", "MAX_FLOAT_IMAGE_VALUE"]
+
+#: a floating-point image whose largest value exceeds this is refused: its values look
+#: like 0-255 (or 0-65535) intensities, not the [0, 1] of :attr:`Frame.image`
+MAX_FLOAT_IMAGE_VALUE = 1.5
+
+
+def frame_label(name, index: Optional[int] = None) -> str:
+    """How error messages name a frame: ``"frame 17 ('kitchen_0017')"`` or, for an
+    unnamed frame (``name`` ``""`` or None), ``"frame 17"`` when its position
+    ``index`` in a run is known; ``"Frame 'kitchen_0017'"`` or ``"unnamed Frame"``
+    when not."""
+    named = name is not None and str(name) != ""
+    if index is not None:
+        return f"frame {int(index)} ({name!r})" if named else f"frame {int(index)}"
+    return f"Frame {name!r}" if named else "unnamed Frame"
+
+
+def check_frame_image(image, camera: PinholeCamera, what: str = "Frame image") -> np.ndarray:
+    """The image of a :class:`Frame` of ``camera``, checked (and converted from
+    8 / 16 bits); ``what`` names it in messages.
+
+    Accepts (H, W, 3) RGB, (H, W) grey or (H, W, 1) grey of ``camera``'s
+    (height, width): floating point in [0, 1] is returned as given; uint8 and
+    uint16 are converted to float32 in [0, 1] (divided by 255, 65535:
+    :func:`spgeo.images.to_float_image`).  Cost: one ``max`` over a float image.
+
+    Raises :class:`~spgeo.validation.InputError` (a ``ValueError``) for another
+    (H, W) (saying so when width and height look swapped), 4 channels (RGBA:
+    the message says to drop alpha), another channel count, another dtype, or a
+    float image whose maximum exceeds :data:`MAX_FLOAT_IMAGE_VALUE` (0-255
+    values).  NaN / inf are left to the consumer (``Odometry.track`` refuses them).
+    """
+    image = camera.check_image(image, what)
+    channels = image.shape[2] if image.ndim == 3 else None
+    if channels == 4:
+        raise InputError(f"{what} has 4 channels (RGBA?), expected (H, W, 3) RGB or (H, W) "
+                         "grey: drop the alpha channel with image[..., :3]")
+    if channels not in (None, 1, 3):
+        raise InputError(f"{what} has {channels} channels (shape {image.shape}), expected "
+                         "(H, W, 3) RGB or (H, W) grey")
+    if image.dtype in (np.uint8, np.uint16):
+        from .images import to_float_image
+
+        return to_float_image(image)
+    if not np.issubdtype(image.dtype, np.floating):
+        raise InputError(f"{what} has dtype {image.dtype}, expected float in [0, 1] "
+                         "(or uint8 / uint16, converted on construction)")
+    hi = float(image.max())
+    if hi > MAX_FLOAT_IMAGE_VALUE:
+        raise InputError(f"{what} is float with values up to {hi:g}, expected [0, 1]: these "
+                         "look like 0-255 intensities: divide by 255 (65535 for 16-bit data), "
+                         "or pass the uint8 / uint16 array itself (converted on construction)")
+    return image
 
 
 @dataclass
@@ -18,12 +72,21 @@ class Frame:
     Attributes:
         image: float32 in [0, 1], (H, W, 3) RGB or (H, W) grey, already undistorted
             when the reader was asked to undistort (then ``camera`` has no distortion).
-        camera: intrinsics of ``image``.
+            Construction checks it (:func:`check_frame_image`): uint8 / uint16
+            images are converted to float32 in [0, 1] (divided by 255 / 65535);
+            other floating-point dtypes are kept as given; an image whose (H, W)
+            is not ``camera``'s, an RGBA image (drop alpha: ``image[..., :3]``),
+            another dtype, or float values above :data:`MAX_FLOAT_IMAGE_VALUE`
+            (0-255 floats) raise :class:`~spgeo.validation.InputError`.
+        camera: intrinsics of ``image`` (``width`` x ``height`` pixels: ``image`` is
+            (height, width[, 3])).
         timestamp: seconds (data sets without timestamps use the frame number).
         depth: optional float32 (H, W) depth in metres along the optical axis,
             NaN where invalid.  Registered to ``image`` unless the reader says otherwise.
         T_world_cam: optional 4x4 camera-to-world ground-truth pose.
-        name: identifier (file stem or frame number) for logs and outputs.
+        name: identifier (file stem or frame number) for logs and outputs; messages
+            name an unnamed frame (``""``) by its index in a VO run
+            (:func:`frame_label`).
         meta: free-form reader-specific information (source paths, flags).
     """
 
@@ -36,15 +99,16 @@ class Frame:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.camera.check_image(self.image, f"Frame {self.name!r} image")
+        label = frame_label(self.name)
+        self.image = check_frame_image(self.image, self.camera, f"{label} image")
         if self.depth is not None:
-            self.camera.check_image(self.depth, f"Frame {self.name!r} depth")
+            self.camera.check_image(self.depth, f"{label} depth")
             if self.depth.ndim != 2:
-                raise ValueError(f"Frame {self.name!r}: depth must be (H, W), got {self.depth.shape}")
+                raise InputError(f"{label}: depth must be (H, W), got {self.depth.shape}")
         if self.T_world_cam is not None:
             from .geometry import check_pose
 
-            self.T_world_cam = check_pose(self.T_world_cam, f"Frame {self.name!r} T_world_cam")
+            self.T_world_cam = check_pose(self.T_world_cam, f"{label} T_world_cam")
 
     @property
     def gray(self) -> np.ndarray:

@@ -19,16 +19,20 @@ import numpy as np
 
 from .camera import PinholeCamera
 from .checks import (FOCAL_RATIO_RANGE, FOV_RANGE_DEG, PRINCIPAL_POINT_MARGIN, InputError,
-                     check_intrinsics)
+                     check_intrinsics, swapped_size_hint)
 
-__all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE", "PRINCIPAL_POINT_MARGIN",
-           "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
-           "check_intrinsics", "check_camera", "check_real_array", "check_sparse_depth",
+__all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE",
+           "PRINCIPAL_POINT_MARGIN", "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
+           "CAMERA_MATCH_TOLERANCE", "check_intrinsics", "swapped_size_hint", "check_camera",
+           "check_same_camera", "check_real_array", "check_sparse_depth",
            "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes",
            "FrameReadError", "FrameFileMissing"]
 
 log = logging.getLogger(__name__)
 
+#: two cameras are the same when fx, fy, cx, cy differ by at most this (pixels) and the
+#: distortion coefficients by at most this (dimensionless): above floating-point noise
+CAMERA_MATCH_TOLERANCE = 1e-3
 #: the largest image / processing width or height (pixels) the commands accept
 MAX_IMAGE_SIDE = 8192
 #: a sparse depth whose median valid value exceeds this (metres) is taken for millimetres
@@ -47,6 +51,32 @@ def check_camera(camera, what: str = "camera"):
         raise TypeError(f"{what} must be a spgeo.PinholeCamera, got {type(camera).__name__} "
                         f"({camera!r:.60})")
     return camera
+
+
+def check_same_camera(camera: PinholeCamera, expected: PinholeCamera, what: str = "camera",
+                      expected_what: str = "the expected camera") -> None:
+    """Raise :class:`InputError` unless ``camera`` is ``expected``: the same width
+    and height, fx, fy, cx, cy within :data:`CAMERA_MATCH_TOLERANCE` pixels and
+    the same distortion (both none, or coefficients within the tolerance).  The
+    message names ``what`` and ``expected_what``, shows both cameras and the
+    first field that differs."""
+    if camera == expected:
+        return
+    tol = CAMERA_MATCH_TOLERANCE
+    diff = None
+    for name in ("width", "height", "fx", "fy", "cx", "cy"):
+        a, b = getattr(camera, name), getattr(expected, name)
+        if not abs(a - b) <= (0 if name in ("width", "height") else tol):
+            diff = f"{name} {a!r} vs {b!r}"
+            break
+    if diff is None:
+        da, db = camera.distortion, expected.distortion
+        if (da is None) != (db is None) or (da is not None and (
+                len(da) != len(db) or not np.allclose(da, db, rtol=0.0, atol=tol))):
+            diff = f"distortion {da} vs {db}"
+    if diff is not None:
+        raise InputError(f"{what} {camera!r} differs from {expected_what} {expected!r} "
+                         f"({diff})")
 
 
 # ------------------------------------------------------------------ arrays

@@ -120,11 +120,11 @@ class Odometry(OdometryReadout):
 
         Raises:
             TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
-            InputError: (a ``ValueError``) the image's (H, W) is neither the
-                input camera's nor the processing camera's, it holds NaN / inf,
-                or the timestamp is not finite or
-                not strictly after the previous frame's (seconds, or frame
-                numbers for data without time); the frame is not processed.
+            InputError: (a ``ValueError``) the image's (H, W) is neither the input
+                camera's nor the processing camera's, the frame's camera is not that
+                camera, the image holds NaN / inf, or the timestamp is not finite or
+                not strictly after the previous frame's (seconds, or frame numbers
+                for data without time); the frame is not processed (checked_frame).
         """
         with opencv_threads(1):
             return self._track_frame(frame)

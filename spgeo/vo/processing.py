@@ -18,8 +18,8 @@ from typing import Iterator, Optional, Tuple
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..frame import Frame
-from ..validation import MAX_IMAGE_SIDE, InputError
+from ..frame import Frame, frame_label
+from ..validation import MAX_IMAGE_SIDE, InputError, check_same_camera, swapped_size_hint
 
 __all__ = ["DEFAULT_TARGET_PIXELS", "SIZE_MULTIPLE", "processing_size", "resize_for_vo",
            "checked_frame", "opencv_threads"]
@@ -59,8 +59,8 @@ def resize_for_vo(frame: Frame, camera: PinholeCamera, use_depth: bool, index: i
     when ``use_depth``; no ground truth or meta (not
     :func:`spgeo.frame.resize_frame`: no undistortion, the camera is given).
 
-    Raises ``ValueError`` naming frame ``index`` when ``use_depth`` and the
-    frame has no depth.
+    Raises :class:`~spgeo.validation.InputError` (a ``ValueError``) naming
+    frame ``index`` when ``use_depth`` and the frame has no depth.
     """
     import cv2
 
@@ -75,7 +75,7 @@ def resize_for_vo(frame: Frame, camera: PinholeCamera, use_depth: bool, index: i
     depth = None
     if use_depth:
         if frame.depth is None:
-            raise ValueError(f"frame {index} ({frame.name!r}) has no depth but the front-end "
+            raise InputError(f"{frame_label(frame.name, index)} has no depth but the front-end "
                              "uses depth (open the data set with depth, or use a monocular "
                              "front-end)")
         depth = np.asarray(frame.depth, dtype=np.float32)
@@ -88,40 +88,51 @@ def checked_frame(frame: Frame, index: int, camera: PinholeCamera, input_camera:
                   use_depth: bool, previous_timestamp: Optional[float]) -> Frame:
     """``frame`` (frame number ``index`` of a VO run) at the processing
     ``camera``'s size: given at ``input_camera``'s size it is resized by
-    :func:`resize_for_vo`, given at the processing size it is kept.
+    :func:`resize_for_vo`, given at the processing size it is kept.  The
+    image's dtype, channels and range were checked when the frame was made
+    (:func:`spgeo.frame.check_frame_image`); messages name an unnamed frame by
+    ``index`` (:func:`spgeo.frame.frame_label`).
 
     Raises:
         TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
-        InputError: (a ``ValueError``) the image's (H, W) is neither camera's,
-            it holds NaN / inf, or the timestamp is not finite or not strictly
-            after ``previous_timestamp`` (None for the first frame).
+        InputError: (a ``ValueError``) the image's (H, W) is neither camera's
+            (the message says when width and height look swapped), the frame's
+            camera is not the camera of its size (``input_camera``, or
+            ``camera`` at the processing size:
+            :func:`~spgeo.validation.check_same_camera`), the image holds
+            NaN / inf, or the timestamp is not finite or not strictly after
+            ``previous_timestamp`` (None for the first frame).
     """
     if not isinstance(frame, Frame):
         raise TypeError(f"Odometry.track expects a spgeo.frame.Frame, got "
                         f"{type(frame).__name__}")
+    what = f"Odometry.track: {frame_label(frame.name, index)}"
     image = np.asarray(frame.image)
-    if image.ndim not in (2, 3) or tuple(image.shape[:2]) not in (camera.shape,
-                                                                   input_camera.shape):
-        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) image of shape "
-                         f"{image.shape} does not match the input camera's (H, W) "
-                         f"{input_camera.shape}")
-    if tuple(image.shape[:2]) != camera.shape:
+    hw = tuple(image.shape[:2])
+    if image.ndim not in (2, 3) or hw not in (camera.shape, input_camera.shape):
+        raise InputError(f"{what} image of shape {image.shape} does not match the input "
+                         f"camera's (H, W) {input_camera.shape}"
+                         f"{swapped_size_hint(image.shape, input_camera.shape)}")
+    if hw == input_camera.shape:
+        check_same_camera(frame.camera, input_camera, f"{what} camera",
+                          "the camera the Odometry was built with")
+    else:
+        check_same_camera(frame.camera, camera, f"{what} camera (processing size)",
+                          "the Odometry's processing camera (Odometry.camera)")
+    if hw != camera.shape:
         frame = resize_for_vo(frame, camera, use_depth, index)
         image = frame.image
     if not np.all(np.isfinite(image)):
-        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) image contains "
-                         "NaN or inf")
+        raise InputError(f"{what} image contains NaN or inf")
     try:
         stamp = float(frame.timestamp)
     except (TypeError, ValueError):
         stamp = math.nan
     if not math.isfinite(stamp):
-        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) timestamp "
-                         f"{frame.timestamp!r} is not a finite number")
+        raise InputError(f"{what} timestamp {frame.timestamp!r} is not a finite number")
     if previous_timestamp is not None and not stamp > previous_timestamp:
-        raise InputError(f"Odometry.track: frame {index} ({frame.name!r}) timestamp {stamp!r} "
-                         f"is not after the previous frame's {previous_timestamp!r}: "
-                         "timestamps must be strictly increasing")
+        raise InputError(f"{what} timestamp {stamp!r} is not after the previous frame's "
+                         f"{previous_timestamp!r}: timestamps must be strictly increasing")
     return frame
 
 
