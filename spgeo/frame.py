@@ -110,6 +110,17 @@ class Frame:
 
             self.T_world_cam = check_pose(self.T_world_cam, f"{label} T_world_cam")
 
+    def __repr__(self) -> str:
+        """One line: name, timestamp, image size and kind, depth, ground truth, camera."""
+        kind = "RGB" if self.image.ndim == 3 and self.image.shape[2] == 3 else "grey"
+        extras = "".join(f", {what}" for what, has in (
+            ("depth", self.depth is not None), ("ground truth", self.T_world_cam is not None))
+            if has)
+        cam = self.camera
+        return (f"Frame({self.name or 'unnamed'}, t={float(self.timestamp):.3f}, "
+                f"{cam.width}x{cam.height} {kind} {self.image.dtype}{extras}, fx={cam.fx:.2f} fy={cam.fy:.2f} "
+                f"cx={cam.cx:.2f} cy={cam.cy:.2f})")
+
     @property
     def gray(self) -> np.ndarray:
         """(H, W) float32 grey image in [0, 1]."""

@@ -30,6 +30,15 @@ def vo_run():
     return run, seen
 
 
+def test_frame():
+    cam = synthetic.default_camera(160, 120)
+    frame = synthetic.render_frames(synthetic.SyntheticScene.generate(0), cam,
+                                    synthetic.make_trajectory(2, 0))[1]
+    text = _bounded(frame)
+    assert "160x120 RGB float32, depth, ground truth" in text and f"t={frame.timestamp:.3f}" in text
+    assert f"fx={cam.fx:.2f}" in text
+
+
 def test_vo_objects(vo_run):
     run, results = vo_run
     last = results[-1]

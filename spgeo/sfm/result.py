@@ -97,8 +97,9 @@ class SfMResult:
         and coverage, the views' rotations (degrees) and baselines (map units)."""
         h, w = self.depth.shape
         cover = float(np.isfinite(self.depth).mean()) if self.depth.size else 0.0
-        views = ", ".join(f"{s} {r}deg {t}" for _, s, r, t in self.view_rows()[:6])
-        more = ", ..." if len(self.view_status) > 6 else ""
+        views = ", ".join(f"{s} (rotation {r} deg, baseline {t})"
+                          for _, s, r, t in self.view_rows()[:4])
+        more = ", ..." if len(self.view_status) > 4 else ""
         return (f"SfMResult({self.status}, {len(self.primitives)} primitives "
                 f"({len(self.unconstrained)} unconstrained), depth {w}x{h} covering "
                 f"{100 * cover:.0f} %, {len(self.view_status)} views: {views}{more})")
