@@ -240,3 +240,45 @@ class Trajectory:
         return cls(stamps, poses, status,
                    None if kf is None else np.array(kf, dtype=int).astype(bool),
                    None if seg is None else np.array(seg, dtype=int), extra)
+
+    @classmethod
+    def from_ground_truth(cls, source, poses: Optional[Sequence[Optional[np.ndarray]]] = None
+                          ) -> "Trajectory":
+        """The ground truth of a frame sequence as a trajectory (status ``OK``).
+
+        Args:
+            source: a data-set reader (:func:`spgeo.datasets.open_dataset`, any
+                object with ``timestamps`` and ``ground_truth()``: read without
+                images), or, with ``poses``, the (n,) timestamps (seconds, or
+                frame numbers for data sets without times).
+            poses: with timestamps as ``source``, per frame its 4x4 camera-to-world
+                ``T_world_cam`` (the data set's world and unit, metres) or None.
+
+        Frames whose pose is None (no ground truth) are left out; a pose with
+        non-finite entries stays as a frame without a pose (NaN row: no line in
+        :meth:`save`'s file).  Raises ``ValueError`` when the counts differ or
+        a pose is not 4x4, ``TypeError`` for a ``source`` without ground truth.
+        """
+        if poses is None:
+            if not (hasattr(source, "timestamps") and callable(getattr(source, "ground_truth",
+                                                                       None))):
+                raise TypeError("Trajectory.from_ground_truth: expected a data-set reader "
+                                f"(timestamps, ground_truth()) or timestamps and poses, got "
+                                f"{type(source).__name__}")
+            stamps, poses = source.timestamps, source.ground_truth()
+        else:
+            stamps = source
+        stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        poses = list(poses)
+        if len(stamps) != len(poses):
+            raise ValueError(f"Trajectory.from_ground_truth: {len(stamps)} timestamps for "
+                             f"{len(poses)} poses")
+        keep = [i for i, T in enumerate(poses) if T is not None]
+        arr = np.zeros((len(keep), 4, 4))
+        for j, i in enumerate(keep):
+            T = np.asarray(poses[i], dtype=np.float64)
+            if T.shape != (4, 4):
+                raise ValueError(f"Trajectory.from_ground_truth: pose {i} has shape {T.shape}, "
+                                 "expected (4, 4)")
+            arr[j] = T if np.all(np.isfinite(T)) else np.nan
+        return cls(stamps[keep], arr)

@@ -21,17 +21,52 @@ import numpy as np
 
 from ..configs import config_to_dict
 from ..frame import Frame
+from ..io.outputs import FileInfo
 from ..trajectory import Trajectory
 from ..vo import Odometry, OdometryResult
 from ..vo.metric_scale import MetricScale, ScaledOdometry
 from ..vo.result import write_keyframe_clouds
 
-__all__ = ["VORun", "SkippedFrame", "ATE_LABELS"]
+__all__ = ["VORun", "SkippedFrame", "ATE_LABELS", "SAVED_FILES", "GROUND_TRUTH_FILE"]
 
 log = logging.getLogger(__name__)
 
 #: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
 ATE_LABELS = ("per-frame", "keyframe-only")
+
+#: the ground truth :meth:`VORun.save` writes beside ``trajectory.txt``
+GROUND_TRUTH_FILE = "groundtruth.txt"
+
+_TIME = "seconds (frame numbers for data sets without times, e.g. 7-Scenes)"
+_TUM = "TUM 'timestamp tx ty tz qx qy qz qw', camera-to-world T_world_cam"
+
+#: What each file of :meth:`VORun.save` is (an output manifest's ``"what"`` and
+#: ``"units"``, :meth:`VORun.describe_files`), by the key of the paths ``save`` returns;
+#: ``{pos}``: :attr:`VORun.position_units`, ``{time}``: the timestamps' unit, ``{name}``:
+#: the file's stem.  A file ``save`` writes must have its entry here.
+SAVED_FILES: Dict[str, Tuple[str, str]] = {
+    "trajectory": (f"every processed frame with a pose, {_TUM}, VO world (keyframe 0's "
+                   "camera); a lost frame holds the previous frame's pose (its status is in "
+                   "trajectory.status.txt)", "positions in {pos}; timestamps in {time}"),
+    "keyframes": (f"the keyframes' final poses, {_TUM}, VO world",
+                  "positions in {pos}; timestamps in {time}"),
+    "status": ("per frame (skipped frames too): timestamp, status (init ok keyframe lost "
+               "relocalised reinit skipped), keyframe flag, map segment", "timestamps in {time}"),
+    "report": ("the run's report (JSON): counts, timings, configuration (config, "
+               "run_config), units, ATE (ate), metric scale, fusion parameters (fusion)",
+               "as each key says; ATE in ground-truth metres; positions in {pos}"),
+    "groundtruth": (f"the data set's ground truth, {_TUM}, data-set world, of the frames of "
+                    "trajectory.txt that the ATE evaluates (with ground truth, not lost): "
+                    "'evo_ape tum groundtruth.txt trajectory.txt -as' gives report.json's "
+                    "ate per-frame, with keyframes.txt its keyframe-only",
+                    "positions in metres (the data set's); timestamps in {time}"),
+    "clouds": ("point cloud of one keyframe ({name}: its index in creation order, as in "
+               "keyframes.txt): its primitives' points in the VO world, coloured, PLY", "{pos}"),
+    "plot_topview": ("top view of the trajectory after the per-frame Sim(3) alignment onto the "
+                     "ground truth, and the ground truth (PNG)", "metres (ground truth)"),
+    "plot_error": ("per-frame ATE (translation error after the Sim(3) alignment) over time "
+                   "(PNG)", "metres (ground truth); timestamps in {time}"),
+}
 
 
 @dataclass(frozen=True)
@@ -199,6 +234,33 @@ class VORun:
             counts["skipped"] = len(self.skipped)
         return dict(counts)
 
+    def ground_truth(self, exclude_lost: bool = True) -> Optional[Trajectory]:
+        """The ground truth of the processed frames that have one
+        (:meth:`Trajectory.from_ground_truth` of :attr:`gt_poses`: data-set
+        world, metres, camera-to-world), with ``exclude_lost`` (default) only
+        those not flagged ``"lost"``: the frames :meth:`ate` evaluates, what
+        :meth:`save` writes as ``groundtruth.txt``.  None without ground truth."""
+        if not self.has_ground_truth:
+            return None
+        poses = self.gt_poses
+        if exclude_lost:
+            lost = [s == "lost" for s in self.result().statuses]
+            poses = [None if bad else T for T, bad in zip(poses, lost)]
+        return Trajectory.from_ground_truth(self.timestamps, poses)
+
+    @property
+    def position_units(self) -> str:
+        """The unit of the run's output positions (trajectories, clouds, mesh):
+        metres with :attr:`metric_scale` or a front-end that reads the sensor
+        depth, else the VO's own unit (unknown scale)."""
+        if self.metric_scale is not None:
+            return ("metres (scale estimated by --metric-scale, VORunConfig.metric_scale: "
+                    "report.json metric_scale)")
+        if self.odometry.frontend.uses_depth:
+            return f"metres (the sensor depth read by the front-end {self.frontend_name!r})"
+        return ("VO units (unknown scale: monocular; report.json ate per-frame scale is "
+                "metres per VO unit where there is ground truth; --metric-scale writes metres)")
+
     def ate(self) -> Optional[Dict[str, object]]:
         """Sim(3)-aligned ATE of the processed frames not flagged ``"lost"``
         (skipped frames have no pose and are never among them).
@@ -211,12 +273,11 @@ class VORun:
         """
         from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
 
-        if not self.has_ground_truth:
+        gt = self.ground_truth(exclude_lost=False)
+        if gt is None:
             return None
         res = self.result()
         keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
-        has_gt = [i for i, T in enumerate(self.gt_poses) if T is not None]
-        gt = (self.timestamps[has_gt], np.array([self.gt_poses[i] for i in has_gt]))
         try:
             return ate_per_frame_and_keyframes(
                 (res.timestamps[keep], res.poses[keep]), gt, res.is_keyframe[keep],
@@ -289,20 +350,28 @@ class VORun:
 
     def save(self, directory: Union[str, Path], with_ate: bool = True,
              ate: Optional[Dict[str, object]] = None,
-             title: Optional[str] = None) -> Dict[str, object]:
+             title: Optional[str] = None, fusion=None) -> Dict[str, object]:
         """Write the run to ``directory`` (created).
 
         Files: :meth:`Odometry.save`'s ``trajectory.txt`` (every processed
         frame, TUM ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
         ``keyframes.txt``, ``trajectory.status.txt``, ``report.json`` and
-        keyframe point clouds (world frame, PLY) in ``clouds/``; this adds
+        keyframe point clouds (world frame, PLY) in ``clouds/``; with ground
+        truth, ``groundtruth.txt`` (:meth:`ground_truth`: TUM, camera-to-world,
+        the frames the ATE evaluates; ``evo_ape tum groundtruth.txt
+        trajectory.txt -as`` gives the report's per-frame ATE); with ``fusion``
+        (a :class:`~spgeo.io.fusion.FusionResult` of :meth:`fuse`), its
+        ``mesh.ply`` and ``cloud.ply``.  This adds
         ``"run"`` (processing resolution, front-end, wall time, FPS, ``n_skipped``),
         ``"intrinsics"`` (:attr:`intrinsics`, when set), ``"capture"``
         (:attr:`capture`, live input),
         ``"skipped"`` (one :meth:`SkippedFrame.to_dict` per skipped frame; such a
         frame is ``skipped`` in the status file and has no line in
         ``trajectory.txt``), ``"run_config"``
-        (this :class:`~spgeo.apps.vo_run.VORunConfig` without ``odometry``) and, with
+        (this :class:`~spgeo.apps.vo_run.VORunConfig` without ``odometry``),
+        ``"units"`` (positions: :attr:`position_units`, timestamps, ATE),
+        ``"fusion"`` (with ``fusion``: :meth:`FusionResult.summary`, the
+        parameters used) and, with
         ``with_ate`` and ground truth, ``"ate"`` (:meth:`ate_report`) to the
         report and the plots ``trajectory_topview.png`` and
         ``trajectory_error.png`` (per-frame ATE; :mod:`spgeo.apps.trajectory_plots`,
@@ -313,9 +382,36 @@ class VORun:
         the plots' title (default the folder's name).  With a requested metric
         scale the report's ``"metric_scale"`` is :meth:`metric_scale_report` and
         the trajectories and clouds are in metres (:attr:`output_odometry`).
-        Returns the paths (``"clouds"``: a list).
+        Returns the paths by the keys of :data:`SAVED_FILES` (``"clouds"``: a
+        list; what they are: :meth:`describe_files`).
         """
         out = Path(directory)
+        if with_ate:
+            ate = self.ate() if ate is None else ate
+        extra = self._report_extra(ate if with_ate else None, with_ate, fusion)
+        traj = self.trajectory()
+        extra["status_counts"] = traj.status_counts()     # skipped frames included
+        paths: Dict[str, object] = dict(self.odometry.save(out, clouds=False, extra_report=extra,
+                                                           trajectory=traj))
+        gt = self.ground_truth()
+        if gt is not None:
+            paths["groundtruth"] = gt.save(
+                out / GROUND_TRUTH_FILE, status_file=False,
+                header=["ground truth (data-set world, metres) of the frames of trajectory.txt "
+                        "that the ATE evaluates (with ground truth, not lost)",
+                        "evo_ape tum groundtruth.txt trajectory.txt -as: report.json's ATE"])
+        view = self.output_odometry
+        paths["clouds"] = write_keyframe_clouds(
+            out / "clouds", view.iter_keyframes(view.keyframes_with_depth()))
+        if with_ate and ate is not None and ate.get("per-frame") is not None:
+            paths.update(self._write_plots(out, ate["per-frame"], title or out.name or str(out)))
+        if fusion is not None:
+            paths.update(fusion.write(out))
+        return paths
+
+    def _report_extra(self, ate: Optional[Dict[str, object]], with_ate: bool,
+                      fusion) -> Dict[str, object]:
+        """What :meth:`save` adds to the odometry's report (its docstring)."""
         w, h = self.processing_size
         extra: Dict[str, object] = {
             "run": {"status": self.status, "init_failure": self.odometry.init_failure,
@@ -333,21 +429,36 @@ class VORun:
         if self.capture is not None:
             extra["capture"] = dict(self.capture)
         if with_ate:
-            ate = self.ate() if ate is None else ate
             extra["ate"] = self.ate_report(ate) if ate is not None else None
         metric = self.metric_scale_report()
         if metric is not None:
             extra["metric_scale"] = metric
-        traj = self.trajectory()
-        extra["status_counts"] = traj.status_counts()     # skipped frames included
-        paths: Dict[str, object] = dict(self.odometry.save(out, clouds=False, extra_report=extra,
-                                                           trajectory=traj))
-        view = self.output_odometry
-        paths["clouds"] = write_keyframe_clouds(
-            out / "clouds", view.iter_keyframes(view.keyframes_with_depth()))
-        if with_ate and ate is not None and ate.get("per-frame") is not None:
-            paths.update(self._write_plots(out, ate["per-frame"], title or out.name or str(out)))
-        return paths
+        extra["units"] = {"positions": self.position_units, "timestamps": _TIME,
+                          "ate": "metres (the ground truth's), after the Sim(3) alignment"}
+        if fusion is not None:
+            extra["fusion"] = {**fusion.summary(), "units": self.position_units}
+        return extra
+
+    def describe_files(self, paths: Mapping[str, object]) -> Dict[Path, FileInfo]:
+        """What each file of :meth:`save` is (:data:`SAVED_FILES`, with this
+        run's units; the mesh and cloud: :data:`spgeo.io.fusion.FUSION_FILES`),
+        by path: the ``described`` of :meth:`spgeo.io.outputs.StagedFolder.commit`.
+        ``paths``: what :meth:`save` returned.  Raises ``KeyError`` for a key
+        with no description (every file written must have one)."""
+        from ..io.fusion import FUSION_FILES
+
+        pos = self.position_units
+        out: Dict[Path, FileInfo] = {}
+        for key, value in paths.items():
+            for path in (value if isinstance(value, list) else [value]):
+                path = Path(path)
+                if key in FUSION_FILES:
+                    out[path] = FileInfo(FUSION_FILES[key], pos)
+                    continue
+                what, units = SAVED_FILES[key]
+                out[path] = FileInfo(what.format(name=path.stem),
+                                     units.format(pos=pos, time=_TIME))
+        return out
 
     def _write_plots(self, out: Path, ate, title: str) -> Dict[str, Path]:
         """``trajectory_topview.png`` / ``trajectory_error.png`` of the per-frame
@@ -389,13 +500,16 @@ class VORun:
     def fuse(self, config=None):
         """TSDF fusion of the keyframes' depth maps at their final poses
         (:func:`spgeo.io.fusion.fuse_odometry`; ``config`` a
-        :class:`~spgeo.io.fusion.FusionConfig`, default its defaults): a
+        :class:`~spgeo.io.fusion.FusionConfig`, default the run config's
+        ``fusion``, else the defaults; :meth:`save` writes it): a
         :class:`~spgeo.io.fusion.FusionResult` in the VO's world and unit (metres
         with :attr:`metric_scale`).  Raises ``ValueError`` when no keyframe
         carries depth."""
         from ..io.fusion import FusionConfig, fuse_odometry
 
-        return fuse_odometry(self.output_odometry, FusionConfig() if config is None else config)
+        if config is None:
+            config = getattr(self.config, "fusion", None) or FusionConfig()
+        return fuse_odometry(self.output_odometry, config)
 
 
 class _KeyframeImages(Mapping):

@@ -55,6 +55,7 @@ from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
                         PrimitiveFrontEnd, build_frontend, check_model_options)
 from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
+from ..io.fusion import FusionConfig
 from ..vo.metric_scale import MetricScale, estimate_metric_scale
 from ..validation import FrameReadError
 from .memory import RssCheckpoints
@@ -129,6 +130,12 @@ class VORunConfig:
             (:class:`~spgeo.datasets.capture.CaptureRing`; the oldest is dropped
             when it is full).  Default 8; docs/results.md, "Real time with a
             camera", says why.
+        fusion: :class:`~spgeo.io.fusion.FusionConfig` of the TSDF fusion
+            (``spgeo vo --mesh``, :meth:`VORun.fuse <spgeo.apps.vo_outcome.VORun>`):
+            voxel size, truncation, depth cut-off (world units, or fractions of
+            the first keyframe's median depth when None), e.g.
+            ``--set fusion.voxel_size=0.01``; ``report.json``'s ``"fusion"``
+            holds the values used.
     """
 
     #: keys of a config file or ``--set`` that are not run fields are odometry
@@ -146,6 +153,7 @@ class VORunConfig:
     blas_threads: Optional[int] = 1
     metric_scale: Optional[str] = None
     capture_ring: int = 8
+    fusion: FusionConfig = field(default_factory=FusionConfig)
 
     def __post_init__(self) -> None:
         if self.frontend not in FRONTENDS:
@@ -154,6 +162,8 @@ class VORunConfig:
         check_model_options(self.frontend, self.normal_model)
         if not isinstance(self.odometry, OdometryConfig):
             raise ValueError("VORunConfig.odometry must be an OdometryConfig")
+        if not isinstance(self.fusion, FusionConfig):
+            raise ValueError("VORunConfig.fusion must be a FusionConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
         if isinstance(self.capture_ring, bool) or not isinstance(self.capture_ring, int) \

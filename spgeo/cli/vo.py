@@ -136,10 +136,8 @@ def _run(args: argparse.Namespace) -> int:
         fused = _fuse(run, viewer) if args.mesh else None
     ate = run.ate()
     with staged:
-        paths = run.save(staged.path, ate=ate, title=staged.target.name)
-        if fused is not None:
-            fused.write(staged.path)
-        staged.commit(run.status, frames=run.n_frames)
+        paths = run.save(staged.path, ate=ate, title=staged.target.name, fusion=fused)
+        staged.commit(run.status, described=run.describe_files(paths), frames=run.n_frames)
     for line in run.summary_lines(ate):
         print(line)
     n_clouds = len(paths.get("clouds") or [])
@@ -176,8 +174,10 @@ def _check_exports(args: argparse.Namespace) -> None:
 
 
 def _fuse(run, viewer):
-    """The TSDF fusion of the run's keyframes (logged to ``viewer`` when given),
-    or None with a warning on stderr when no keyframe carries depth."""
+    """The TSDF fusion of the run's keyframes (``VORunConfig.fusion``, ``--set
+    fusion.FIELD=VALUE``; logged to ``viewer`` when given; ``run.save`` writes it
+    and its parameters), or None with a warning on stderr when no keyframe
+    carries depth."""
     try:
         fused = run.fuse()
     except ValueError as exc:

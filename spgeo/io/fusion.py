@@ -41,16 +41,26 @@ from typing import Any, Dict, Iterable, Iterator, Optional, Tuple, Union
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..configs import config_class
+from ..configs import config_class, config_to_dict
 
 __all__ = ["FusionConfig", "FusionResult", "FusionView", "fuse_views", "fuse_odometry",
-           "odometry_views", "MESH_FILE", "CLOUD_FILE"]
+           "odometry_views", "MESH_FILE", "CLOUD_FILE", "FUSION_FILES"]
 
 log = logging.getLogger(__name__)
 
 #: file names of :meth:`FusionResult.write`
 MESH_FILE = "mesh.ply"
 CLOUD_FILE = "cloud.ply"
+
+#: what the files of :meth:`FusionResult.write` are, by the keys of the paths it returns
+#: (an output manifest's ``"what"``, :mod:`spgeo.io.outputs`); in the poses' world frame
+#: and unit
+FUSION_FILES = {
+    "mesh": "the fused TSDF mesh (all keyframes' depth maps at their final poses; marching "
+            "cubes): triangles with vertex colours and normals, binary PLY",
+    "cloud": "the fused TSDF point cloud (all keyframes): the zero crossing of the TSDF, "
+             "coloured, with normals, binary PLY (the per-keyframe clouds are in clouds/)",
+}
 
 #: one view to fuse: ``(image, depth, camera, T_world_cam)`` (:func:`fuse_views`)
 FusionView = Tuple[Optional[np.ndarray], np.ndarray, PinholeCamera, np.ndarray]
@@ -121,6 +131,12 @@ class FusionResult:
         cloud: ``open3d.geometry.PointCloud`` (colours in [0, 1], with normals).
         voxel_size, sdf_trunc, depth_max: the values used.
         n_views: views integrated.
+        config: the :class:`FusionConfig` they were resolved from (None for a
+            hand-made result).
+        reference_depth: the median valid depth of the first view with depth,
+            which the config's fractions multiply (world units).
+        n_colours_clipped: colour channels of the mesh and the cloud clipped to
+            [0, 1] (the TSDF's weighted colour averages round past 1).
     """
 
     mesh: Any
@@ -129,6 +145,9 @@ class FusionResult:
     sdf_trunc: float
     depth_max: float
     n_views: int
+    config: Optional["FusionConfig"] = None
+    reference_depth: Optional[float] = None
+    n_colours_clipped: int = 0
 
     @property
     def vertices(self) -> np.ndarray:
@@ -141,17 +160,24 @@ class FusionResult:
         return np.asarray(self.mesh.triangles)
 
     def summary(self) -> Dict[str, object]:
-        """JSON-ready counts and parameters."""
+        """JSON-ready counts and parameters (``report.json``'s ``"fusion"``):
+        the resolved ``voxel_size``, ``sdf_trunc`` and ``depth_max`` (world
+        units), ``reference_depth``, ``config`` (:class:`FusionConfig` as a dict,
+        None when unknown), counts and ``n_colours_clipped``."""
         return {"n_views": self.n_views, "voxel_size": self.voxel_size,
                 "sdf_trunc": self.sdf_trunc, "depth_max": self.depth_max,
+                "reference_depth": self.reference_depth,
+                "config": None if self.config is None else config_to_dict(self.config),
                 "n_vertices": len(self.mesh.vertices), "n_triangles": len(self.mesh.triangles),
-                "n_points": len(self.cloud.points)}
+                "n_points": len(self.cloud.points), "n_colours_clipped": self.n_colours_clipped}
 
     def write(self, folder: Union[str, os.PathLike]) -> Dict[str, Path]:
         """Write ``folder/mesh.ply`` and ``folder/cloud.ply`` (binary PLY; the
         folder is created), each atomically (a temporary file renamed into
-        place).  Returns ``{"mesh": path, "cloud": path}``; raises ``OSError``
-        when open3d cannot write."""
+        place).  Returns ``{"mesh": path, "cloud": path}`` (what they are:
+        :data:`FUSION_FILES`); raises ``OSError`` when open3d cannot write.
+        Open3D's own messages below errors are silenced while it writes (its
+        colour clamping is counted by the fusion instead: :attr:`n_colours_clipped`)."""
         import open3d as o3d
 
         folder = Path(folder)
@@ -163,7 +189,9 @@ class FusionResult:
             fd, tmp = tempfile.mkstemp(prefix=f".{fname}.", suffix=".tmp.ply", dir=folder)
             os.close(fd)
             try:
-                if not write(tmp, getattr(self, key), write_ascii=False):
+                with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+                    ok = write(tmp, getattr(self, key), write_ascii=False)
+                if not ok:
                     raise OSError(f"open3d could not write {path}")
                 os.chmod(tmp, 0o644)   # mkstemp creates 0600
                 os.replace(tmp, path)
@@ -240,14 +268,15 @@ def fuse_views(views: Iterable[FusionView], config: FusionConfig = FusionConfig(
         ValueError: no view with valid depth, or a view whose depth, image or
             pose is malformed.
     """
-    grid, params, n = None, None, 0
+    grid, params, n, ref = None, None, 0, None
     for view in views:
         depth, color, K, T_cam_world = _tensors(view, config.colour)
         if grid is None:
             d = depth.as_tensor().numpy()
             if not np.any(d > 0):
                 continue
-            params = config.resolved(float(np.median(d[d > 0])))
+            ref = float(np.median(d[d > 0]))
+            params = config.resolved(ref)
             grid = _grid(params[0], config.block_count)
         mult = params[1] / params[0]
         blocks = grid.compute_unique_block_coordinates(depth, K, T_cam_world, 1.0, params[2],
@@ -261,21 +290,40 @@ def fuse_views(views: Iterable[FusionView], config: FusionConfig = FusionConfig(
     mesh = grid.extract_triangle_mesh(weight_threshold=weight).to_legacy()
     mesh.compute_vertex_normals()
     cloud = grid.extract_point_cloud(weight_threshold=weight).to_legacy()
-    _clip_colours(mesh, cloud)
+    clipped = _clip_colours(mesh, cloud)
     log.info("TSDF fusion of %d views (voxel %.4g, truncation %.4g): %d vertices, %d "
              "triangles, %d points", n, params[0], params[1], len(mesh.vertices),
              len(mesh.triangles), len(cloud.points))
-    return FusionResult(mesh, cloud, *params, n)
+    return FusionResult(mesh, cloud, *params, n, config, ref, clipped)
 
 
-def _clip_colours(mesh, cloud) -> None:
+#: colour excess over [0, 1] that rounding explains (the weighted averages of values in [0, 1])
+_COLOUR_ROUNDING = 1e-4
+
+
+def _clip_colours(mesh, cloud) -> int:
     """The TSDF's weighted colour averages clipped to [0, 1] in place: rounding takes them
-    past 1 on some CPUs (plots refuse them; open3d warns when it writes them as bytes,
-    which clamps them the same way, so the files do not change)."""
+    past 1 on some CPUs (plots refuse them; open3d warns once per file when it writes them
+    as bytes, which clamps them the same way, so the files do not change).  Returns the
+    number of colour channels clipped, logged once here (INFO; a WARNING when some lay
+    further out than rounding explains)."""
     import open3d as o3d
 
-    mesh.vertex_colors = o3d.utility.Vector3dVector(np.clip(np.asarray(mesh.vertex_colors), 0, 1))
-    cloud.colors = o3d.utility.Vector3dVector(np.clip(np.asarray(cloud.colors), 0, 1))
+    n, excess = 0, 0.0
+    for geom, name in ((mesh, "vertex_colors"), (cloud, "colors")):
+        c = np.asarray(getattr(geom, name))
+        if c.size == 0:
+            continue
+        out = (c < 0) | (c > 1)
+        if out.any():
+            n += int(out.sum())
+            excess = max(excess, float(np.max(np.maximum(c - 1, -c))))
+            setattr(geom, name, o3d.utility.Vector3dVector(np.clip(c, 0, 1)))
+    if n:
+        level = logging.WARNING if excess > _COLOUR_ROUNDING else logging.INFO
+        log.log(level, "TSDF fusion: %d colour channels of the mesh and cloud clipped to "
+                "[0, 1] (at most %.2g outside)", n, excess)
+    return n
 
 
 def odometry_views(odometry) -> Iterator[FusionView]:

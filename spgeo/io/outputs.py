@@ -6,7 +6,9 @@
 * :class:`StagedFolder`: a command's output folder.  The location is checked
   before any work (:func:`check_output_folder`); the run writes into a temporary
   sibling folder; :meth:`StagedFolder.commit` writes the manifest
-  :data:`MANIFEST` (status, command, time) and renames the folder into place,
+  :data:`MANIFEST` (status, command, time, and ``"files"``: every file of the
+  folder with what it is and its units, :func:`describe_folder`) and renames the
+  folder into place,
   replacing a previous spgeo output as a whole (two runs are never mixed in one
   folder).  Leaving the ``with`` block without a commit (an exception, Ctrl-C)
   removes the temporary folder and leaves the target as it was.
@@ -18,6 +20,13 @@
 
 A folder is recognised as a previous spgeo output by its manifest; a non-empty
 folder without one is never replaced or written into.
+
+What a file is (:class:`FileInfo`) is said once, by the code that writes it: a
+writer returns its paths and keeps a table of descriptions beside its code
+(``spgeo vo``: :meth:`spgeo.apps.vo_outcome.VORun.describe_files`); a command
+passes them to :meth:`StagedFolder.commit`.  Files nobody described get the
+generic description of :data:`FILE_REGISTRY` (``report.json``), else
+``"what": null``: the manifest lists every file either way.
 """
 from __future__ import annotations
 
@@ -28,18 +37,77 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterator, Optional, Union
+from dataclasses import dataclass
+from fnmatch import fnmatchcase
+from typing import Dict, Iterator, List, Mapping, Optional, Union
 
 from ..validation import InputError
 
 __all__ = ["MANIFEST", "prepare_output_file", "write_bytes_atomic", "replace_dir",
            "staged_directory", "check_writable_parent", "check_output_folder", "read_manifest",
-           "StagedFolder"]
+           "StagedFolder", "FileInfo", "FILE_REGISTRY", "describe_folder"]
 
 PathLike = Union[str, os.PathLike]
 
-#: the manifest file of an spgeo output folder (JSON: status, command, time)
+#: the manifest file of an spgeo output folder (JSON: status, command, time, files)
 MANIFEST = ".spgeo-output.json"
+
+
+@dataclass(frozen=True)
+class FileInfo:
+    """What one output file is: a manifest entry's ``"what"`` and ``"units"``.
+
+    Attributes:
+        what: what the file holds and its format, in a sentence.
+        units: the units of its numbers (positions, timestamps), or None where
+            none apply.
+    """
+
+    what: str
+    units: Optional[str] = None
+
+
+#: generic descriptions of files that several commands write with one meaning, by
+#: :func:`fnmatch.fnmatchcase` pattern of the path relative to the output folder ('/'
+#: separators); used where the command described nothing (:func:`describe_folder`)
+FILE_REGISTRY: Dict[str, FileInfo] = {
+    "report.json": FileInfo("the command's report (JSON): statistics, configuration and "
+                            "results", "as each key says"),
+}
+
+
+def describe_folder(folder: PathLike, described: Optional[Mapping[PathLike, FileInfo]] = None,
+                    registry: Optional[Mapping[str, FileInfo]] = None) -> List[Dict[str, object]]:
+    """One manifest entry per file under ``folder`` (recursively, sorted by path;
+    the manifest :data:`MANIFEST` itself left out): ``{"path": relative path with
+    '/' separators, "what", "units", "bytes"}``.
+
+    ``described`` maps a file's path (absolute, or relative to ``folder``) to its
+    :class:`FileInfo`; a file it does not name gets the first matching pattern
+    of ``registry`` (default :data:`FILE_REGISTRY`), else ``what`` and ``units``
+    None.  A described path that is not a file of the folder raises
+    ``ValueError`` (a description of a file that was not written).
+    """
+    root = Path(folder)
+    registry = FILE_REGISTRY if registry is None else registry
+    infos: Dict[str, FileInfo] = {}
+    for path, info in (described or {}).items():
+        p = Path(path)
+        rel = (p.relative_to(root) if p.is_absolute() else p).as_posix()
+        if not (root / rel).is_file():
+            raise ValueError(f"describe_folder: {rel} is described but is not a file of {root}")
+        infos[rel] = info
+    entries = []
+    for p in sorted(q for q in root.rglob("*") if q.is_file()):
+        rel = p.relative_to(root).as_posix()
+        if rel == MANIFEST:
+            continue
+        info = infos.get(rel) or next((v for k, v in registry.items() if fnmatchcase(rel, k)),
+                                      None)
+        entries.append({"path": rel, "what": None if info is None else info.what,
+                        "units": None if info is None else info.units,
+                        "bytes": p.stat().st_size})
+    return entries
 
 
 def prepare_output_file(path: PathLike, what: str = "output") -> str:
@@ -209,14 +277,17 @@ class StagedFolder:
         os.chmod(self.path, 0o755)   # mkdtemp creates 0700
         return self
 
-    def commit(self, status: str = "complete", **info) -> Path:
+    def commit(self, status: str = "complete",
+               described: Optional[Mapping[PathLike, FileInfo]] = None, **info) -> Path:
         """Write the manifest (``status``: ``"complete"``, ``"flagged"``,
-        ``"interrupted"``, ...; ``info`` added) and move the folder into place;
-        returns the target."""
+        ``"interrupted"``, ...; ``info`` added; ``"files"``: every file written,
+        :func:`describe_folder` with ``described``) and move the folder into
+        place; returns the target."""
         if self.path is None:
             raise RuntimeError("StagedFolder.commit outside its with block")
         manifest = {"status": status, "command": self.command,
-                    "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **info}
+                    "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **info,
+                    "files": describe_folder(self.path, described)}
         (self.path / MANIFEST).write_text(json.dumps(manifest, indent=1, default=str) + "\n",
                                           encoding="utf-8")
         replace_dir(self.path, self.target)
