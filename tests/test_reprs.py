@@ -53,6 +53,11 @@ def test_vo_objects(vo_run):
     assert f"{len(kf.primitives)} primitives" in _bounded(kf)
     text = _bounded(run.odometry)
     assert f"{len(results)} frames, {run.odometry.n_keyframes} keyframes" in text
+    text = _bounded(run)
+    assert text.startswith(f"VORun({run.status}, {run.n_frames} frames (0 skipped, ")
+    assert "with ground truth, positions in metres" in text       # the depth front-end
+    fused = run.fuse()
+    assert f"{fused.n_views} views, {len(fused.vertices)} vertices" in _bounded(fused)
     traj = run.trajectory()
     text = _bounded(traj)
     assert f"Trajectory({len(traj)} frames, {int(traj.is_keyframe.sum())} keyframes" in text

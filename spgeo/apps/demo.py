@@ -357,7 +357,7 @@ class VORow:
         seconds: wall time of that loop (s).
         out_dir: folder written by :meth:`spgeo.apps.vo_outcome.VORun.save`
             (trajectory, keyframes, status, report with the ATE, keyframe
-            clouds) plus ``groundtruth.txt`` (TUM format).
+            clouds, ``groundtruth.txt`` of the frames not lost).
     """
 
     sequence: str
@@ -404,7 +404,6 @@ class VODemoResult:
 def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
             out_root: Path) -> VORow:
     """One :func:`spgeo.apps.vo_run.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
-    from ..io.tum import write_tum
     from ..vo import OdometryConfig
     from .vo_run import VORunConfig, run_odometry
 
@@ -416,10 +415,7 @@ def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
     per_frame = None if ate is None else ate.get("per-frame")
     nan = float("nan")
     out = out_root / f"{sequence}_{frontend}"
-    run.save(out, ate=ate)
-    gt = [T if T is not None else np.full((4, 4), np.nan) for T in run.gt_poses]
-    write_tum(out / "groundtruth.txt", run.timestamps, gt,
-              header=[f"ground truth of the {sequence} VO input (camera-to-world)"])
+    run.save(out, ate=ate)       # with groundtruth.txt: the frames the ATE evaluates
     init = next((i for i, k in enumerate(np.cumsum(res.is_keyframe)) if k == 2), None)
     row = VORow(sequence, run.frontend_name, run.n_frames,
                 float(run.timestamps[-1] - run.timestamps[0]), init, int(good.sum()),

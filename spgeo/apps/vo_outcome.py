@@ -226,6 +226,17 @@ class VORun:
         :attr:`metric_scale`)."""
         return self.output_odometry.result()
 
+    def __repr__(self) -> str:
+        """One line: status, frames (skipped, lost), keyframes, front-end and size,
+        FPS, ground truth and the positions' unit (no ATE: that takes evo)."""
+        w, h = self.processing_size
+        counts = self.status_counts()
+        unit = "metres" if self.position_units.startswith("metres") else "VO units"
+        return (f"VORun({self.status}, {self.n_frames} frames ({len(self.skipped)} skipped, "
+                f"{counts.get('lost', 0)} lost), {self.odometry.n_keyframes} keyframes, "
+                f"{self.frontend_name} at {w}x{h}, {self.fps:.1f} FPS, "
+                f"{'with' if self.has_ground_truth else 'no'} ground truth, positions in {unit})")
+
     def status_counts(self) -> Dict[str, int]:
         """Number of frames per status (``init``, ``ok``, ``keyframe``, ``lost``,
         ..., and ``skipped`` when frames were skipped)."""

@@ -50,7 +50,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_class
-from ..frame import Frame
+from ..frame import Frame, frame_label
 from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
                         PrimitiveFrontEnd, build_frontend, check_model_options)
 from ..vo import Odometry, OdometryConfig
@@ -160,15 +160,10 @@ class VORunConfig:
             raise ValueError(f"VORunConfig.frontend must be one of {FRONTENDS}, "
                              f"got {self.frontend!r}")
         check_model_options(self.frontend, self.normal_model)
-        if not isinstance(self.odometry, OdometryConfig):
-            raise ValueError("VORunConfig.odometry must be an OdometryConfig")
-        if not isinstance(self.fusion, FusionConfig):
-            raise ValueError("VORunConfig.fusion must be a FusionConfig")
         if not self.ate_max_time_diff > 0:
             raise ValueError("VORunConfig.ate_max_time_diff must be > 0")
-        if isinstance(self.capture_ring, bool) or not isinstance(self.capture_ring, int) \
-                or self.capture_ring < 1:
-            raise ValueError(f"VORunConfig.capture_ring must be an integer >= 1, "
+        if self.capture_ring < 1:       # an integer: config_class checked the types
+            raise ValueError(f"VORunConfig.capture_ring must be >= 1, "
                              f"got {self.capture_ring!r}")
         if self.metric_scale is not None and not (isinstance(self.metric_scale, str)
                                                   and self.metric_scale.strip()):
@@ -265,12 +260,12 @@ def _checked_stamp(i: int, f: Frame, cam_in: PinholeCamera, stamps: List[float])
     """Frame ``i``'s timestamp, after checking its camera and that the
     timestamp is finite and after the previous one (ValueError otherwise)."""
     if f.camera.shape != cam_in.shape:
-        raise ValueError(f"frame {i} ({f.name!r}) is {f.camera.width}x{f.camera.height}, "
+        raise ValueError(f"{frame_label(f.name, i)} is {f.camera.width}x{f.camera.height}, "
                          f"the first frame {cam_in.width}x{cam_in.height}: all frames "
                          "must share one camera")
     ts = float(f.timestamp)
     if not np.isfinite(ts) or (stamps and ts <= stamps[-1]):
-        raise ValueError(f"frame {i} ({f.name!r}): timestamp {ts} is not finite or not "
+        raise ValueError(f"{frame_label(f.name, i)}: timestamp {ts} is not finite or not "
                          f"after the previous one ({stamps[-1] if stamps else None})")
     return ts
 

@@ -62,6 +62,27 @@ def _sfm_config(args: argparse.Namespace):
     return resolve_config(cfg, sets=args.set)
 
 
+#: what the files of ``spgeo sfm`` are (the manifest's ``"files"``: what, units)
+_SFM_FILES = {
+    "poses.txt": ("per image (reference first, identity): name and its pose in the "
+                  "reference camera, 'name tx ty tz qx qy qz qw', camera-to-reference",
+                  "translations in the map's unit (unknown scale: monocular)"),
+    "depth.npy": ("the reference image's depth (float32, (H, W) at the reference size), NaN "
+                  "where no supported primitive covers the pixel", "the map's unit"),
+    "cloud.ply": ("the supported primitives' points in the reference camera, coloured, PLY",
+                  "the map's unit"),
+    "report.json": ("status, per-view status, pose covariances, solver report and the "
+                    "SfMConfig (JSON)", "as each key says; translations in the map's unit"),
+}
+
+
+def _described(out: Path) -> dict:
+    """:data:`_SFM_FILES` of the files written in ``out`` (``StagedFolder.commit``)."""
+    from ..io.outputs import FileInfo
+
+    return {out / n: FileInfo(*info) for n, info in _SFM_FILES.items() if (out / n).is_file()}
+
+
 def _write_outputs(out: Path, res, ref: np.ndarray, cam, names, cfg) -> int:
     """``poses.txt``, ``depth.npy``, ``cloud.ply`` (the supported primitives'
     finite points; no file when there are none) and ``report.json`` (last) into
@@ -124,7 +145,8 @@ def _run(args: argparse.Namespace) -> int:
     names = [Path(args.ref).name] + [Path(p).name for p in args.views]
     with staged:
         n_points = _write_outputs(staged.path, res, ref, cam, names, cfg)
-        staged.commit("complete" if res.ok else "flagged", sfm_status=res.status)
+        staged.commit("complete" if res.ok else "flagged", described=_described(staged.path),
+                      sfm_status=res.status)
     print(f"status: {res.status}  ({', '.join(res.view_status)})")
     cloud = f"cloud.ply ({n_points} points)" if n_points else "no cloud.ply (no supported depth)"
     print(f"wrote poses.txt, depth.npy, {cloud}, report.json in {args.out}")

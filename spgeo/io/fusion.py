@@ -149,6 +149,14 @@ class FusionResult:
     reference_depth: Optional[float] = None
     n_colours_clipped: int = 0
 
+    def __repr__(self) -> str:
+        """One line: views, mesh and cloud sizes, the resolved voxel size,
+        truncation and depth cut-off (world units)."""
+        return (f"FusionResult({self.n_views} views, {len(self.mesh.vertices)} vertices, "
+                f"{len(self.mesh.triangles)} triangles, {len(self.cloud.points)} points; voxel "
+                f"{self.voxel_size:.4g}, truncation {self.sdf_trunc:.4g}, depth max "
+                f"{self.depth_max:.4g})")
+
     @property
     def vertices(self) -> np.ndarray:
         """(V, 3) float64 mesh vertices."""

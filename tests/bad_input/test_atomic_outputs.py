@@ -113,6 +113,9 @@ def test_sfm_rerun_replaces_the_previous_run(inputs, tmp_path):
     assert "stale_from_an_older_run.ply" not in names
     assert {"poses.txt", "depth.npy", "report.json", MANIFEST} <= names
     assert leftovers(tmp_path, "o") == []
+    files = read_manifest(out)["files"]         # every file, each with what it is and units
+    assert sorted(f["path"] for f in files) == sorted(names - {MANIFEST})
+    assert all(f["what"] and f["units"] for f in files)
 
 
 @pytest.mark.slow
