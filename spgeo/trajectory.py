@@ -17,7 +17,12 @@ import numpy as np
 
 from .tum_files import read_status, read_tum_arrays, status_path_for, write_status, write_tum
 
-__all__ = ["FrameStatus", "Trajectory", "STATUSES"]
+__all__ = ["FrameStatus", "Trajectory", "STATUSES", "VO_UNITS", "METRES"]
+
+#: :attr:`Trajectory.units` of a monocular VO's poses: one unknown global scale
+VO_UNITS = "VO units (unknown scale)"
+#: :attr:`Trajectory.units` of metric poses (ground truth, a metric VO)
+METRES = "metres"
 
 
 class FrameStatus(str, Enum):
@@ -76,6 +81,10 @@ class Trajectory:
             where the estimator says so).
         columns: extra per-frame columns written into the status file
             (name -> n values), e.g. ``{"inliers": ...}``.
+        units: the unit of the positions, as words (:data:`VO_UNITS` for a
+            monocular VO, :data:`METRES`), or None where nobody said (a file
+            read back: TUM files do not say); kept by :meth:`subset` and
+            :meth:`with_skipped`, shown by the repr.
     """
 
     timestamps: np.ndarray
@@ -84,6 +93,7 @@ class Trajectory:
     is_keyframe: Optional[np.ndarray] = None
     segment: Optional[np.ndarray] = None
     columns: Dict[str, Sequence[object]] = field(default_factory=dict)
+    units: Optional[str] = None
 
     def __post_init__(self) -> None:
         self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
@@ -107,21 +117,23 @@ class Trajectory:
 
     def overview(self) -> Dict[str, str]:
         """The key numbers as text, for :meth:`__repr__` and :meth:`_repr_html_`:
-        frames, keyframes, time span, the statuses that occur, segments and the
-        length of the posed path (the poses' units)."""
+        frames, keyframes, time span, the statuses that occur, segments, the
+        length of the posed path and the positions' :attr:`units`."""
         n = len(self)
         c = self.poses[self.finite][:, :3, 3]
         path = float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
         return {"frames": str(n), "keyframes": str(int(self.is_keyframe.sum())),
                 "t": f"{self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f}" if n else "-",
                 "status": ", ".join(f"{k}={v}" for k, v in self.status_counts().items() if v),
-                "segments": str(len(set(self.segment.tolist()))), "path": f"{path:.3f}"}
+                "segments": str(len(set(self.segment.tolist()))), "path": f"{path:.3f}",
+                "units": self.units or "not stated"}
 
     def __repr__(self) -> str:
         """One line: :meth:`overview`."""
         o = self.overview()
         return (f"Trajectory({o['frames']} frames, {o['keyframes']} keyframes, t {o['t']}, "
-                f"status {{{o['status']}}}, {o['segments']} segment(s), path {o['path']})")
+                f"status {{{o['status']}}}, {o['segments']} segment(s), path {o['path']} "
+                f"{o['units']})")
 
     def _repr_html_(self) -> str:
         """:meth:`overview` as a table (notebooks)."""
@@ -129,7 +141,7 @@ class Trajectory:
 
         o = self.overview()
         names = {"t": "time span (s, or frame numbers)", "status": "frames per status",
-                 "path": "path length (the poses' units)"}
+                 "path": "path length", "units": "units of the positions"}
         return html_table("Trajectory", [(names.get(k, k), v) for k, v in o.items()])
 
     @property
@@ -169,7 +181,7 @@ class Trajectory:
         return Trajectory(self.timestamps[idx], self.poses[idx],
                           [self.status[i] for i in idx], self.is_keyframe[idx],
                           self.segment[idx],
-                          {k: [v[i] for i in idx] for k, v in self.columns.items()})
+                          {k: [v[i] for i in idx] for k, v in self.columns.items()}, self.units)
 
     def with_skipped(self, timestamps: Sequence[float]) -> "Trajectory":
         """This trajectory with one ``SKIPPED`` frame per timestamp inserted in
@@ -194,7 +206,7 @@ class Trajectory:
         for name, v in self.columns.items():
             values = list(v) + ["nan"] * k
             cols[name] = [values[i] for i in order]
-        return Trajectory(all_t[order], poses, status, is_kf, seg, cols)
+        return Trajectory(all_t[order], poses, status, is_kf, seg, cols, self.units)
 
     def status_counts(self) -> Dict[str, int]:
         """Frames per status value (every :class:`FrameStatus`, zeros included)."""
@@ -254,6 +266,8 @@ class Trajectory:
             poses: with timestamps as ``source``, per frame its 4x4 camera-to-world
                 ``T_world_cam`` (the data set's world and unit, metres) or None.
 
+        The trajectory's :attr:`units` are :data:`METRES` (every reader's ground truth is).
+
         Frames whose pose is None (no ground truth) are left out; a pose with
         non-finite entries stays as a frame without a pose (NaN row: no line in
         :meth:`save`'s file).  Raises ``ValueError`` when the counts differ or
@@ -281,4 +295,4 @@ class Trajectory:
                 raise ValueError(f"Trajectory.from_ground_truth: pose {i} has shape {T.shape}, "
                                  "expected (4, 4)")
             arr[j] = T if np.all(np.isfinite(T)) else np.nan
-        return cls(stamps[keep], arr)
+        return cls(stamps[keep], arr, units=METRES)

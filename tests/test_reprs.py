@@ -64,6 +64,8 @@ def test_vo_objects(vo_run):
     html = traj._repr_html_()
     assert "<table>" in html and f"<td style='text-align:left'>{len(traj)}</td>" in html
     assert all(v in html for v in traj.overview().values())
+    assert traj.units == "metres" and text.endswith(" metres)")     # the depth front-end
+    assert traj.subset([0, 1]).units == traj.with_skipped([1e6]).units == "metres"
 
 
 def test_completion_and_sfm_results():

@@ -30,7 +30,7 @@ from typing import Callable, Dict, Iterable, Iterator, List, Optional, Tuple
 import numpy as np
 
 from ..configs import config_class
-from ..trajectory import Trajectory
+from ..trajectory import METRES, Trajectory
 from .tracking import Keyframe
 from .odometry import Odometry
 
@@ -206,7 +206,8 @@ class ScaledOdometry:
         return getattr(self.odometry, name)
 
     def result(self) -> Trajectory:
-        return scaled_trajectory(self.odometry.result(), self.scale)
+        return dataclasses.replace(scaled_trajectory(self.odometry.result(), self.scale),
+                                   units=METRES)
 
     @property
     def keyframes(self) -> List[Keyframe]:

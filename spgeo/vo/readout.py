@@ -13,6 +13,7 @@ import numpy as np
 
 import gtsam
 
+from ..trajectory import METRES, VO_UNITS
 from .result import FrameResult, OdometryResult, frame_records, save_run, timing_statistics
 from .tracking import Keyframe
 
@@ -37,12 +38,14 @@ class OdometryReadout:
     def result(self) -> OdometryResult:
         """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
         :meth:`spgeo.vo.map.KeyframeMap.frame_poses`), after the pending window
-        update (waits for it)."""
+        update (waits for it); in VO units (metres when the front-end reads the
+        sensor depth)."""
         self._sync()
         poses, is_kf = self._map.frame_poses(self._frames)
         return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
                               poses, [f.status for f in self._frames], is_kf,
-                              np.array([f.segment for f in self._frames], dtype=int))
+                              np.array([f.segment for f in self._frames], dtype=int),
+                              units=METRES if self.frontend.uses_depth else VO_UNITS)
 
     def smoother_estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window;
