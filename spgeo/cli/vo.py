@@ -60,7 +60,13 @@ rest of the run config under "run_config", the input camera under
 "intrinsics" with "source": "file", "given" (--intrinsics / --fov) or
 "guessed" (no calibration: EXIF focal length, else a default field of view;
 also a warning on stderr)) and keyframe point clouds in OUT/clouds/; with --mesh,
-the fused OUT/mesh.ply and OUT/cloud.ply (TSDF of the keyframes' depth maps).  The
+the fused OUT/mesh.ply and OUT/cloud.ply (TSDF of the keyframes' depth maps;
+its parameters under "fusion", settings --set fusion.voxel_size=...).  With
+ground truth, OUT/groundtruth.txt (TUM, the frames the ATE evaluates): `evo_ape
+tum groundtruth.txt trajectory.txt -as` gives the report's ATE.  Positions are
+in VO units (unknown scale; report.json "units"), metres with --metric-scale or
+the depth front-end.
+OUT/.spgeo-output.json lists every file with what it is and its units.  The
 classical and onnx front-ends never read depth; 'depth' uses the sensor depth
 (RGB-D / oracle).  A frame whose image (or depth) file cannot
 be read is skipped with a warning: status 'skipped' in
@@ -142,6 +148,7 @@ def _run(args: argparse.Namespace) -> int:
         print(line)
     n_clouds = len(paths.get("clouds") or [])
     print(f"wrote trajectory.txt, keyframes.txt, report.json"
+          f"{', groundtruth.txt' if 'groundtruth' in paths else ''}"
           f"{f', {n_clouds} keyframe clouds' if n_clouds else ''}"
           f"{', mesh.ply, cloud.ply' if fused is not None else ''} in {args.out}")
     if run.interrupted:
