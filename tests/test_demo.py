@@ -20,6 +20,7 @@ def test_demo_rows_pictures_and_completion(tmp_path):
     assert ("synthetic", "oracle (GT ids+normals)") in names
     for key in ("synthetic_png", "tum_png", "tum_manhattan_png", "tum_ply"):
         assert Path(res.files[key]).is_file()
+        assert res.described[Path(res.files[key])].what      # the manifest says what it is
     table = next(t for k, t in res.extra_tables.items() if k.startswith("Depth completion"))
     mae = {m.group(1).strip(): float(m.group(2)) for m in
            re.finditer(r"^tum_fr1_desk (.+?)\s+([\d.]+)\s+[\d.]+\s+[\d.]+\s+[\d.]+$", table, re.M)}

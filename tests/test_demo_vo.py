@@ -1,6 +1,8 @@
 """The VO part of ``spgeo demo`` (spgeo.apps.demo.run_vo_demo), on a short rendered
 synthetic sequence with the classical (monocular) front-end.  The bundled TUM
 run is left to ``spgeo demo`` itself (test time)."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -49,6 +51,9 @@ def test_trajectories_written(vo_demo):
         assert vo_demo.files[f"vo_{r.sequence}_classical"] == r.out_dir
         traj = read_tum(f"{r.out_dir}/trajectory.txt")
         gt = read_tum(f"{r.out_dir}/groundtruth.txt")
+        written = {p for p in Path(r.out_dir).rglob("*") if p.is_file()}
+        assert written == set(vo_demo.described)          # every file described, with units
+        assert all(info.what and info.units for info in vo_demo.described.values())
         _, status = read_status(f"{r.out_dir}/trajectory.status.txt")
         assert sum(s == "lost" for s in status) == r.n_lost
         assert len(traj.timestamps) == r.n_frames == len(gt.timestamps) + r.n_lost

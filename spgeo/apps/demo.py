@@ -20,6 +20,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..configs import config_class
 from ..frame import Frame, resize_frame
+from ..io.outputs import FileInfo
 from ..frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
 
 log = logging.getLogger(__name__)
@@ -91,10 +92,43 @@ class SfMRow:
     seconds: float
 
 
+_PRIMITIVE_PICTURE = ("{what}: the image, its primitives ({frontend} front-end), their "
+                      "normals, the depth integrated from them with one scale per primitive "
+                      "fitted to {reference}, and {reference} (PNG)")
+
+#: what the demo's own files are (an output manifest's ``"what"`` and ``"units"``), by
+#: their key in :attr:`DemoResult.files`; a VO folder's files are its
+#: :meth:`~spgeo.apps.vo_outcome.VORun.describe_files`
+DEMO_FILES: Dict[str, Tuple[str, Optional[str]]] = {
+    "synthetic_png": (_PRIMITIVE_PICTURE.format(what="the synthetic room", frontend="depth",
+                                                reference="the rendered depth"), "metres"),
+    "tum_png": (_PRIMITIVE_PICTURE.format(what="the bundled TUM fr1/desk frame",
+                                          frontend="depth", reference="the Kinect depth"),
+                "metres"),
+    "tum_manhattan_png": (_PRIMITIVE_PICTURE.format(
+        what="the bundled TUM fr1/desk frame", frontend="manhattan (vanishing-point normals)",
+        reference="the Kinect depth"), "metres"),
+    "tum_ply": ("the TUM frame's primitives (depth front-end) at the scales fitted to the "
+                "Kinect depth, coloured points in the ground truth's world frame (PLY)",
+                "metres"),
+    "synthetic_sfm_png": ("few-view SfM on the synthetic room (classical front-end): the "
+                          "reference, its depth median-scaled to the ground truth, the ground "
+                          "truth (PNG)", "metres"),
+    "tum_fr1_desk_sfm_png": ("few-view SfM on the TUM frames (classical front-end): the "
+                             "reference, its depth median-scaled to the Kinect depth, the "
+                             "Kinect depth (PNG)", "metres"),
+}
+
+
 @dataclass
 class DemoResult:
+    """The demo's tables and files: ``files`` by key (:data:`DEMO_FILES`, and
+    ``vo_<sequence>_<front-end>`` folders), ``described`` what every file is (the
+    manifest's ``"files"``, :meth:`spgeo.io.outputs.StagedFolder.commit`)."""
+
     rows: List[DemoRow]
     files: Dict[str, str] = field(default_factory=dict)
+    described: Dict[Path, FileInfo] = field(default_factory=dict)
     sfm_rows: List[SfMRow] = field(default_factory=list)
     extra_tables: Dict[str, str] = field(default_factory=dict)
     vo_rows: List["VORow"] = field(default_factory=list)
@@ -234,7 +268,10 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
         vo = run_vo_demo(config, scene=scene, tum=seq)
         result.vo_rows = vo.rows
         result.files.update(vo.files)
+        result.described.update(vo.described)
         result.extra_tables[VO_TABLE_TITLE] = vo.table()
+    result.described.update({Path(p): FileInfo(*DEMO_FILES[k])
+                             for k, p in result.files.items() if k in DEMO_FILES})
     return result
 
 
@@ -383,6 +420,7 @@ class VODemoResult:
 
     rows: List[VORow] = field(default_factory=list)
     files: Dict[str, str] = field(default_factory=dict)
+    described: Dict[Path, FileInfo] = field(default_factory=dict)
 
     def table(self) -> str:
         lines = [f"{'sequence':12s} {'front-end':20s} {'frames':>6s} {'secs':>5s} {'init@':>5s} "
@@ -402,8 +440,9 @@ class VODemoResult:
 
 
 def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
-            out_root: Path) -> VORow:
-    """One :func:`spgeo.apps.vo_run.run_odometry` run, saved to ``out_root/<sequence>_<frontend>``."""
+            out_root: Path) -> Tuple[VORow, Dict[Path, FileInfo]]:
+    """One :func:`spgeo.apps.vo_run.run_odometry` run, saved to
+    ``out_root/<sequence>_<frontend>``: its row and what its files are."""
     from ..vo import OdometryConfig
     from .vo_run import VORunConfig, run_odometry
 
@@ -415,7 +454,7 @@ def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
     per_frame = None if ate is None else ate.get("per-frame")
     nan = float("nan")
     out = out_root / f"{sequence}_{frontend}"
-    run.save(out, ate=ate)       # with groundtruth.txt: the frames the ATE evaluates
+    paths = run.save(out, ate=ate)      # with groundtruth.txt: the frames the ATE evaluates
     init = next((i for i, k in enumerate(np.cumsum(res.is_keyframe)) if k == 2), None)
     row = VORow(sequence, run.frontend_name, run.n_frames,
                 float(run.timestamps[-1] - run.timestamps[0]), init, int(good.sum()),
@@ -427,7 +466,12 @@ def _run_vo(sequence: str, frames: list, frontend: str, config: DemoConfig,
     log.info("VO %s / %s: %d frames, %d keyframes, %d lost, ATE %.4f m (%.2f%%), %.1f FPS",
              sequence, row.frontend, row.n_frames, row.n_keyframes, row.n_lost, row.ate_rmse_m,
              row.ate_percent, row.fps)
-    return row
+    return row, run.describe_files(paths)
+
+
+def _add_vo(result: VODemoResult, run: Tuple[VORow, Dict[Path, FileInfo]]) -> None:
+    result.rows.append(run[0])
+    result.described.update(run[1])
 
 
 def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODemoResult:
@@ -461,7 +505,7 @@ def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODe
         poses = synthetic.make_trajectory(config.vo_frames, config.synthetic_seed)
         frames = synthetic.render_frames(scene, cam, poses, supersample=2)
         for fe in config.vo_frontends:
-            result.rows.append(_run_vo("synthetic", frames, fe, config, out_root))
+            _add_vo(result, _run_vo("synthetic", frames, fe, config, out_root))
     if config.vo_tum and config.vo_tum_frontends:
         if tum is None:
             from ..datasets import load_bundled_tum
@@ -469,7 +513,7 @@ def run_vo_demo(config: DemoConfig = DemoConfig(), scene=None, tum=None) -> VODe
             tum = load_bundled_tum()
         frames = list(tum)
         for fe in config.vo_tum_frontends:
-            result.rows.append(_run_vo("tum_fr1_desk", frames, fe, config, out_root))
+            _add_vo(result, _run_vo("tum_fr1_desk", frames, fe, config, out_root))
     for r in result.rows:
         result.files[f"vo_{Path(r.out_dir).name}"] = r.out_dir
     return result

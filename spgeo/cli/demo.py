@@ -57,7 +57,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         res = run_demo(dataclasses.replace(cfg, out_dir=str(staged.path)))
         (staged.path / "report.json").write_text(
             json.dumps({"config": config_to_dict(cfg)}, indent=1), encoding="utf-8")
-        staged.commit()
+        staged.commit(described=res.described)
     staged_prefix, target = str(staged.path), str(Path(cfg.out_dir))
     print("== SuperPrimitives: shape accuracy")
     print(res.table())
