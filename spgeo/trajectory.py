@@ -157,7 +157,7 @@ class Trajectory:
     @property
     def finite(self) -> np.ndarray:
         """(n,) bool: frames whose pose is finite."""
-        return np.all(np.isfinite(self.poses.reshape(len(self), -1)), axis=1)
+        return np.all(np.isfinite(self.poses.reshape(len(self), 16)), axis=1)
 
     @property
     def tracked(self) -> np.ndarray:

@@ -104,3 +104,16 @@ def test_two_view_result():
     res = estimate_relative_pose(frames[0].image, frames[1].image, cam)
     text = _bounded(res)
     assert text.startswith(f"TwoViewResult({res.status}, {res.num_inliers}/{res.num_matches}")
+
+
+def test_empty_trajectory_and_odometry():
+    from spgeo.frontend import make_frontend
+    from spgeo.trajectory import Trajectory
+    from spgeo.vo import Odometry
+
+    empty = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    assert _bounded(empty).startswith("Trajectory(0 frames, 0 keyframes, t -, status {}")
+    assert "<table>" in empty._repr_html_() and empty.finite.shape == (0,)
+    cam = synthetic.default_camera(160, 120)
+    with Odometry(cam, OdometryConfig(mapping="inline"), make_frontend("classical")) as vo:
+        assert _bounded(vo).startswith("Odometry(160x120, 0 frames, 0 keyframes")
