@@ -1,10 +1,11 @@
 """Config dataclasses set from text: ``FIELD=VALUE`` overrides (nested fields
 with dots: ``tracker.relative_cost_tol=1e-4``) and TOML (or YAML, when PyYAML is
 installed) files, applied to frozen or plain dataclass instances with
-:func:`dataclasses.replace`; and :func:`config_class`, the ``repr`` that shows only
-the fields that differ from the defaults.  The library home of the command line's
-``--set`` / ``--config`` (:mod:`spgeo.cli.config_args`); notebooks and evaluation
-scripts use it directly.
+:func:`dataclasses.replace`; written back as TOML (:func:`config_to_toml`); and
+:func:`config_class`, the decorator of the config dataclasses (field types checked at
+construction, a ``repr`` of the fields that differ from the defaults).  The library
+home of the command line's ``--set`` / ``--config`` / ``--dump-config``
+(:mod:`spgeo.cli.config_args`); notebooks and evaluation scripts use it directly.
 
 Every error is a :class:`ConfigError` (a ``ValueError``) with a one-line
 message naming the offending field or file.
@@ -24,9 +25,10 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-__all__ = ["ConfigError", "ConfigTypeError", "UnknownFieldError", "check_field_types", "parse_value", "parse_assignments", "nest",
-           "flatten", "apply_overrides",
-           "own_section", "load_config_file", "config_to_dict", "config_to_toml", "resolve_config", "config_class", "changed_fields"]
+__all__ = ["ConfigError", "ConfigTypeError", "UnknownFieldError", "check_field_types",
+           "parse_value", "parse_assignments", "nest", "flatten", "apply_overrides",
+           "own_section", "load_config_file", "config_to_dict", "config_to_toml",
+           "resolve_config", "config_class", "changed_fields"]
 
 log = logging.getLogger(__name__)
 
@@ -113,9 +115,12 @@ def _as_dotted(overrides: Overrides) -> Dict[str, Any]:
     return parse_assignments(overrides)
 
 
-def _field_hints(obj: Any) -> Dict[str, Any]:
+@functools.lru_cache(maxsize=None)
+def _class_hints(cls: type) -> Dict[str, Any]:
+    """The resolved annotations of the dataclass ``cls`` (``{}`` when one cannot
+    be resolved: no type information), once per class."""
     try:
-        return typing.get_type_hints(type(obj))
+        return typing.get_type_hints(cls)
     except Exception:       # unresolvable annotation: no type information
         return {}
 
@@ -181,7 +186,7 @@ def _set(obj: Any, path: Sequence[str], value: Any, done: str) -> Any:
                           f"{', '.join(_valid_fields(obj, done))}")
     current = getattr(obj, name)
     nested = dataclasses.is_dataclass(current) and not isinstance(current, type)
-    hint = _field_hints(obj).get(name)
+    hint = _class_hints(type(obj)).get(name)
     if len(path) > 1:
         if not nested:
             raise ConfigError(f"field {full!r} of {type(obj).__name__} has no sub-fields "
@@ -439,14 +444,6 @@ def _matches(value: Any, hint: Any) -> bool:
     if not isinstance(base, type) or base is collections.abc.Callable:
         return True
     return isinstance(value, base)
-
-
-@functools.lru_cache(maxsize=None)
-def _class_hints(cls: type) -> Dict[str, Any]:
-    try:
-        return typing.get_type_hints(cls)
-    except Exception:       # unresolvable annotation: no type information
-        return {}
 
 
 def check_field_types(config: Any) -> None:

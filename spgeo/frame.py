@@ -118,8 +118,8 @@ class Frame:
             if has)
         cam = self.camera
         return (f"Frame({self.name or 'unnamed'}, t={float(self.timestamp):.3f}, "
-                f"{cam.width}x{cam.height} {kind} {self.image.dtype}{extras}, fx={cam.fx:.2f} fy={cam.fy:.2f} "
-                f"cx={cam.cx:.2f} cy={cam.cy:.2f})")
+                f"{cam.width}x{cam.height} {kind} {self.image.dtype}{extras}, "
+                f"fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f})")
 
     @property
     def gray(self) -> np.ndarray:

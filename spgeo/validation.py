@@ -22,7 +22,8 @@ from .checks import (FOCAL_RATIO_RANGE, FOV_RANGE_DEG, PRINCIPAL_POINT_MARGIN, I
                      check_intrinsics, swapped_size_hint)
 
 __all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE",
-           "PRINCIPAL_POINT_MARGIN", "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH", "NORMAL_LENGTH_WARN",
+           "PRINCIPAL_POINT_MARGIN", "MAX_MEDIAN_DEPTH_M", "MIN_NORMAL_LENGTH",
+           "NORMAL_LENGTH_WARN",
            "CAMERA_MATCH_TOLERANCE", "check_intrinsics", "swapped_size_hint", "check_camera",
            "check_same_camera", "check_real_array", "check_sparse_depth",
            "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes",

@@ -7,8 +7,8 @@ from typing import Optional, Tuple
 import pytest
 
 from spgeo.cli import build_parser, main
-from spgeo.configs import (ConfigError, apply_overrides, config_class, config_to_dict, load_config_file,
-                           parse_assignments, parse_value, resolve_config)
+from spgeo.configs import (ConfigError, apply_overrides, config_class, config_to_dict,
+                           load_config_file, parse_assignments, parse_value, resolve_config)
 from spgeo.odometry import OdometryConfig
 
 
