@@ -22,7 +22,7 @@ import numpy as np
 from ..configs import config_to_dict
 from ..frame import Frame
 from ..io.outputs import FileInfo
-from ..trajectory import Trajectory
+from ..trajectory import METRES, Trajectory
 from ..vo import Odometry, OdometryResult
 from ..vo.metric_scale import MetricScale, ScaledOdometry
 from ..vo.result import write_keyframe_clouds
@@ -231,7 +231,7 @@ class VORun:
         FPS, ground truth and the positions' unit (no ATE: that takes evo)."""
         w, h = self.processing_size
         counts = self.status_counts()
-        unit = "metres" if self.position_units.startswith("metres") else "VO units"
+        unit = self.output_odometry.units
         return (f"VORun({self.status}, {self.n_frames} frames ({len(self.skipped)} skipped, "
                 f"{counts.get('lost', 0)} lost), {self.odometry.n_keyframes} keyframes, "
                 f"{self.frontend_name} at {w}x{h}, {self.fps:.1f} FPS, "
@@ -261,16 +261,17 @@ class VORun:
 
     @property
     def position_units(self) -> str:
-        """The unit of the run's output positions (trajectories, clouds, mesh):
+        """The unit of the run's output positions (trajectories, clouds, mesh), the
+        :attr:`output_odometry`'s ``units`` in words with where it comes from:
         metres with :attr:`metric_scale` or a front-end that reads the sensor
         depth, else the VO's own unit (unknown scale)."""
+        if self.output_odometry.units != METRES:
+            return ("VO units (unknown scale: monocular; report.json ate per-frame scale is "
+                    "metres per VO unit where there is ground truth; --metric-scale writes metres)")
         if self.metric_scale is not None:
             return ("metres (scale estimated by --metric-scale, VORunConfig.metric_scale: "
                     "report.json metric_scale)")
-        if self.odometry.frontend.uses_depth:
-            return f"metres (the sensor depth read by the front-end {self.frontend_name!r})"
-        return ("VO units (unknown scale: monocular; report.json ate per-frame scale is "
-                "metres per VO unit where there is ground truth; --metric-scale writes metres)")
+        return f"metres (the sensor depth read by the front-end {self.frontend_name!r})"
 
     def ate(self) -> Optional[Dict[str, object]]:
         """Sim(3)-aligned ATE of the processed frames not flagged ``"lost"``

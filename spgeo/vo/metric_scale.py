@@ -205,9 +205,12 @@ class ScaledOdometry:
     def __getattr__(self, name: str):
         return getattr(self.odometry, name)
 
+    #: the unit of the positions read out: the view exists for the metric output scale
+    units = METRES
+
     def result(self) -> Trajectory:
         return dataclasses.replace(scaled_trajectory(self.odometry.result(), self.scale),
-                                   units=METRES)
+                                   units=self.units)
 
     @property
     def keyframes(self) -> List[Keyframe]:

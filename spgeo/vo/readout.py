@@ -45,7 +45,14 @@ class OdometryReadout:
         return OdometryResult(np.array([f.timestamp for f in self._frames], dtype=float),
                               poses, [f.status for f in self._frames], is_kf,
                               np.array([f.segment for f in self._frames], dtype=int),
-                              units=METRES if self.frontend.uses_depth else VO_UNITS)
+                              units=self.units)
+
+    @property
+    def units(self) -> str:
+        """The unit of the positions read out (:attr:`Trajectory.units
+        <spgeo.trajectory.Trajectory>`): :data:`~spgeo.trajectory.METRES` when the
+        front-end reads the sensor depth, else :data:`~spgeo.trajectory.VO_UNITS`."""
+        return METRES if self.frontend.uses_depth else VO_UNITS
 
     def smoother_estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window;
