@@ -40,6 +40,33 @@ def pytest_configure(config):
         "markers", "slow: end-to-end test (> ~1.5 s); deselect with -m \"not slow\"")
 
 
+# ------------------------------------------------------------------ shared synthetic cases
+@pytest.fixture(scope="session")
+def room_completion_and_sfm():
+    """Synthetic room 1 at 160x120: three views (every 4th pose of its hand-held
+    trajectory), view 0's depth every 12th pixel as sparse depth, and the classical
+    front-end's ``complete_depth`` and ``few_view_sfm`` (view 0 the reference) on them;
+    a namespace ``camera, frames, sparse, completion, sfm``."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from spgeo import synthetic
+    from spgeo.completion import complete_depth
+    from spgeo.sfm import few_view_sfm
+
+    cam = synthetic.default_camera(160, 120)
+    frames = synthetic.render_frames(synthetic.SyntheticScene.generate(1), cam,
+                                     synthetic.make_trajectory(9, 1)[::4])
+    f = frames[0]
+    sparse = np.zeros_like(f.depth)
+    sparse[::12, ::12] = f.depth[::12, ::12]
+    return SimpleNamespace(
+        camera=cam, frames=frames, sparse=sparse,
+        completion=complete_depth(f.image, sparse, cam, "classical"),
+        sfm=few_view_sfm(f.image, [g.image for g in frames[1:]], cam, "classical"))
+
+
 # ------------------------------------------------------------------ small input files
 def write_synthetic_views(folder: Path, seed: int, n: int = 3, size=(64, 48)):
     """``n`` views of synthetic room ``seed`` as PNGs ``folder/f{i}.png`` (every 4th

@@ -68,24 +68,15 @@ def test_vo_objects(vo_run):
     assert traj.subset([0, 1]).units == traj.with_skipped([1e6]).units == "metres"
 
 
-def test_completion_and_sfm_results():
-    from spgeo.completion import complete_depth
-    from spgeo.sfm import few_view_sfm
-
-    cam = synthetic.default_camera(160, 120)
-    frames = synthetic.render_frames(synthetic.SyntheticScene.generate(1), cam,
-                                     synthetic.make_trajectory(9, 1)[::4])
-    f = frames[0]
-    sparse = np.zeros_like(f.depth)
-    sparse[::12, ::12] = f.depth[::12, ::12]
-    comp = complete_depth(f.image, sparse, cam, "classical")
+def test_completion_and_sfm_results(room_completion_and_sfm):
+    comp = room_completion_and_sfm.completion
     text = _bounded(comp)
     assert comp.summary() in text and "depth 160x120" in text
     assert f"{comp.depth.max():.2f} m" in text
     _bounded(comp.primitives)
     if comp.choice is not None:
         assert _bounded(comp.choice).startswith("HeldoutChoice(")
-    sfm = few_view_sfm(f.image, [g.image for g in frames[1:]], cam, "classical")
+    sfm = room_completion_and_sfm.sfm
     text = _bounded(sfm)
     assert text.startswith(f"SfMResult({sfm.status}, {len(sfm.primitives)} primitives")
     assert f"{len(sfm.view_status)} views" in text

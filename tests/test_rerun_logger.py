@@ -162,18 +162,10 @@ def test_rerun_is_not_imported_without_the_option():
 
 
 @pytest.mark.slow
-def test_completion_and_sfm_logging(tmp_path):
-    from spgeo.completion import complete_depth
-    from spgeo.sfm import few_view_sfm
-
-    cam = synthetic.default_camera(160, 120)
-    frames = synthetic.render_frames(synthetic.SyntheticScene.generate(1), cam,
-                                     synthetic.make_trajectory(9, 1)[::4])
-    f = frames[0]
-    sparse = np.zeros_like(f.depth)
-    sparse[::12, ::12] = f.depth[::12, ::12]
-    comp = complete_depth(f.image, sparse, cam, "classical")
-    sfm = few_view_sfm(f.image, [g.image for g in frames[1:]], cam, "classical")
+def test_completion_and_sfm_logging(tmp_path, room_completion_and_sfm):
+    case = room_completion_and_sfm
+    cam, frames, sparse = case.camera, case.frames, case.sparse
+    comp, sfm, f = case.completion, case.sfm, case.frames[0]
     path = tmp_path / "c.rrd"
     with RerunLogger(RerunLoggerConfig(mode="save", target=str(path))) as viewer:
         viewer.log_completion(f.image, cam, comp, sparse)
