@@ -1,54 +1,8 @@
-"""Depth metrics (metres in, the units stated per key out)."""
-from __future__ import annotations
+"""Depth metrics of the evaluation protocols (metres in, the units stated per key out).
 
-from typing import Dict, Optional
-
-import numpy as np
+:func:`depth_metrics` and :func:`primitive_fit_errors` live in the core,
+:mod:`spgeo.metrics.depth` (the demo reports them too); they are re-exported here.
+"""
+from spgeo.metrics.depth import depth_metrics, primitive_fit_errors
 
 __all__ = ["depth_metrics", "primitive_fit_errors"]
-
-
-def depth_metrics(pred: np.ndarray, gt: np.ndarray, mask: Optional[np.ndarray] = None,
-                  min_depth: float = 0.0, max_depth: float = np.inf) -> Dict[str, float]:
-    """Errors of a predicted depth map against ground truth on pixels where both are valid.
-
-    Returns ``median_rel`` / ``mean_rel`` (|pred - gt| / gt), ``mae_m``, ``rmse_m``
-    (metres), ``imae_per_km``, ``irmse_per_km`` (inverse depth, 1/km),
-    ``delta_1.25`` (fraction with max(pred/gt, gt/pred) < 1.25) and
-    ``n_pixels`` / ``coverage`` (fraction of valid ground-truth pixels predicted).
-    """
-    pred = np.asarray(pred, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
-    if pred.shape != gt.shape:
-        raise ValueError(f"pred shape {pred.shape} != gt shape {gt.shape}")
-    gt_ok = np.isfinite(gt) & (gt > min_depth) & (gt < max_depth)
-    if mask is not None:
-        gt_ok &= np.asarray(mask, bool)
-    ok = gt_ok & np.isfinite(pred) & (pred > 0)
-    n = int(ok.sum())
-    if n == 0:
-        return {"n_pixels": 0, "coverage": 0.0}
-    p, g = pred[ok], gt[ok]
-    rel = np.abs(p - g) / g
-    inv = np.abs(1.0 / p - 1.0 / g) * 1000.0
-    return {
-        "median_rel": float(np.median(rel)), "mean_rel": float(np.mean(rel)),
-        "mae_m": float(np.mean(np.abs(p - g))), "rmse_m": float(np.sqrt(np.mean((p - g) ** 2))),
-        "imae_per_km": float(np.mean(inv)), "irmse_per_km": float(np.sqrt(np.mean(inv ** 2))),
-        "delta_1.25": float(np.mean(np.maximum(p / g, g / p) < 1.25)),
-        "n_pixels": n, "coverage": float(n / max(int(gt_ok.sum()), 1)),
-    }
-
-
-def primitive_fit_errors(primitives, gt_depth: np.ndarray) -> Dict[str, float]:
-    """Shape accuracy of primitives: fit one log-scale per primitive to
-    ``gt_depth`` (median, docs/design.md §5), then :func:`depth_metrics` of the
-    resulting depth map.  Primitives with no valid ground truth are dropped."""
-    s, _ = primitives.fit_log_scales(gt_depth)
-    keep = np.flatnonzero(np.isfinite(s))
-    if keep.size == 0:
-        return {"n_pixels": 0, "coverage": 0.0, "n_primitives": len(primitives)}
-    sub = primitives.subset(keep).with_log_scales(s[keep])
-    out = depth_metrics(sub.depth_map(), gt_depth)
-    out["n_primitives"] = len(primitives)
-    return out

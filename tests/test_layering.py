@@ -1,8 +1,14 @@
 """Layering and size rules of docs/design.md §6.1, checked statically with ``ast``.
 
-* The core (all of ``spgeo/`` except ``spgeo/cli/`` and ``spgeo/apps/``, plus ``factors/``)
-  never imports ``spgeo.evaluation``: not at module level, not inside functions, not through
-  a relative import that resolves to it.
+Modules are named as installed: setup.py's ``package_dir`` (read from setup.py) maps the
+folders ``factors/`` and ``evaluation/`` to ``spgeo.factors`` and ``spgeo.evaluation``, so
+``from ..evaluation.metrics import x`` in ``spgeo/apps/`` is ``spgeo.evaluation.metrics``
+and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
+
+* Nothing in ``spgeo/`` (the core, and the applications ``spgeo/apps/`` and ``spgeo/cli/``
+  too) nor in ``factors/`` imports ``spgeo.evaluation``: not at module level, not inside
+  functions, not through a relative import that resolves to it.  (``spgeo eval`` finds a
+  protocol with ``importlib`` by a name in a string: no import statement, nothing to see.)
 * Nothing below the command line imports ``spgeo.cli``: no module of ``spgeo/`` outside
   ``spgeo/cli/``, of ``factors/`` or of ``evaluation/`` (anywhere in the module), except
   ``spgeo/__main__.py``, the entry of ``python -m spgeo``.
@@ -13,7 +19,12 @@
   deferred into function bodies make no exception: counted too, they form no cycle either
   (only a module ``__getattr__``, the lazy re-export of an optional piece, is left out).
 * No import circle among the modules of ``spgeo/``, ``factors/`` and ``evaluation/`` when every
-  import statement counts (``TYPE_CHECKING`` blocks and a module ``__getattr__`` included).
+  import statement counts (``TYPE_CHECKING`` blocks and a module ``__getattr__`` included),
+  nor among the layers they make: the core (``spgeo/`` but its applications, and
+  ``factors/``), ``spgeo.apps``, ``spgeo.cli`` (with ``spgeo/__main__.py``, its entry) and
+  ``spgeo.evaluation``; e.g. ``spgeo.evaluation`` uses ``spgeo.apps``, so no module of
+  ``spgeo/apps/`` may import one of ``evaluation/``, even where no two modules import each
+  other.
 * Every function of ``spgeo/``, ``factors/`` and ``evaluation/`` (methods and nested functions included; a
   nested function counts within its parent and on its own) has at most 60 lines of code:
   lines that are neither blank nor comments, its docstring excluded.  A compiled kernel
@@ -47,11 +58,26 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 APPLICATION_DIRS = ("spgeo/cli", "spgeo/apps")
-# installed package name of each top-level source folder
-PACKAGE_OF_DIR = {"spgeo": "spgeo", "factors": "spgeo.factors", "evaluation": "spgeo.evaluation"}
+
+
+def setup_package_dirs(setup_source: str) -> Dict[str, str]:
+    """setup.py's ``package_dir`` (installed package -> source folder), read with ``ast``."""
+    for node in ast.walk(ast.parse(setup_source)):
+        if isinstance(node, ast.keyword) and node.arg == "package_dir":
+            return ast.literal_eval(node.value)
+    raise AssertionError("setup.py passes no package_dir")
+
+
+# installed package name of each top-level source folder (setup.py's package_dir, inverted)
+PACKAGE_OF_DIR = {folder: package for package, folder in
+                  setup_package_dirs((ROOT / "setup.py").read_text(encoding="utf-8")).items()}
 FORBIDDEN = "spgeo.evaluation"
 CLI = "spgeo.cli"
 CLI_ENTRY = "spgeo/__main__.py"  # the one module outside spgeo/cli/ that may import spgeo.cli
+# the layers above the core (every other module of spgeo/ and factors/ is "core"), and the
+# module outside its folder that belongs to one (the entry of ``python -m spgeo``)
+LAYERS = ("spgeo.apps", "spgeo.cli", "spgeo.evaluation")
+LAYER_OF_MODULE = {"spgeo.__main__": "spgeo.cli"}
 MAX_FUNCTION_LINES = 60
 LONG_REASON = "Longer than 60 lines because"
 KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc"}
@@ -269,6 +295,41 @@ def _cycle_in(group: List[str], graph: Dict[str, Set[str]]) -> List[str]:
     raise AssertionError(f"no cycle through {start}")
 
 
+def layer_of(module: str) -> str:
+    """The layer of ``module``: one of :data:`LAYERS`, else ``"core"``."""
+    if module in LAYER_OF_MODULE:
+        return LAYER_OF_MODULE[module]
+    return next((layer for layer in LAYERS
+                 if module == layer or module.startswith(layer + ".")), "core")
+
+
+def layer_edges(graph: Dict[str, Set[str]]) -> Dict[tuple, List[str]]:
+    """``(layer, layer it imports) -> ["importer -> imported", ...]`` for the imports of
+    ``graph`` (module -> modules it imports) that cross from one layer into another."""
+    edges: Dict[tuple, List[str]] = {}
+    for importer in sorted(graph):
+        for imported in sorted(graph[importer]):
+            pair = (layer_of(importer), layer_of(imported))
+            if pair[0] != pair[1]:
+                edges.setdefault(pair, []).append(f"{importer} -> {imported}")
+    return edges
+
+
+def layer_circles(graph: Dict[str, Set[str]]) -> List[str]:
+    """One line per import circle among the layers of ``graph``'s modules, each step
+    with the module imports that make it (at most three shown)."""
+    edges = layer_edges(graph)
+    layers: Dict[str, Set[str]] = {}
+    for a, b in edges:
+        layers.setdefault(a, set()).add(b)
+        layers.setdefault(b, set())
+    found = []
+    for cycle in import_cycles(layers):
+        steps = [f"{a} -> {b} ({', '.join(edges[a, b][:3])})" for a, b in zip(cycle, cycle[1:])]
+        found.append("; ".join(steps))
+    return found
+
+
 # ------------------------------------------------------------------ function length
 def code_lines(lines: List[str], node: ast.AST) -> int:
     """Lines of ``node`` that are neither blank nor comments, its docstring excluded."""
@@ -446,6 +507,48 @@ def test_module_level_imports_skip_functions_and_type_checking():
                                modules | {"p.q", "p.q.r"}) == {"p.q", "p.q.r", "p"}
 
 
+def test_package_dirs_come_from_setup():
+    assert PACKAGE_OF_DIR == {"spgeo": "spgeo", "factors": "spgeo.factors",
+                              "evaluation": "spgeo.evaluation"}
+    assert setup_package_dirs("setup(name='x', package_dir={'p.q': 'q'})\n") == {"p.q": "q"}
+    # a relative import resolves against the installed package, not the folder tree
+    assert module_package(ROOT / "spgeo" / "apps" / "demo.py") == "spgeo.apps"
+    assert module_package(ROOT / "evaluation" / "completion" / "void.py") == \
+        "spgeo.evaluation.completion"
+    assert [m for _, m in imported_modules("from ...apps import vo_run\n",
+                                           "spgeo.evaluation.completion")] == [
+        "spgeo.apps", "spgeo.apps.vo_run"]
+
+
+def test_scanners_see_the_apps_importing_evaluation():
+    """What spgeo/apps/demo.py and vo_outcome.py did before issue 50: relative and absolute
+    imports of spgeo.evaluation inside functions, while evaluation modules import spgeo.apps
+    (no two modules importing each other)."""
+    demo = ("def _evaluate():\n    from ..evaluation.metrics import primitive_fit_errors\n"
+            "def _demo_completion():\n"
+            "    from ..completion import complete_depth\n"
+            "    from ..evaluation.references.depth_completion import oracle_frontend\n"
+            "    from ..evaluation.completion.void import void_metrics\n")
+    assert sorted({line for line, m in imported_modules(demo, "spgeo.apps")
+                   if is_forbidden(m)}) == [2, 5, 6]
+    outcome = ("def ate(self):\n"
+               "    from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes\n")
+    assert [is_forbidden(m) for _, m in imported_modules(outcome, "spgeo.apps")] == [True, True]
+    graph = {"spgeo.apps.demo": {"spgeo.evaluation.metrics", "spgeo.frame"},
+             "spgeo.apps.vo_outcome": {"spgeo.evaluation.trajectory"},
+             "spgeo.evaluation.metrics": set(), "spgeo.evaluation.trajectory": {"spgeo.trajectory"},
+             "spgeo.evaluation.vo.compare": {"spgeo.apps.vo_run"}, "spgeo.apps.vo_run": set(),
+             "spgeo.frame": set(), "spgeo.trajectory": set(),
+             "spgeo.__main__": {"spgeo.cli"}, "spgeo.cli": {"spgeo.apps.demo", "spgeo.frame"}}
+    assert import_cycles(graph) == []                    # no circle between modules ...
+    assert layer_circles(graph) == [                     # ... but one between layers
+        "spgeo.apps -> spgeo.evaluation (spgeo.apps.demo -> spgeo.evaluation.metrics, "
+        "spgeo.apps.vo_outcome -> spgeo.evaluation.trajectory); "
+        "spgeo.evaluation -> spgeo.apps (spgeo.evaluation.vo.compare -> spgeo.apps.vo_run)"]
+    del graph["spgeo.apps.demo"], graph["spgeo.apps.vo_outcome"]
+    assert layer_circles(graph) == []
+
+
 def test_cycle_finder():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"f"}, "f": {"e"},
              "g": {"a"}}
@@ -453,11 +556,16 @@ def test_cycle_finder():
     assert import_cycles({"a": {"b"}, "b": set()}) == []
 
 
-def test_core_never_imports_evaluation():
+def test_nothing_in_spgeo_imports_evaluation():
+    """The core, ``spgeo/apps/`` and ``spgeo/cli/`` (and ``factors/``) never import
+    ``spgeo.evaluation``, by any import statement (``spgeo eval``'s ``importlib`` of a
+    protocol's name is no import statement)."""
+    files = _python_files("spgeo") + _python_files("factors")
+    assert ROOT / "spgeo" / "apps" / "demo.py" in files
     offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}"
-                 for path in core_files() for line in forbidden_import_lines(path)]
-    assert not offenders, ("the core must not import spgeo.evaluation (docs/design.md §6.1):\n"
-                           + "\n".join(offenders))
+                 for path in files for line in forbidden_import_lines(path)]
+    assert not offenders, ("nothing in spgeo/ (apps and cli included) may import "
+                           "spgeo.evaluation (docs/design.md §6.1):\n" + "\n".join(offenders))
 
 
 def test_nothing_below_the_cli_imports_it():
@@ -492,6 +600,18 @@ def test_no_import_circles_anywhere():
     assert not cycles, ("import circles among the modules of spgeo/, factors/ and evaluation/ "
                         "(every import statement counted):\n"
                         + "\n".join(" -> ".join(c) for c in cycles))
+
+
+def test_no_import_circle_between_layers():
+    """The core, ``spgeo.apps``, ``spgeo.cli`` and ``spgeo.evaluation`` import each other
+    without a circle, every import statement counted (docs/design.md §6.1)."""
+    files = [p for folder in PACKAGE_OF_DIR for p in _python_files(folder)]
+    known = {module_name(p) for p in files}
+    graph = import_graph(files, known, everywhere=True)
+    assert {layer_of(m) for m in graph} == {"core", *LAYERS}
+    circles = layer_circles(graph)
+    assert not circles, ("import circles between the layers (core, spgeo.apps, spgeo.cli, "
+                         "spgeo.evaluation):\n" + "\n".join(circles))
 
 
 def test_functions_at_most_60_lines_of_code():

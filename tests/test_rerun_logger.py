@@ -1,4 +1,4 @@
-"""spgeo.rerun_logger.RerunLogger: a short synthetic VO run (depth front-end, 20 frames at
+"""spgeo.apps.rerun_logger.RerunLogger: a short synthetic VO run (depth front-end, 20 frames at
 160x120) logged to an .rrd file and read back with rerun's own reader
 (``rerun.chunk.RrdReader``); rerun is never imported without the option."""
 import subprocess
@@ -15,7 +15,7 @@ from spgeo.vo import OdometryConfig
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.cli import main  # noqa: E402
-from spgeo.rerun_logger import RerunLogger, RerunLoggerConfig  # noqa: E402
+from spgeo.apps.rerun_logger import RerunLogger, RerunLoggerConfig  # noqa: E402
 
 N = 20
 

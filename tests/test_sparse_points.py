@@ -1,12 +1,9 @@
 """Sparse-point regimes of the completion benchmarks (issue 39):
-:func:`spgeo.evaluation.completion.sparse_points.track_sparse_depth`."""
+:func:`spgeo.completion.sparse_points.track_sparse_depth`."""
 import numpy as np
 import pytest
 
-pytest.importorskip("spgeo.evaluation")
-
-from spgeo.evaluation.completion.sparse_points import (_track_lifetimes,  # noqa: E402
-                                                       track_sparse_depth)
+from spgeo.completion.sparse_points import _track_lifetimes, track_sparse_depth
 
 
 def _textured_frames(n: int = 4, shift: int = 2, seed: int = 0):

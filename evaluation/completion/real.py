@@ -2,8 +2,8 @@
 
 For every frame, ``n_points`` (150) sparse depths are taken from the sensor
 depth at FAST keypoints of the colour image spread by a grid
-(:func:`spgeo.evaluation.completion.sparse_points.keypoint_sparse_depth`, no added
-noise, seed = frame index; ``--regime corners``: the strongest corners, clustered on
+(:func:`spgeo.completion.sparse_points.keypoint_sparse_depth`, no added noise,
+seed = frame index; ``--regime corners``: the strongest corners, clustered on
 texture as a SLAM front-end's points are; ``--regime uniform``: uniform random pixels
 with depth; ``--regime tracks``: corners a KLT tracker keeps through the next four
 frames, on 7-Scenes and TUM only, whose frames are consecutive), completed by each
@@ -57,6 +57,8 @@ from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple
 import numpy as np
 
 from spgeo.completion import CompletionConfig, complete_depth, working_size_for
+from spgeo.completion.sparse_points import (keypoint_sparse_depth, track_sparse_depth,
+                                           uniform_sparse_depth)
 
 from spgeo.evaluation.jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
 from spgeo.evaluation.runner import protocol_parser, run_protocol
@@ -64,7 +66,6 @@ from spgeo.evaluation.references.depth_completion import (colorization_completio
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
 
-from .sparse_points import keypoint_sparse_depth, track_sparse_depth, uniform_sparse_depth
 from .void import METRIC_KEYS, void_metrics
 
 __all__ = ["DATASETS", "BASELINES", "default_root", "open_sample", "sparse_frames",

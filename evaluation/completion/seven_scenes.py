@@ -2,8 +2,8 @@
 
 For every selected frame, ``n_points`` (150, VOID-150's density) sparse depths
 are taken from the Kinect depth at FAST keypoints of the colour image
-(:func:`spgeo.evaluation.completion.sparse_points.keypoint_sparse_depth`, no added
-noise: the sensor's own noise is there), completed by each method, and scored against
+(:func:`spgeo.completion.sparse_points.keypoint_sparse_depth`, no added noise:
+the sensor's own noise is there), completed by each method, and scored against
 the same sensor depth with the VOID protocol (ground truth in (0.2, 5.0) m;
 MAE/RMSE in mm, iMAE/iRMSE in 1/km, averaged over frames).
 

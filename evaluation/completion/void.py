@@ -1,8 +1,12 @@
-"""VOID depth-completion protocol: metrics, methods, runner, table, and a
-writer of synthetic sets in the release layout.
+"""VOID depth-completion protocol: methods, runner, table, and a writer of
+synthetic sets in the release layout.
 
 The data are read with :class:`spgeo.datasets.void.VOIDDataset` (layout and
-encodings described there); the reader names are re-exported here.
+encodings described there), the metrics are :func:`spgeo.metrics.depth.void_metrics`
+(the demo reports them too) and the sparse points of the synthetic sets
+:func:`spgeo.completion.sparse_points.keypoint_sparse_depth`; these names
+(and the ground truth's range ``MIN_DEPTH``, ``MAX_DEPTH`` and the metric
+names ``METRIC_KEYS``) are re-exported here.
 
 Protocol (docs/design.md §5; the evaluation code of the VOID authors' KBNet /
 VOICED): per image, pixels with ground truth ``0.2 < gt < 5.0`` m; MAE and RMSE
@@ -24,16 +28,16 @@ import numpy as np
 
 from spgeo.camera import PinholeCamera
 from spgeo.completion import CompletionConfig, complete_depth
+from spgeo.completion.sparse_points import keypoint_sparse_depth, uniform_sparse_depth
 from spgeo.datasets.files import PathLike
 from spgeo.datasets.void import (VOID_LIST_KINDS, VOID_SPLITS, VOIDDataset, VOIDSample,
                                  check_void_split, read_void_depth, write_void_depth)
+from spgeo.metrics.depth import (VOID_MAX_DEPTH as MAX_DEPTH, VOID_METRIC_KEYS as METRIC_KEYS,
+                                 VOID_MIN_DEPTH as MIN_DEPTH, void_metrics)
 
-from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
                                                           linear_interpolation_completion)
-
-from .sparse_points import keypoint_sparse_depth, uniform_sparse_depth
 
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
@@ -46,23 +50,6 @@ log = logging.getLogger(__name__)
 
 #: Paper (Mazur et al. CVPR 2024, zero-shot) on the VOID-150 test set.
 PAPER_VOID150 = {"mae_mm": 109.0, "rmse_mm": 204.15, "imae_per_km": 47.32, "irmse_per_km": 83.40}
-#: Evaluation range of the ground truth (metres, exclusive).
-MIN_DEPTH, MAX_DEPTH = 0.2, 5.0
-METRIC_KEYS = ("mae_mm", "rmse_mm", "imae_per_km", "irmse_per_km")
-
-
-# ----------------------------------------------------------------- metrics
-def void_metrics(pred: np.ndarray, gt: np.ndarray, min_depth: float = MIN_DEPTH,
-                 max_depth: float = MAX_DEPTH) -> Dict[str, float]:
-    """VOID metrics of one image: ``mae_mm``, ``rmse_mm``, ``imae_per_km``,
-    ``irmse_per_km`` on pixels with ``min_depth < gt < max_depth`` (metres),
-    plus ``n_pixels`` and ``coverage`` (fraction of those pixels predicted)."""
-    m = depth_metrics(pred, gt, min_depth=min_depth, max_depth=max_depth)
-    if m["n_pixels"] == 0:
-        return {k: float("nan") for k in METRIC_KEYS} | {"n_pixels": 0, "coverage": 0.0}
-    return {"mae_mm": 1e3 * m["mae_m"], "rmse_mm": 1e3 * m["rmse_m"],
-            "imae_per_km": m["imae_per_km"], "irmse_per_km": m["irmse_per_km"],
-            "n_pixels": m["n_pixels"], "coverage": m["coverage"]}
 
 
 # ----------------------------------------------------------------- methods

@@ -1,1 +1,2 @@
-"""Applications built on the spgeo core: the demo and batch runners (may use spgeo.evaluation)."""
+"""Applications built on the spgeo core: the demo and batch runners (they import the core, never
+``spgeo.evaluation``: docs/design.md §6.1)."""

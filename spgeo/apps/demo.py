@@ -22,6 +22,8 @@ from ..configs import config_class
 from ..frame import Frame, resize_frame
 from ..io.outputs import FileInfo
 from ..frontend import FrontEndConfig, LabelSegmenter, PrimitiveFrontEnd, make_frontend
+from ..frontend.oracle import OracleNormals
+from ..metrics.depth import primitive_fit_errors
 
 log = logging.getLogger(__name__)
 
@@ -154,21 +156,8 @@ class DemoResult:
         return "\n".join(lines)
 
 
-class _ExactNormals:
-    """Ground-truth normals of a synthetic render (oracle)."""
-
-    uses_depth = True
-
-    def __init__(self, normals: np.ndarray) -> None:
-        self.normals = normals
-
-    def estimate(self, image, camera: PinholeCamera, depth=None) -> np.ndarray:
-        return self.normals
-
-
 def _evaluate(scene: str, fe: PrimitiveFrontEnd, image, camera, depth_in, depth_gt,
               rows: List[DemoRow]):
-    from ..evaluation.metrics import primitive_fit_errors
     import cv2
 
     t0 = time.perf_counter()
@@ -227,7 +216,7 @@ def run_demo(config: DemoConfig = DemoConfig()) -> DemoResult:
     # offline (classical, manhattan: vanishing-point normals), sensor depth, oracle
     frontends = [make_frontend("classical", fe_cfg), make_frontend("manhattan", fe_cfg),
                  make_frontend("depth", fe_cfg),
-                 PrimitiveFrontEnd(LabelSegmenter(view.surface_ids), _ExactNormals(view.normals),
+                 PrimitiveFrontEnd(LabelSegmenter(view.surface_ids), OracleNormals(view.normals),
                                    fe_cfg, name="oracle (GT ids+normals)")]
     best = None
     for fe in frontends:
@@ -280,9 +269,9 @@ def _demo_completion(config: DemoConfig, view, cam: PinholeCamera, seq, result: 
     against the two baselines, on the synthetic view and a bundled TUM frame."""
     from ..completion import CompletionConfig, complete_depth
     from ..completion.baselines import ip_basic_completion, linear_interpolation_completion
-    from ..evaluation.references.depth_completion import oracle_frontend
-    from ..evaluation.completion.sparse_points import keypoint_sparse_depth
-    from ..evaluation.completion.void import void_metrics
+    from ..completion.sparse_points import keypoint_sparse_depth
+    from ..frontend.oracle import oracle_frontend
+    from ..metrics.depth import void_metrics
 
     lines = [f"{'scene':12s} {'method':28s} {'MAE mm':>8s} {'RMSE mm':>8s} {'iMAE':>7s} "
              f"{'iRMSE':>7s}"]

@@ -1,7 +1,7 @@
 """evo-like trajectory plots (matplotlib, Agg canvas, no pyplot state):
 
 * :func:`write_trajectory_plots`: from an aligned ATE result
-  (:class:`spgeo.evaluation.trajectory.AteResult`), ``trajectory_topview.png``
+  (:class:`spgeo.metrics.ate.AteResult`), ``trajectory_topview.png``
   (estimate after the Sim(3) / SE(3) alignment against the ground truth, seen
   along the ground truth's axis of least spread) and ``trajectory_error.png``
   (translation error over time, with its RMSE and median).
@@ -87,7 +87,7 @@ def write_trajectory_plots(ate, directory: Union[str, Path], title: str = "",
     """Top view and error-over-time PNGs of an aligned trajectory in ``directory``.
 
     Args:
-        ate: an :class:`~spgeo.evaluation.trajectory.AteResult` (or any object
+        ate: an :class:`~spgeo.metrics.ate.AteResult` (or any object
             with ``timestamps`` (n,), ``errors`` (n,), ``aligned_positions``
             and ``gt_positions`` (n, 3), ``rmse``, ``median``).
         directory: output folder (created).

@@ -1,6 +1,6 @@
 """The outcome of a batch VO run (:class:`VORun`, made by
 :func:`spgeo.apps.vo_run.run_odometry`): trajectory, Sim(3) ATE against the ground
-truth (:mod:`spgeo.evaluation.trajectory`), summary lines, files, COLMAP and
+truth (:mod:`spgeo.metrics.ate`), summary lines, files, COLMAP and
 nerfstudio exports and the fused mesh (:meth:`VORun.fuse`).
 
 Frames: ``T_world_cam`` is the 4x4 camera-to-world pose; the VO's world is
@@ -22,6 +22,7 @@ import numpy as np
 from ..configs import config_to_dict
 from ..frame import Frame
 from ..io.outputs import FileInfo
+from ..metrics.ate import ate_per_frame_and_keyframes
 from ..trajectory import METRES, Trajectory
 from ..vo import Odometry, OdometryResult
 from ..vo.metric_scale import MetricScale, ScaledOdometry
@@ -31,7 +32,7 @@ __all__ = ["VORun", "SkippedFrame", "ATE_LABELS", "SAVED_FILES", "GROUND_TRUTH_F
 
 log = logging.getLogger(__name__)
 
-#: ATE labels, as in :func:`spgeo.evaluation.trajectory.ate_per_frame_and_keyframes`.
+#: ATE labels, as in :func:`spgeo.metrics.ate.ate_per_frame_and_keyframes`.
 ATE_LABELS = ("per-frame", "keyframe-only")
 
 #: the ground truth :meth:`VORun.save` writes beside ``trajectory.txt``
@@ -278,13 +279,11 @@ class VORun:
         (skipped frames have no pose and are never among them).
 
         Returns ``{"per-frame": AteResult, "keyframe-only": AteResult or None}``
-        (:class:`spgeo.evaluation.trajectory.AteResult`; errors in ground-truth
+        (:class:`spgeo.metrics.ate.AteResult`; errors in ground-truth
         metres; keyframe-only aligns on the keyframes alone and is None with
         fewer than 3 keyframes), or None when no frame has ground truth or
         fewer than 3 poses can be evaluated (logged).
         """
-        from spgeo.evaluation.trajectory import ate_per_frame_and_keyframes
-
         gt = self.ground_truth(exclude_lost=False)
         if gt is None:
             return None

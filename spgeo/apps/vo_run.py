@@ -1,6 +1,6 @@
 """Batch runner of the monocular VO (:class:`spgeo.vo.Odometry`) over a
 frame sequence or a data set, with Sim(3) ATE against the ground truth
-(an application: the ATE comes from :mod:`spgeo.evaluation.trajectory`).
+(an application: the ATE comes from :mod:`spgeo.metrics.ate`).
 
 * :func:`run_odometry`: frames (any iterable of :class:`~spgeo.frame.Frame`)
   -> :class:`VORun`.  Every image is resized to the VO's processing size
@@ -208,7 +208,7 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             as the VO saw it (resized) with the ground-truth ``T_world_cam``
             when known (never given to the VO), ``frame_result`` the
             :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
-            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.rerun_logger.RerunLogger`).
+            :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.apps.rerun_logger.RerunLogger`).
 
     Ctrl-C (``KeyboardInterrupt``) after the first frame ends the run early: the
     frames processed so far are returned with ``VORun.interrupted`` set.

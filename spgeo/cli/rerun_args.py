@@ -1,5 +1,5 @@
 """``--rerun {spawn | save FILE.rrd | connect [ADDR]}`` for ``spgeo vo|sfm|complete``
-(argparse wiring of :class:`spgeo.rerun_logger.RerunLogger`; rerun is imported only
+(argparse wiring of :class:`spgeo.apps.rerun_logger.RerunLogger`; rerun is imported only
 when the option is given)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ class _RerunAction(argparse.Action):
     """Parses ``MODE [ARG]`` into a ``RerunLoggerConfig`` (one-line argparse error)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from ..rerun_logger import RerunLoggerConfig
+        from ..apps.rerun_logger import RerunLoggerConfig
 
         try:
             setattr(namespace, self.dest, RerunLoggerConfig.from_spec(values))
@@ -31,11 +31,11 @@ def add_rerun_argument(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def open_rerun(args: argparse.Namespace):
-    """Context manager giving a :class:`spgeo.rerun_logger.RerunLogger` for ``args.rerun``
+    """Context manager giving a :class:`spgeo.apps.rerun_logger.RerunLogger` for ``args.rerun``
     (closed on exit), or None without the option."""
     cfg = getattr(args, "rerun", None)
     if cfg is None:
         return contextlib.nullcontext(None)
-    from ..rerun_logger import RerunLogger
+    from ..apps.rerun_logger import RerunLogger
 
     return RerunLogger(cfg)

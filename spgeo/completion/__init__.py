@@ -22,6 +22,9 @@ Modules, one job each:
 * :mod:`~spgeo.completion.baselines`: linear interpolation, IP-Basic and the
   colorization fill (candidates of the choice, and the baselines of the
   evaluation).
+* :mod:`~spgeo.completion.sparse_points`: sparse inputs sampled from a dense
+  reference depth (FAST keypoints, uniform pixels, KLT tracks), as the demo
+  and the benchmarks make them.
 """
 from .baselines import (ColorizationConfig, IPBasicConfig, colorization_completion,
                         ip_basic_completion, linear_interpolation_completion)

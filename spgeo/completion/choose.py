@@ -287,9 +287,12 @@ def region_scores(err: np.ndarray, point_region: np.ndarray, cell: np.ndarray,
     """(C, R) score of each candidate per region (module docstring, step 3).
 
     Args:
-        err: (C, P) held-out errors (:func:`heldout_log_errors`); non-finite
-            entries count as the largest finite error of that point (a
-            candidate that cannot predict a point is the worst there).
+        err: (C, P) held-out ``|log error|`` of each candidate (or blend of
+            candidates) at each point: the absolute value of
+            :func:`heldout_log_residuals` (of a blend, ``|weights @ residuals|``
+            as :func:`choose_by_heldout` passes it); non-finite entries count as
+            the largest finite error of that point (a candidate that cannot
+            predict a point is the worst there).
         point_region: (P,) region of each point in ``[0, R)``.
         cell: (R,) cell of each region (from :func:`region_labels`).
         prior_points: shrinkage weight in points (>= 0).

@@ -14,6 +14,9 @@
   network's output (:class:`~spgeo.frontend.onnx_depth.OnnxDepthNormals`;
   reads no sensor depth; models via ``spgeo models``).
 
+The *oracle* (ground-truth segments and normals, the pipeline's upper bound; not a
+named front-end): :func:`spgeo.frontend.oracle.oracle_frontend`.
+
 Metric depth from one image (not a front-end): :class:`MetricDepthEstimator`
 (``predict_metric(image) -> metres``) and :func:`metric_depth_from_cache` (a
 metric-depth ONNX network, e.g. FastDepth with the ``"fastdepth"`` preset).

@@ -1,4 +1,5 @@
-"""Where the sparse depth points of a completion benchmark lie.
+"""Where the sparse depth points of a completion input lie, sampled from a dense
+reference depth (the inputs of the demo and of the completion benchmarks).
 
 Each function takes a dense reference depth (H, W) metres (0 / NaN / inf =
 none) and returns an (H, W) float64 sparse map, metres with 0 = missing, at
@@ -20,7 +21,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from spgeo.images import to_float_image, to_gray
+from ..images import to_float_image, to_gray
 
 __all__ = ["keypoint_sparse_depth", "uniform_sparse_depth", "track_sparse_depth"]
 

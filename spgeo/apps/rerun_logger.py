@@ -40,8 +40,8 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
-from .configs import config_class
-from .viz import colorize_normals
+from ..configs import config_class
+from ..viz import colorize_normals
 
 __all__ = ["RerunLoggerConfig", "RerunLogger", "RERUN_MODES"]
 
