@@ -11,7 +11,8 @@ from spgeo.graph.builders import FactorBatch
 from spgeo.graph.keys import landmark_key, pose_key
 from spgeo.vo import OdometryConfig
 from spgeo.geometry import invert_pose, ray_angles_deg, transform_points
-from spgeo.vo.landmarks import LandmarkConfig, LandmarkMap, add_landmark_factors, triangulate
+from spgeo.triangulation import triangulate
+from spgeo.vo.landmarks import LandmarkConfig, LandmarkMap, add_landmark_factors
 
 CAM = synthetic.default_camera(160, 120)
 
@@ -36,14 +37,13 @@ def _pose(R_axis, angle, t):
 
 def test_triangulation_is_exact_on_exact_geometry():
     rng = np.random.default_rng(0)
-    K = np.asarray(CAM.K, float)
     T1 = _pose([0, 1, 0], 0.05, [0.0, 0.0, 0.0])
     T2 = _pose([1, 0, 0], -0.03, [0.3, 0.05, 0.02])
     X = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50), rng.uniform(2, 6, 50)])
     x1, z1 = project(T1, X)
     x2, z2 = project(T2, X)
     assert np.all(z1 > 0) and np.all(z2 > 0)
-    Y = triangulate(K, T1, T2, x1, x2)
+    Y = triangulate(CAM, [T1, T2], np.stack([x1, x2], 1))
     assert np.allclose(Y, X, atol=1e-8)
     # the parallax angle at each point: a known case and the bounds
     ang = ray_angles_deg(np.array([[0.0, 0.0, 1.0]]), np.zeros(3), np.array([1.0, 0.0, 1.0]))

@@ -38,6 +38,7 @@ from ..factors.priors import pose_gauge_prior
 from ..geometry import invert_pose, transform_points
 from ..graph.builders import projection_model
 from ..graph.keys import landmark_key, pose_key
+from ..triangulation import triangulate
 from ..twoview.geometry import sampson_px
 from .tracks import ViewTracks
 
@@ -103,42 +104,12 @@ class FeatureBundle:
 def triangulate_tracks(vt: ViewTracks, rows: np.ndarray, poses: Dict[int, np.ndarray],
                        camera: PinholeCamera) -> np.ndarray:
     """(len(rows), 3) points of tracks ``rows`` by linear DLT over their pixels in the
-    views of ``poses`` (view -> camera-to-world 4x4); NaN for a track seen by fewer
-    than two of them, behind a camera, reprojecting beyond ``GATE_PX`` or with rays
-    less than ``MIN_RAY_ANGLE_DEG`` apart."""
+    views of ``poses`` (view -> camera-to-world 4x4), :func:`spgeo.triangulation.triangulate`;
+    NaN for a track seen by fewer than two of them, behind a camera, reprojecting
+    beyond ``GATE_PX`` or with rays less than ``MIN_RAY_ANGLE_DEG`` apart."""
     views = sorted(poses)
-    K = camera.K
-    A = np.zeros((len(rows), 2 * len(views), 4))
-    for k, v in enumerate(views):
-        P = K @ invert_pose(poses[v])[:3]
-        x = vt.track_pixels(v, rows)
-        seen = np.isfinite(x[:, 0])
-        A[seen, 2 * k] = x[seen, 0:1] * P[2] - P[0]
-        A[seen, 2 * k + 1] = x[seen, 1:2] * P[2] - P[1]
-    if not len(rows):
-        return np.zeros((0, 3))
-    _, _, vt_ = np.linalg.svd(A)
-    h = vt_[:, -1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        X = h[:, :3] / h[:, 3:4]
-    ok = np.sum(vt.tracks[np.ix_(rows, views)] >= 0, axis=1) >= 2
-    ok &= np.all(np.isfinite(X), axis=1)
-    Xs = np.where(ok[:, None], X, 0.0)
-    dirs = []
-    for v in views:
-        x = vt.track_pixels(v, rows)
-        seen = np.isfinite(x[:, 0])
-        uv, z = camera.project(transform_points(invert_pose(poses[v]), Xs))
-        err = np.linalg.norm(uv - x, axis=1)
-        ok &= ~seen | ((z > 0) & (err <= GATE_PX))
-        d = Xs - poses[v][:3, 3]
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        dirs.append(np.where(seen[:, None], d, np.nan))
-    D = np.stack(dirs, 1)                       # (L, V, 3)
-    cos = np.einsum("lvc,lwc->lvw", D, D)
-    min_cos = np.nanmin(np.where(np.isfinite(cos), cos, np.inf), axis=(1, 2))
-    ok &= min_cos <= np.cos(np.radians(MIN_RAY_ANGLE_DEG))
-    return np.where(ok[:, None], X, np.nan)
+    pixels = np.stack([vt.track_pixels(v, rows) for v in views], axis=1)
+    return triangulate(camera, [poses[v] for v in views], pixels, GATE_PX, MIN_RAY_ANGLE_DEG)
 
 
 def _initial_pair(vt: ViewTracks):

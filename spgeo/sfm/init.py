@@ -10,12 +10,11 @@ from __future__ import annotations
 import logging
 from typing import List, Sequence, Tuple
 
-import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry import invert_pose
 from ..primitives import PrimitiveSet
+from ..triangulation import triangulate
 
 __all__ = ["twoview_initialisation", "triangulate_depths", "scales_from_points"]
 
@@ -24,19 +23,12 @@ log = logging.getLogger(__name__)
 
 def triangulate_depths(T_ref_tgt: np.ndarray, camera: PinholeCamera, pts_ref: np.ndarray,
                        pts_tgt: np.ndarray) -> np.ndarray:
-    """Reference-frame depths (units of ``|t|``) of matched pixels; NaN if behind
-    either camera."""
-    T_tr = invert_pose(T_ref_tgt)
-    Kinv = camera.K_inv
-    x1 = (np.c_[pts_ref, np.ones(len(pts_ref))] @ Kinv.T)[:, :2].T
-    x2 = (np.c_[pts_tgt, np.ones(len(pts_tgt))] @ Kinv.T)[:, :2].T
-    P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
-    P2 = T_tr[:3]
-    Xh = cv2.triangulatePoints(P1, P2, x1.astype(np.float64), x2.astype(np.float64))
-    with np.errstate(divide="ignore", invalid="ignore"):   # points at infinity: NaN
-        X = (Xh[:3] / Xh[3]).T
-        z_tgt = X @ T_tr[2, :3] + T_tr[2, 3]
-        return np.where((X[:, 2] > 0) & (z_tgt > 0), X[:, 2], np.nan)
+    """(N,) reference-frame depths (units of ``|t|``) of matched pixels ``pts_ref``,
+    ``pts_tgt`` (N, 2) of cameras related by ``T_ref_tgt`` (target-to-reference), by
+    :func:`spgeo.triangulation.triangulate` with the reference as the world; NaN
+    behind either camera or at infinity."""
+    X = triangulate(camera, [np.eye(4), T_ref_tgt], np.stack([pts_ref, pts_tgt], axis=1))
+    return X[:, 2]
 
 
 def scales_from_points(prims: PrimitiveSet, camera: PinholeCamera, pixels: np.ndarray,

@@ -8,9 +8,10 @@ at the processing size) are associated, in order:
    whose pixel lies within ``search_px`` of the landmark's projection;
 2. with the features of the last ``match_keyframes`` live keyframes: a match whose
    older feature already observes a landmark adds an observation (same gate); two
-   unassigned features are triangulated (:func:`triangulate`, linear DLT) into a
-   new landmark when the rays' parallax is at least ``min_parallax_deg``, the point
-   is in front of both cameras and reprojects within ``max_reprojection_px``.
+   unassigned features are triangulated (:func:`spgeo.triangulation.triangulate`,
+   linear DLT) into a new landmark when the rays' parallax is at least
+   ``min_parallax_deg``, the point is in front of both cameras and reprojects
+   within ``max_reprojection_px``.
 
 Landmarks are world points (the VO map's frame and arbitrary monocular units)
 with an id, a descriptor (the latest observation's), their observations in the
@@ -36,12 +37,13 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_class
-from ..geometry import invert_pose, ray_angles_deg, transform_points
+from ..geometry import invert_pose, transform_points
 from ..similarity import moved_frame
+from ..triangulation import triangulate
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
-__all__ = ["LandmarkConfig", "Landmark", "LandmarkMap", "triangulate"]
+__all__ = ["LandmarkConfig", "Landmark", "LandmarkMap"]
 
 log = logging.getLogger(__name__)
 
@@ -110,27 +112,6 @@ class _KeyframeFeatures:
     descriptors: Optional[np.ndarray]
     landmark: np.ndarray        # (N,) landmark id or -1
     T_world_kf: np.ndarray
-
-
-def triangulate(K: np.ndarray, T1: np.ndarray, T2: np.ndarray, x1: np.ndarray,
-                x2: np.ndarray) -> np.ndarray:
-    """Linear (DLT) triangulation of pixel pairs ``x1``, ``x2`` (N, 2) seen by cameras
-    at camera-to-world poses ``T1``, ``T2`` with intrinsics ``K``: world points (N, 3)
-    (NaN where degenerate)."""
-    rows = []
-    for T, x in ((T1, x1), (T2, x2)):
-        Tinv = np.linalg.inv(T)
-        P = K @ Tinv[:3]
-        rows.append(x[:, 0:1] * P[2] - P[0])
-        rows.append(x[:, 1:2] * P[2] - P[1])
-    A = np.stack(rows, 1)                      # (N, 4, 4)
-    if len(A) == 0:
-        return np.zeros((0, 3))
-    _, _, vt = np.linalg.svd(A)
-    h = vt[:, -1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        X = h[:, :3] / h[:, 3:4]
-    return np.where(np.abs(h[:, 3:4]) > 1e-12, X, np.nan)
 
 
 class LandmarkMap:
@@ -238,13 +219,10 @@ class LandmarkMap:
         new = pairs[fj.landmark[pairs[:, 0]] < 0] if len(pairs) else pairs
         if not len(new):
             return n_link
-        x1, x2 = fj.pixels[new[:, 0]], fk.pixels[new[:, 1]]
-        X = triangulate(self.K, fj.T_world_kf, fk.T_world_kf, x1, x2)
+        X = triangulate(self.camera, [fj.T_world_kf, fk.T_world_kf],
+                        np.stack([fj.pixels[new[:, 0]], fk.pixels[new[:, 1]]], 1),
+                        cfg.max_reprojection_px, cfg.min_parallax_deg)
         ok = np.all(np.isfinite(X), 1)
-        Xs = np.where(ok[:, None], X, 0.0)
-        tol = cfg.max_reprojection_px
-        ok &= self._gate(fj.T_world_kf, Xs, x1, tol) & self._gate(fk.T_world_kf, Xs, x2, tol)
-        ok &= ray_angles_deg(Xs, fj.T_world_kf[:3, 3], fk.T_world_kf[:3, 3]) >= cfg.min_parallax_deg
         for (a, b), P in zip(new[ok], X[ok]):
             lm = Landmark(self._next_id, P, fk.descriptors[b].copy(),
                           {j: fj.pixels[a].copy()}, j, j)
