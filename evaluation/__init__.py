@@ -17,8 +17,9 @@ NAME``, names in :data:`spgeo.cli.eval.PROTOCOLS`):
 The modules here at the top are shared by several of them: :mod:`.jobs` (running a
 protocol's jobs locally or on Ray, the merged table), :mod:`.metrics` (depth),
 :mod:`.pose_metrics` and :mod:`.pose_compare` (relative poses, tables of several
-methods), :mod:`.trajectory` (Sim(3) ATE) and :mod:`.shared_data` (where the sample
-data is).
+methods), :mod:`.trajectory` (Sim(3) ATE), :mod:`.tables` (the one cell formatter and
+Markdown table writer of every protocol's table) and :mod:`.shared_data` (where the
+sample data is).
 """
 from spgeo.factors import assert_same_tree
 

@@ -44,6 +44,8 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from spgeo.evaluation.tables import cell, markdown_table
+
 __all__ = ["Job", "RunnerConfig", "add_runner_arguments", "runner_config", "run_job",
            "run_jobs", "run_table", "provenance", "mean_rows", "EvalTable", "write_atomic", "THREAD_ENV"]
 
@@ -298,26 +300,17 @@ def mean_rows(rows: Sequence[Mapping[str, Any]], keys: Sequence[str],
     return out
 
 
-def _fmt(v: Any, digits: int) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float):
-        return "-" if not math.isfinite(v) else f"{v:.{digits}f}"
-    return str(v)
-
-
 def _md(columns: Sequence[Tuple[str, str, int]], rows: Sequence[Mapping[str, Any]],
         max_error: int = 120) -> List[str]:
-    lines = ["| " + " | ".join(h for h, _, _ in columns) + " |", "|" + "---|" * len(columns)]
-    for r in rows:
-        cells = []
-        for _, key, digits in columns:
-            s = _fmt(r.get(key), digits)
-            if key == "error" and len(s) > max_error:
-                s = s[:max_error - 3] + "..."
-            cells.append(s.replace("|", "/").replace("\n", " "))
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+    """:func:`~spgeo.evaluation.tables.markdown_table` of ``columns`` ``(header,
+    key, digits)`` over ``rows`` (cells by :func:`~spgeo.evaluation.tables.cell`);
+    an ``error`` cell longer than ``max_error`` is cut with ``...``."""
+    def text(key: str, digits: int, r: Mapping[str, Any]) -> str:
+        s = cell(r.get(key), digits)
+        return s[:max_error - 3] + "..." if key == "error" and len(s) > max_error else s
+
+    return markdown_table([h for h, _, _ in columns],
+                          [[text(k, d, r) for _, k, d in columns] for r in rows])
 
 
 @dataclass

@@ -9,12 +9,12 @@ data-set frames; :func:`format_comparison` prints the result.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.tables import MISSING, cell
 from spgeo.geometry import relative_pose
 
 from .pose_metrics import compare_pose_lists, relative_pose_errors
@@ -82,16 +82,6 @@ def compare_fewview(T_ref_view_spgeo: Sequence[Optional[np.ndarray]],
                            T_ref_view_gt, view_names)
 
 
-def _fmt(x: object, digits: int = 2) -> str:
-    if x is None:
-        return "-"
-    try:
-        v = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return str(x)
-    return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
-
-
 def format_comparison(comparison: Mapping[str, object]) -> str:
     """Plain-text table of a :func:`compare_methods` / :func:`compare_on_dataset`
     result: one row per view, rotation error / translation-direction error in
@@ -109,20 +99,21 @@ def format_comparison(comparison: Mapping[str, object]) -> str:
         row = [str(v)]
         if gt_motion:
             g = gt_motion[j] if j < len(gt_motion) else None
-            row += [_fmt(None if g is None else g["rotation_deg"]),
-                    _fmt(None if g is None else g["translation_norm"], 3)]
+            row += [cell(None if g is None else g["rotation_deg"]),
+                    cell(None if g is None else g["translation_norm"], 3)]
         for _, _, block in blocks:
             r = block["rows"][j]
             if not r.get("available", False):
-                row += ["-", "-"]
+                row += [MISSING, MISSING]
             else:
-                row += [_fmt(r["rotation_error_deg"], 3), _fmt(r["translation_direction_error_deg"])]
+                row += [cell(r["rotation_error_deg"], 3),
+                        cell(r["translation_direction_error_deg"])]
         rows.append(row)
     widths = [max(len(r[c]) for r in rows) for c in range(len(header))]
-    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)) for r in rows]
+    lines = ["  ".join(text.rjust(w) for text, w in zip(r, widths)) for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     lines.append("(errors in degrees: rotation angle, translation-direction angle; "
-                 "'-' = not posed)")
+                 "'-' = not posed or not finite)")
     return "\n".join(lines)
 
 

@@ -20,6 +20,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_table
 
 __all__ = ["STRATA", "strata_errors", "StrataResult", "run_strata", "build_parser", "run", "main"]
 
@@ -82,13 +83,11 @@ class StrataResult:
 
     def table(self) -> str:
         """Markdown: per data set and stratum the pixel fraction and both MAEs (mm)."""
-        lines = [f"| data set | stratum | pixels | spgeo {self.frontend} MAE mm | linear MAE mm |",
-                 "|---|---|---|---|---|"]
-        for name, rows in self.rows.items():
-            for lab, r in rows.items():
-                lines.append(f"| {name} | {lab} | {100 * r['fraction']:.0f} % | "
-                             f"{r['spgeo_mm']:.1f} | {r['linear_mm']:.1f} |")
-        return "\n".join(lines)
+        return "\n".join(markdown_table(
+            ["data set", "stratum", "pixels", f"spgeo {self.frontend} MAE mm", "linear MAE mm"],
+            [[name, lab, cell(100 * r["fraction"], "{:.0f} %"), cell(r["spgeo_mm"], 1),
+              cell(r["linear_mm"], 1)] for name, rows in self.rows.items()
+             for lab, r in rows.items()]))
 
 
 def run_strata(datasets: Sequence[str], frontend: str = "classical",

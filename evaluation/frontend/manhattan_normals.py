@@ -31,6 +31,7 @@ from spgeo.frontend.depth_normals import DepthNormalEstimator
 from spgeo.frontend.manhattan import ManhattanNormals
 
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_row, markdown_table
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,11 @@ _FRONTO = np.array([0.0, 0.0, -1.0])
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+
+
+#: The columns of the table (:meth:`ManhattanNormalsResult.table`).
+_HEADER = ("data", "coverage [%]", "median err VP [deg]",
+           "median err fronto-parallel, same pixels [deg]", "VP err < 15 deg [%]")
 
 
 class _Acc:
@@ -61,13 +67,13 @@ class _Acc:
         self.fp.append(_angles(np.broadcast_to(_FRONTO, ref[use].shape), ref[use]))
 
     def row(self, name: str) -> str:
+        """The Markdown row of :data:`_HEADER` (``-`` without pixels)."""
         e = np.concatenate(self.err) if self.err else np.zeros(0)
         f = np.concatenate(self.fp) if self.fp else np.zeros(0)
         cov = self.covered / max(self.total, 1)
-        med = f"{np.median(e):.1f}" if e.size else "-"
-        medf = f"{np.median(f):.1f}" if f.size else "-"
-        within = f"{100 * np.mean(e < 15):.0f}" if e.size else "-"
-        return f"| {name} | {100 * cov:.1f} | {med} | {medf} | {within} |"
+        return markdown_row([name, cell(100 * cov, 1), cell(np.median(e) if e.size else None, 1),
+                             cell(np.median(f) if f.size else None, 1),
+                             cell(100 * np.mean(e < 15) if e.size else None, 0)])
 
 
 def _real_frames(step: int, root: Optional[Path] = None):
@@ -105,10 +111,7 @@ class ManhattanNormalsResult:
 
     def table(self) -> str:
         """The Markdown table and the timing line."""
-        return "\n".join([
-            "| data | coverage [%] | median err VP [deg] | median err fronto-parallel, same "
-            "pixels [deg] | VP err < 15 deg [%] |",
-            "|---|---:|---:|---:|---:|",
+        return "\n".join(markdown_table(_HEADER, [], "lrrrr") + [
             "\n".join(self.rows),
             f"time: VP normals {self.ms_manhattan:.1f} ms = {self.ratio:.2f} x "
             f"ClassicalSegmenter.segment ({self.ms_segment:.1f} ms), median per image"])

@@ -38,6 +38,7 @@ from scipy import ndimage
 from spgeo.frontend.classical import ClassicalSegmenter, ClassicalSegmenterConfig
 
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_table
 
 __all__ = ["BenchView", "boundary_mask", "boundary_recall", "leakage_error",
            "neubert_protzel_error", "segmentation_metrics", "render_views", "default_variants",
@@ -212,19 +213,16 @@ def run_benchmark(variants: Dict[str, ClassicalSegmenterConfig], views: Sequence
     return rows
 
 
-_COLUMNS = [("BR", "{:.3f}"), ("UE", "{:.4f}"), ("UEnp", "{:.4f}"), ("UEobj", "{:.4f}"),
-            ("ASA", "{:.4f}"), ("cov", "{:.3f}"), ("nseg", "{:.0f}"), ("ms", "{:.1f}")]
+_COLUMNS = [("BR", 3), ("UE", 4), ("UEnp", 4), ("UEobj", 4), ("ASA", 4), ("cov", 3),
+            ("nseg", 0), ("ms", 1)]
 
 
 def format_table(rows: Sequence[Dict[str, object]], title: str = "") -> str:
-    """Markdown table of :func:`run_benchmark` rows."""
-    head = "| variant | " + " | ".join(c for c, _ in _COLUMNS) + " |"
-    sep = "|---|" + "---:|" * len(_COLUMNS)
-    lines = ([f"**{title}**", ""] if title else []) + [head, sep]
-    for r in rows:
-        cells = [fmt.format(r[c]) if c in r else "-" for c, fmt in _COLUMNS]
-        lines.append(f"| {r['variant']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """Markdown table of :func:`run_benchmark` rows (``-`` for a missing value)."""
+    body = markdown_table(["variant"] + [c for c, _ in _COLUMNS],
+                          [[r["variant"]] + [cell(r.get(c), d) for c, d in _COLUMNS]
+                           for r in rows], "l" + "r" * len(_COLUMNS))
+    return "\n".join(([f"**{title}**", ""] if title else []) + body)
 
 
 NAME = "bench_segmenters"

@@ -32,6 +32,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from spgeo.evaluation.pose_compare import compare_on_dataset
+from spgeo.evaluation.tables import MISSING, cell, markdown_table
 
 __all__ = ["GAP_DATA", "JUDGE", "MAX_JUDGE_DISAGREEMENT_DEG", "parse_int_list", "sigma_rot_deg",
            "rotation_coverage", "view_records", "summarize_views", "coverage_report",
@@ -370,12 +371,15 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
     return triplet, records
 
 
-def _fmt(x: object, spec: str = ".2f") -> str:
-    """A number with ``spec``; ``"-"`` for None / NaN."""
-    if x is None:
-        return "-"
-    v = float(x)  # type: ignore[arg-type]
-    return format(v, spec) if math.isfinite(v) else "-"
+def _summary_row(gap: str, method: str, s: Mapping[str, object]) -> List[str]:
+    """The cells of one method's :func:`summarize_views` in :meth:`GapResults.summary_table`."""
+    return [gap, method, cell(s["rotation_vs_colmap_deg"]), cell(s["tdir_vs_colmap_deg"], 1),
+            cell(s["rotation_vs_gt_deg"]), cell(s["tdir_vs_gt_deg"], 1),
+            f"{s['posed']} of {s['views']}", f"{s['judged']} ({s['judged_inconsistent']})",
+            cell(s["rotation_vs_consistent_colmap_deg"]), cell(s["flagged"]),
+            f"{cell(s['rotation_vs_colmap_ok_deg'])} / {cell(s['rotation_vs_colmap_flagged_deg'])}",
+            f"{cell(s['rotation_vs_colmap_common_deg'])} / "
+            f"{cell(s['tdir_vs_colmap_common_deg'], 1)} ({s['common']})", cell(s["seconds"], 1)]
 
 
 def methods_with(records: Sequence[Record], key: str) -> List[str]:
@@ -420,43 +424,32 @@ class GapResults:
         inconsistent COLMAP pose) / flagged, the median rotation error vs the consistent
         COLMAP poses only, the unflagged and flagged views' median rotation error vs
         COLMAP, seconds."""
-        lines = [f"| {self.label} | method | rot vs COLMAP | tdir vs COLMAP | rot vs GT "
-                 "| tdir vs GT "
-                 "| posed | judged (inconsistent judge) | rot vs consistent COLMAP | flagged "
-                 "| rot vs COLMAP: ok / flagged views | rot / tdir vs COLMAP on common views "
-                 "| s per triplet |",
-                 "|---|---|" + "---:|" * 11]
-        for gname, per in self.summary.items():
-            for m, s in per.items():
-                lines.append(
-                    f"| {gname.split()[-1]} | {m} | {_fmt(s['rotation_vs_colmap_deg'])} "
-                    f"| {_fmt(s['tdir_vs_colmap_deg'], '.1f')} | {_fmt(s['rotation_vs_gt_deg'])} "
-                    f"| {_fmt(s['tdir_vs_gt_deg'], '.1f')} | {s['posed']} of {s['views']} "
-                    f"| {s['judged']} ({s['judged_inconsistent']}) "
-                    f"| {_fmt(s['rotation_vs_consistent_colmap_deg'])} | {s['flagged']} "
-                    f"| {_fmt(s['rotation_vs_colmap_ok_deg'])} / "
-                    f"{_fmt(s['rotation_vs_colmap_flagged_deg'])} "
-                    f"| {_fmt(s['rotation_vs_colmap_common_deg'])} / "
-                    f"{_fmt(s['tdir_vs_colmap_common_deg'], '.1f')} ({s['common']}) "
-                    f"| {_fmt(s['seconds'], '.1f')} |")
-        return "\n".join(lines)
+        header = [self.label, "method", "rot vs COLMAP", "tdir vs COLMAP", "rot vs GT",
+                  "tdir vs GT", "posed", "judged (inconsistent judge)",
+                  "rot vs consistent COLMAP", "flagged", "rot vs COLMAP: ok / flagged views",
+                  "rot / tdir vs COLMAP on common views", "s per triplet"]
+        rows = [_summary_row(gname.split()[-1], m, s)
+                for gname, per in self.summary.items() for m, s in per.items()]
+        return "\n".join(markdown_table(header, rows, "ll" + "r" * 11))
 
     def coverage_table(self) -> str:
         """Markdown: per method with covariances, per gap and overall, the views with
         a sigma, their median ``sigma_rot_deg`` and the 3-sigma coverage / median
         error-to-sigma ratio against COLMAP and against the ground truth."""
-        lines = [f"| method | {self.label} | views with sigma | median sigma_rot deg "
-                 "| within 3 sigma of COLMAP | median err/sigma (COLMAP) "
-                 "| within 3 sigma of GT | median err/sigma (GT) |", "|---|---|" + "---:|" * 6]
+        rows = []
         for m, rep in self.coverage.items():
             for gname, c in rep.items():
-                cells = [f"{c['n_sigma']}", _fmt(c["median_sigma_deg"], ".3g")]
+                cells = [m, gname.replace("gap ", ""), cell(c["n_sigma"]),
+                         cell(c["median_sigma_deg"], "{:.3g}")]
                 for judge in ("vs_colmap", "vs_gt"):
                     cov = c[judge]
-                    cells += [f"{cov['within']} of {cov['n']} ({_fmt(cov['fraction'])})",
-                              _fmt(cov["median_ratio"], ".3g")]
-                lines.append(f"| {m} | {gname.replace('gap ', '')} | " + " | ".join(cells) + " |")
-        return "\n".join(lines)
+                    cells += [f"{cov['within']} of {cov['n']} ({cell(cov['fraction'])})",
+                              cell(cov["median_ratio"], "{:.3g}")]
+                rows.append(cells)
+        header = ["method", self.label, "views with sigma", "median sigma_rot deg",
+                  "within 3 sigma of COLMAP", "median err/sigma (COLMAP)",
+                  "within 3 sigma of GT", "median err/sigma (GT)"]
+        return "\n".join(markdown_table(header, rows, "ll" + "r" * 6))
 
     def views_table(self) -> str:
         """Markdown: one row per view, how COLMAP posed it (with ``inconsistent, D``
@@ -468,7 +461,7 @@ class GapResults:
         head = ([self.label, self.ref_label, "view", "COLMAP posed by"]
                 + [f"{m} rot vs COLMAP / GT" for m in methods]
                 + [f"{m} sigma_rot deg" for m in with_sigma])
-        lines = ["| " + " | ".join(head) + " |", "|---|---|---|---|" + "---:|" * (len(head) - 4)]
+        rows = []
         by_view: Dict[Tuple[int, int, str], Dict[str, Record]] = {}
         for r in self.records:
             by_view.setdefault((int(r["gap"]), int(r["ref"]), str(r["view"])), {})[
@@ -477,20 +470,20 @@ class GapResults:
             first = next(iter(per.values()))
             how = str(first["colmap_posed_by"] or "not posed")
             if first.get("colmap_inconsistent"):
-                how += f" (inconsistent, {_fmt(first['colmap_disagreement_deg'], '.1f')})"
+                how += f" (inconsistent, {cell(first['colmap_disagreement_deg'], 1)})"
             cells = [str(gap), str(ref), view, how]
             for m in methods:
                 r = per.get(m)
                 if r is None or not r["posed"]:
                     cells.append("unposed")
                     continue
-                cells.append(f"{_fmt(r['rotation_vs_colmap_deg'])} / "
-                             f"{_fmt(r['rotation_vs_gt_deg'])}"
+                cells.append(f"{cell(r['rotation_vs_colmap_deg'])} / "
+                             f"{cell(r['rotation_vs_gt_deg'])}"
                              + (f" [{r['status']}]" if r["status"] is not None else ""))
-            cells += [_fmt(per[m]["sigma_rot_deg"], ".3g") if m in per else "-"
+            cells += [cell(per[m]["sigma_rot_deg"], "{:.3g}") if m in per else MISSING
                       for m in with_sigma]
-            lines.append("| " + " | ".join(cells) + " |")
-        return "\n".join(lines)
+            rows.append(cells)
+        return "\n".join(markdown_table(head, rows, "llll" + "r" * (len(head) - 4)))
 
     def table(self) -> str:
         """The three tables, each under a one-line title."""

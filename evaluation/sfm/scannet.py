@@ -41,6 +41,7 @@ from spgeo.sfm import SfMConfig, few_view_sfm
 from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.pose_metrics import relative_pose_errors
 from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
+from spgeo.evaluation.tables import cell, markdown_table
 
 __all__ = [
     "ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
@@ -296,20 +297,14 @@ class ScanNetSfMResult:
         lines = [f"ScanNet few-view SfM: {self.n_sets} view sets (reference every {c.stride} "
                  f"frames, offsets {list(c.offsets)}), {len(self.skipped)} discarded, front-end "
                  f"{c.frontend} at {c.working_size[0]}x{c.working_size[1]}, depth median-scaled, "
-                 f"GT in ({c.min_depth}, {c.max_depth}) m",
-                 "| init | views | runs | ok | iMAE [1/km] | iRMSE [1/km] | abs-rel | d<1.25 | "
-                 "rot err [deg] | t-dir err [deg] | s/run |",
-                 "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-
-        def f(x, d=2):
-            return "-" if x is None or not np.isfinite(x) else f"{x:.{d}f}"
-
-        for r in self.summary():
-            lines.append(f"| {r['init']} | {r['n_views'] or '-'} | {r['n_runs']} | {r['n_ok']} | "
-                         f"{f(r['imae_per_km'])} | {f(r['irmse_per_km'])} | "
-                         f"{f(r['abs_rel'], 3)} | {f(r['delta_1.25'], 3)} | "
-                         f"{f(r['rot_err_mean_deg'])} | {f(r['tdir_err_mean_deg'])} | "
-                         f"{f(r['seconds'], 1)} |")
+                 f"GT in ({c.min_depth}, {c.max_depth}) m"]
+        rows = [[r["init"], cell(r["n_views"] or None), cell(r["n_runs"]), cell(r["n_ok"]),
+                 cell(r["imae_per_km"]), cell(r["irmse_per_km"]), cell(r["abs_rel"], 3),
+                 cell(r["delta_1.25"], 3), cell(r["rot_err_mean_deg"]),
+                 cell(r["tdir_err_mean_deg"]), cell(r["seconds"], 1)] for r in self.summary()]
+        lines += markdown_table(["init", "views", "runs", "ok", "iMAE [1/km]", "iRMSE [1/km]",
+                                 "abs-rel", "d<1.25", "rot err [deg]", "t-dir err [deg]",
+                                 "s/run"], rows, "l" + "r" * 10)
         return "\n".join(lines)
 
     def to_dict(self) -> Dict[str, object]:

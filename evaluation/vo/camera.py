@@ -38,6 +38,7 @@ from typing import Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation import tables
 from spgeo.evaluation.runner import open_sequence, protocol_parser, run_protocol, write_json
 
 __all__ = ["PacedCamera", "CameraRun", "camera_run", "every_frame_run", "drop_summary",
@@ -224,13 +225,11 @@ _COLUMNS = (("rate_hz", "Hz", "{:g}"), ("buffers", "buffers", "{}"), ("ring", "r
 
 
 def markdown_table(rows: Sequence[dict]) -> str:
-    """The rows as a markdown table (``-`` for missing values)."""
-    head = "| " + " | ".join(c[1] for c in _COLUMNS) + " |"
-    lines = [head, "|" + "---|" * len(_COLUMNS)]
-    for r in rows:
-        cells = ["-" if r.get(k) is None else fmt.format(r[k]) for k, _, fmt in _COLUMNS]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """The rows as a markdown table (:func:`~spgeo.evaluation.tables.cell`: ``-``
+    for missing values)."""
+    return "\n".join(tables.markdown_table([head for _, head, _ in _COLUMNS],
+                                            [[tables.cell(r.get(k), fmt) for k, _, fmt in _COLUMNS]
+                                             for r in rows]))
 
 
 def build_parser(prog: Optional[str] = None) -> argparse.ArgumentParser:

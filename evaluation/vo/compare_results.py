@@ -16,6 +16,7 @@ import numpy as np
 
 from spgeo.jsonio import json_default
 
+from spgeo.evaluation.tables import MISSING, cell, markdown_table
 from spgeo.evaluation.trajectory import status_path_for, write_status, write_tum
 from spgeo.evaluation.vo.reference_metrics import DEFAULT_GAP, DEFAULT_WINDOW
 
@@ -103,8 +104,13 @@ class VOCompareRow:
         return d
 
 
-def _f(x: float, digits: int) -> str:
-    return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.{digits}f}"
+def _markdown_row(r: VOCompareRow) -> List[str]:
+    """The cells of ``r`` in :func:`format_markdown_table`."""
+    tracked = f"{r.n_tracked}/{r.n_frames} ({cell(100.0 * r.tracked_fraction, '{:.0f}%')})"
+    return [r.method + (" (oracle depth)" if r.oracle else ""), cell(r.n_frames), tracked,
+            cell(r.ate_rmse_m, 4), cell(r.ate_percent, 2), cell(r.kf_ate_rmse_m, 4),
+            cell(r.n_keyframes) if r.is_keyframe is not None else MISSING, cell(r.fps, 2),
+            cell(r.wall_s, 1)]
 
 
 def format_markdown_table(rows: Sequence[VOCompareRow], title: Optional[str] = None) -> str:
@@ -113,16 +119,10 @@ def format_markdown_table(rows: Sequence[VOCompareRow], title: Optional[str] = N
     lines = []
     if title:
         lines += [title, ""]
-    lines += ["| method | frames | tracked | per-frame ATE RMSE [m] | per-frame ATE [% GT length] "
-              "| keyframe-only ATE RMSE [m] | keyframes | FPS | wall [s] |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        name = r.method + (" (oracle depth)" if r.oracle else "")
-        tracked = f"{r.n_tracked}/{r.n_frames} ({100.0 * r.tracked_fraction:.0f}%)"
-        lines.append(f"| {name} | {r.n_frames} | {tracked} | {_f(r.ate_rmse_m, 4)} | "
-                     f"{_f(r.ate_percent, 2)} | {_f(r.kf_ate_rmse_m, 4)} | "
-                     f"{r.n_keyframes if r.is_keyframe is not None else '-'} | "
-                     f"{_f(r.fps, 2)} | {_f(r.wall_s, 1)} |")
+    lines += markdown_table(["method", "frames", "tracked", "per-frame ATE RMSE [m]",
+                             "per-frame ATE [% GT length]", "keyframe-only ATE RMSE [m]",
+                             "keyframes", "FPS", "wall [s]"], map(_markdown_row, rows),
+                            "l" + "r" * 8)
     gt_len = next((r.gt_length_m for r in rows if math.isfinite(r.gt_length_m)), float("nan"))
     lines += ["",
               "ATE: RMSE of camera positions after Sim(3) alignment (Umeyama with scale, evo) "
@@ -130,7 +130,7 @@ def format_markdown_table(rows: Sequence[VOCompareRow], title: Optional[str] = N
               "keyframe-only = the keyframes only (aligned on their own; '-' = method without "
               "keyframes). Untracked frames are not in the ATE: read it with the tracked "
               f"column. % is of the ground-truth path length of the whole range "
-              f"({_f(gt_len, 3)} m). FPS = frames / wall seconds of the method "
+              f"({cell(gt_len, 3)} m). FPS = frames / wall seconds of the method "
               "(COLMAP is offline batch SfM)."]
     for r in rows:
         note = f"- {r.method}: {r.label}"
@@ -142,8 +142,18 @@ def format_markdown_table(rows: Sequence[VOCompareRow], title: Optional[str] = N
     return "\n".join(lines)
 
 
-def _pair(a: float, b: float, digits: int, sep: str = " / ") -> str:
-    return "-" if not math.isfinite(float(a)) else f"{_f(a, digits)}{sep}{_f(b, digits)}"
+def _reference_row(r: VOCompareRow) -> List[str]:
+    """The cells of ``r`` in :func:`format_reference_table` (a pair or range ``-``
+    when its first value is missing)."""
+    def pair(a: float, b: float) -> str:
+        return MISSING if not math.isfinite(a) else f"{cell(a)} / {cell(b)}"
+
+    lo, hi = r.window_scale_vs_colmap_min, r.window_scale_vs_colmap_max
+    scale = (MISSING if not math.isfinite(lo)
+             else f"{cell(lo, 3)} - {cell(hi, 3)} ({cell(hi / lo, 3)})")
+    return [r.method, cell(r.rot_vs_gt_deg),
+            pair(r.orient_vs_gt_median_deg, r.orient_vs_gt_max_deg), cell(r.rot_vs_colmap_deg),
+            pair(r.orient_vs_colmap_median_deg, r.orient_vs_colmap_max_deg), scale]
 
 
 def format_reference_table(rows: Sequence[VOCompareRow]) -> str:
@@ -153,20 +163,13 @@ def format_reference_table(rows: Sequence[VOCompareRow]) -> str:
     ref = next((r.reference["ground truth"] for r in rows if "ground truth" in r.reference), {})
     gap = ref.get("relative_rotation", {}).get("gap_frames", DEFAULT_GAP)
     window = ref.get("window_scale", {}).get("window_frames", DEFAULT_WINDOW)
-    lines = [f"| method | rot. err / {gap} frames vs ground truth [deg] "
-             "| orientation vs ground truth, median / max [deg] "
-             f"| rot. err / {gap} frames vs COLMAP [deg] "
-             "| orientation vs COLMAP, median / max [deg] "
-             f"| window scale onto COLMAP, {window}-frame windows, min - max (spread) |",
-             "|---|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        lo, hi = r.window_scale_vs_colmap_min, r.window_scale_vs_colmap_max
-        scale = "-" if not math.isfinite(lo) else f"{lo:.3f} - {hi:.3f} ({hi / lo:.3f})"
-        lines.append(f"| {r.method} | {_f(r.rot_vs_gt_deg, 2)} | "
-                     f"{_pair(r.orient_vs_gt_median_deg, r.orient_vs_gt_max_deg, 2)} | "
-                     f"{_f(r.rot_vs_colmap_deg, 2)} | "
-                     f"{_pair(r.orient_vs_colmap_median_deg, r.orient_vs_colmap_max_deg, 2)} | "
-                     f"{scale} |")
+    lines = markdown_table(["method", f"rot. err / {gap} frames vs ground truth [deg]",
+                            "orientation vs ground truth, median / max [deg]",
+                            f"rot. err / {gap} frames vs COLMAP [deg]",
+                            "orientation vs COLMAP, median / max [deg]",
+                            f"window scale onto COLMAP, {window}-frame windows, "
+                            "min - max (spread)"],
+                           map(_reference_row, rows), "l" + "r" * 5)
     lines += ["", f"Rot. err: mean angle of (R_i^T R_i+{gap})^-1 (R_ref,i^T R_ref,i+{gap}) over "
               "the frames posed in both. Orientation: per-frame angle after the best constant "
               "rotation (chordal mean). Window scale: the Sim(3) (Umeyama) scale taking the "

@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 from typing import Dict, Iterator, List, Optional, Sequence
 
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_table
 
 __all__ = ["palindrome", "synthetic_frames", "clip_frames", "measure", "growth_per_1000",
            "memory_report", "MemoryReport", "build_parser", "run", "main"]
@@ -136,9 +137,9 @@ class MemoryReport:
 
     def table(self) -> str:
         """Markdown rows (frames, RSS, peak RSS in MiB) and the two growth lines."""
-        lines = ["| frames | RSS MiB | peak RSS MiB |\n|---|---|---|"]
-        for r in self.data["checkpoints"]:
-            lines.append(f"| {r['frames']} | {r['rss_mb']:.1f} | {r['peak_rss_mb']:.1f} |")
+        lines = markdown_table(["frames", "RSS MiB", "peak RSS MiB"],
+                               [[cell(r["frames"]), cell(r["rss_mb"], 1), cell(r["peak_rss_mb"], 1)]
+                                for r in self.data["checkpoints"]])
         for key in ("rss_growth_mb_per_1000_frames", "peak_growth_mb_per_1000_frames"):
             v = self.data[key]
             lines.append(f"{key}: {'n/a' if v is None else f'{v:.1f}'}")

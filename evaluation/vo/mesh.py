@@ -38,6 +38,7 @@ from typing import Dict, Iterator, Optional, Sequence
 
 import numpy as np
 
+from spgeo.evaluation.tables import cell, markdown_table
 from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
                                      run_protocol, run_vo_dataset)
 
@@ -262,13 +263,12 @@ def _write_meshes(out: Path, est, aligned_vertices: np.ndarray, ref) -> None:
 
 def _table(res: Dict[str, object]) -> str:
     thr = res["rows"][0]["threshold"]
-    lines = ["| mesh (keyframes with depth) | accuracy (cm) | accuracy median (cm) | "
-             f"completion (cm) | completeness (< {100 * thr:.0f} cm) | chamfer (cm) |",
-             "|---|---|---|---|---|---|"]
-    for r in res["rows"]:
-        lines.append(f"| {r['mesh']} | {100 * r['accuracy']:.2f} | "
-                     f"{100 * r['accuracy_median']:.2f} | {100 * r['completion']:.2f} | "
-                     f"{100 * r['completeness']:.1f} % | {100 * r['chamfer']:.2f} |")
+    lines = markdown_table(
+        ["mesh (keyframes with depth)", "accuracy (cm)", "accuracy median (cm)",
+         "completion (cm)", f"completeness (< {100 * thr:.0f} cm)", "chamfer (cm)"],
+        [[r["mesh"], cell(100 * r["accuracy"]), cell(100 * r["accuracy_median"]),
+          cell(100 * r["completion"]), cell(100 * r["completeness"], "{:.1f} %"),
+          cell(100 * r["chamfer"])] for r in res["rows"]])
     lines.append(
         f"{res['n_frames']} frames, {res['n_keyframes']} keyframes ({res['vo']['n_views']} "
         f"fused), ATE RMSE {res['ate_rmse_m']:.4f} m; VO mesh {res['vo']['n_triangles']} "

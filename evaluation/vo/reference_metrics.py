@@ -48,6 +48,7 @@ from spgeo.similarity import sim3_parts, umeyama
 from spgeo.trajectory import Trajectory
 
 from spgeo.evaluation.pose_metrics import relative_pose_errors, rotation_error_deg
+from spgeo.evaluation.tables import MISSING, cell, markdown_table
 from spgeo.evaluation.trajectory import AteResult, ate_sim3, default_max_time_diff
 
 __all__ = ["DEFAULT_GAP", "DEFAULT_WINDOW", "AssociatedPoses", "associate_poses",
@@ -414,16 +415,16 @@ class ReferenceComparison:
     def table(self) -> str:
         """Markdown: one line per metric."""
         rr, o, w = self.relative_rotation, self.orientation, self.window_scale
-        ate = "-" if self.ate is None else f"{self.ate.rmse:.4f} ({self.ate.n_associated} poses)"
-        return "\n".join([
-            f"| against {self.reference} | value |", "|---|---|",
-            f"| relative rotation / {rr.gap} frames, mean / median / max [deg] | "
-            f"{rr.mean_deg:.2f} / {rr.median_deg:.2f} / {rr.max_deg:.2f} ({rr.n} pairs) |",
-            f"| orientation after best constant rotation, median / max [deg] | "
-            f"{o.median_deg:.2f} / {o.max_deg:.2f} ({o.n} frames) |",
-            f"| scale over {w.window}-frame windows, min - max (spread) | "
-            f"{w.min:.3f} - {w.max:.3f} ({w.spread:.3f}, {w.n_windows} windows) |",
-            f"| Sim(3) ATE RMSE | {ate} |"])
+        ate = (MISSING if self.ate is None
+               else f"{cell(self.ate.rmse, 4)} ({self.ate.n_associated} poses)")
+        return "\n".join(markdown_table([f"against {self.reference}", "value"], [
+            [f"relative rotation / {rr.gap} frames, mean / median / max [deg]",
+             f"{cell(rr.mean_deg)} / {cell(rr.median_deg)} / {cell(rr.max_deg)} ({rr.n} pairs)"],
+            ["orientation after best constant rotation, median / max [deg]",
+             f"{cell(o.median_deg)} / {cell(o.max_deg)} ({o.n} frames)"],
+            [f"scale over {w.window}-frame windows, min - max (spread)",
+             f"{cell(w.min, 3)} - {cell(w.max, 3)} ({cell(w.spread, 3)}, {w.n_windows} windows)"],
+            ["Sim(3) ATE RMSE", ate]]))
 
 
 def compare_to_reference(est, ref, reference: str = "reference", gap: int = DEFAULT_GAP,

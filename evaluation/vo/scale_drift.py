@@ -21,6 +21,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from spgeo.evaluation.tables import cell, markdown_table
 from spgeo.evaluation.runner import (add_vo_arguments, open_sequence, protocol_parser,
                                      run_protocol, run_vo_dataset)
 
@@ -79,12 +80,11 @@ class ScaleDriftResult:
         """Markdown: one line per keyframe (frame, ratio, ratio relative to keyframe 0's,
         ground-truth / estimated baseline or ``-``)."""
         r0 = self.ratios[0][1]
-        lines = ["| frame | sensor / keyframe depth | relative to keyframe 0 | "
-                 "GT / estimated baseline |", "|---|---|---|---|"]
-        for f, r in self.ratios:
-            b = self.baselines.get(f)
-            lines.append(f"| {f} | {r:.3f} | {r / r0:.3f} | {'-' if b is None else f'{b:.3f}'} |")
-        return "\n".join(lines)
+        return "\n".join(markdown_table(
+            ["frame", "sensor / keyframe depth", "relative to keyframe 0",
+             "GT / estimated baseline"],
+            [[cell(f), cell(r, 3), cell(r / r0, 3), cell(self.baselines.get(f), 3)]
+             for f, r in self.ratios]))
 
 
 def scale_drift(run, frames) -> ScaleDriftResult:

@@ -52,6 +52,7 @@ from spgeo.jsonio import json_default
 from spgeo.evaluation.jobs import (EvalTable, Job, RunnerConfig, add_runner_arguments, provenance,
                                    run_jobs, runner_config)
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import MISSING, cell, markdown_table
 
 from .compare import (METHODS, ORACLE_METHODS, VOCompareConfig, VOCompareRow, compare_vo,
                       write_results)
@@ -352,8 +353,21 @@ def fr1_table(report: FR1Report, prov: Optional[dict] = None) -> EvalTable:
                           "tracked = fraction of frames posed.")
 
 
-def _fmt(v: float) -> str:
-    return "-" if not math.isfinite(v) else f"{v:.3f}"
+def _fr1_row(s: FR1SequenceResult, methods: Sequence[str]) -> List[str]:
+    """A sequence's cells of :func:`format_fr1_table` before the paper columns:
+    name, frames and per method ``ATE (tracked %)`` (``failed (..%)`` without an
+    ATE, ``-`` where the method did not run, ``skipped`` for a skipped sequence)."""
+    if s.skipped:
+        return [f"fr1/{s.name}", MISSING] + ["skipped"] * len(methods)
+    cells = [f"fr1/{s.name}", cell(s.n_frames)]
+    for m in methods:
+        row = next((r for r in s.rows if r.method == m), None)
+        if row is None:
+            cells.append(MISSING)
+            continue
+        ate = cell(row.ate_rmse_m, 3) if math.isfinite(row.ate_rmse_m) else "failed"
+        cells.append(f"{ate} ({cell(100 * row.tracked_fraction, '{:.0f}%')})")
+    return cells
 
 
 def format_fr1_table(report: FR1Report) -> str:
@@ -362,33 +376,12 @@ def format_fr1_table(report: FR1Report) -> str:
     as reference columns (per-sequence paper numbers: 'n/a')."""
     ours = list(report.methods)
     paper = list(PAPER_MEAN_ATE_M)
-    head = "| sequence | frames | " + " | ".join(ours) + " | " + \
-        " | ".join(f"paper: {p}" for p in paper) + " |"
-    sep = "|---|---:|" + "---:|" * (len(ours) + len(paper))
-    lines = [head, sep]
-    for s in report.sequences:
-        if s.skipped:
-            cells = ["skipped"] * len(ours)
-            frames = "-"
-        else:
-            cells = []
-            for m in ours:
-                row = next((r for r in s.rows if r.method == m), None)
-                if row is None:
-                    cells.append("-")
-                elif not math.isfinite(row.ate_rmse_m):
-                    cells.append(f"failed ({100 * row.tracked_fraction:.0f}%)")
-                else:
-                    cells.append(f"{row.ate_rmse_m:.3f} ({100 * row.tracked_fraction:.0f}%)")
-            frames = str(s.n_frames)
-        lines.append(f"| fr1/{s.name} | {frames} | " + " | ".join(cells) + " | " +
-                     " | ".join("n/a" for _ in paper) + " |")
-    means = []
-    for m in ours:
-        v, k = report.mean_ate(m)
-        means.append(f"{_fmt(v)} ({k}/{len(FR1_SEQUENCES)} seq)")
-    lines.append("| **mean** | | " + " | ".join(means) + " | " +
-                 " | ".join(f"{PAPER_MEAN_ATE_M[p]:.3f} (8 seq)" for p in paper) + " |")
+    rows = [_fr1_row(s, ours) + ["n/a"] * len(paper) for s in report.sequences]
+    means = [f"{cell(v, 3)} ({k}/{len(FR1_SEQUENCES)} seq)" for v, k in map(report.mean_ate, ours)]
+    rows.append(["**mean**", ""] + means
+                + [f"{cell(PAPER_MEAN_ATE_M[p], 3)} (8 seq)" for p in paper])
+    lines = markdown_table(["sequence", "frames"] + ours + [f"paper: {p}" for p in paper], rows,
+                           "l" + "r" * (1 + len(ours) + len(paper)))
     c = report.config
     lines += ["",
               "Per-frame ATE RMSE in metres after Sim(3) alignment (evo Umeyama, scale "
