@@ -135,6 +135,11 @@ class PhotometricFactorGroup:
         them) and the group is freed with the last of them; ``factors`` is
         empty."""
         self.factors = []
+        self.forget_cache()
+
+    def forget_cache(self) -> None:
+        """Drop the cached evaluation (repeated calls at equal values are served from
+        it): the next call evaluates again (a benchmark times every call)."""
         self._cache = None
 
     def evaluate(self, T_world_ref: np.ndarray, T_world_tgt: np.ndarray, thetas: np.ndarray,

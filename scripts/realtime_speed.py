@@ -36,25 +36,31 @@ def clip_arguments(ap: argparse.ArgumentParser) -> None:
                                           / "shared/data/7scenes_redkitchen_dev"))
     ap.add_argument("--dataset", default="7scenes")
     ap.add_argument("--frames", default="0:300")
-    ap.add_argument("--mapping", default=None, help="OdometryConfig.mapping (default: the default)")
+    ap.add_argument("--mapping", default=None,
+                    help="OdometryConfig.mapping.mode (default: the default)")
     ap.add_argument("--schedule", default=None,
-                    help="OdometryConfig.mapping_schedule (default: the default; checkouts "
+                    help="OdometryConfig.mapping.schedule (default: the default; checkouts "
                          "before issue 37 have none)")
 
 
 def clip_and_config(args: argparse.Namespace):
     """``(frames decoded in memory, OdometryConfig)`` of :func:`clip_arguments`'
-    values (``mapping`` and ``mapping_schedule`` set only when given: older checkouts
-    have no such fields)."""
+    values (``mapping.mode`` and ``mapping.schedule`` set only when given: checkouts
+    before issue 50 name them ``mapping`` and ``mapping_schedule``, older ones have no
+    schedule)."""
     from spgeo.datasets import open_dataset
     from spgeo.vo import OdometryConfig
 
     frames = list(open_dataset(args.dataset, args.data, frames=args.frames))
     odo = OdometryConfig()
+    grouped = hasattr(odo.mapping, "mode")
     if args.mapping is not None:
-        odo = dataclasses.replace(odo, mapping=args.mapping)
+        odo = dataclasses.replace(odo, mapping=dataclasses.replace(odo.mapping, mode=args.mapping)
+                                  if grouped else args.mapping)
     if args.schedule is not None:
-        odo = dataclasses.replace(odo, mapping_schedule=args.schedule)
+        odo = (dataclasses.replace(odo, mapping=dataclasses.replace(odo.mapping,
+                                                                    schedule=args.schedule))
+               if grouped else dataclasses.replace(odo, mapping_schedule=args.schedule))
     return frames, odo
 
 

@@ -22,7 +22,7 @@ from spgeo.camera import PinholeCamera
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose
 from spgeo.synthetic.road import straight_street
-from spgeo.vo import Odometry, OdometryConfig
+from spgeo.vo import MappingConfig, Odometry, OdometryConfig
 from spgeo.vo.tracking import track_frame
 
 
@@ -50,7 +50,7 @@ def main(n: int = 31) -> None:
     poses = road.drive()[:n + 3]
     cam = synthetic.street_camera()
     frames = synthetic.render_frames(road.scene, cam, poses, supersample=2)
-    vo = Odometry(cam, OdometryConfig(mapping="inline"),
+    vo = Odometry(cam, OdometryConfig(mapping=MappingConfig(mode="inline")),
                   make_frontend("classical", FrontEndConfig(working_size=(cam.width, cam.height))))
     for f in frames[:n]:
         vo.track(f)

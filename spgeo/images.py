@@ -14,7 +14,7 @@ from .validation import InputError, read_image_bytes
 
 __all__ = [
     "to_float_image", "to_gray", "read_raw_image", "load_image", "blur121", "gaussian_pyramid", "Pyramid",
-    "scharr_gradients", "sample_bilinear",
+    "scharr_gradients", "sample_bilinear", "featureless",
 ]
 
 _GREY_WEIGHTS = np.array([0.299, 0.587, 0.114], dtype=np.float32)
@@ -197,3 +197,11 @@ def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray,
         gu = np.where(vmask, (i01 - i00) * (1 - av_) + (i11 - i10) * av_, 0.0)
         gv = np.where(vmask, bot - top, 0.0)
     return values, valid, (gu, gv)
+
+
+def featureless(image: np.ndarray) -> bool:
+    """Whether ``image`` is (nearly) constant: its standard deviation under 1e-3 of
+    its largest magnitude (at least 1), e.g. a covered lens (the VO never
+    re-initialises a map from one)."""
+    grey = np.asarray(image, dtype=np.float64)
+    return float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0)

@@ -92,14 +92,14 @@ def vo_run(scene_frames):
     """The classical (monocular) VO on 40 frames (every second pose of an
     80-pose trajectory), window 3 so that keyframe 0 is retired to the keyframe
     store before the fusion."""
-    from spgeo.vo import OdometryConfig
+    from spgeo.vo import OdometryConfig, MappingConfig
 
     scene, _ = scene_frames
     frames = synthetic.render_frames(scene, CAM, synthetic.make_trajectory(80, 0)[::2],
                                      supersample=2)
     # inline mapping: this tests the fusion of a fixed map (live maps vary with timing)
     cfg = VORunConfig(progress=False, odometry=OdometryConfig(resolution=(160, 120), window=3,
-                                                              mapping="inline"))
+                                                              mapping=MappingConfig(mode="inline")))
     return run_odometry(frames, cfg)
 
 

@@ -34,7 +34,7 @@ and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
   ``spgeo/vo/odometry.py`` (the per-frame state machine) at most 350.
 * One mapping port: the odometry (``spgeo/vo/odometry.py`` and its read side
   ``spgeo/vo/readout.py``) names the mapping mode at most twice in code (an attribute
-  ``mapping`` / ``mapping_in_worker`` / ``mapping_schedule``, or the strings ``"live"`` /
+  ``mode`` / ``in_worker`` / ``schedule`` (of ``OdometryConfig.mapping``), or the strings ``"live"`` /
   ``"inline"``; docstrings do not count): live and inline differ in the port only.
 * One key scheme: no module of ``spgeo/`` or ``factors/`` but ``spgeo/graph/keys.py`` makes a
   gtsam key (``gtsam.symbol`` / ``gtsam.Symbol`` / ``gtsam.symbol_shorthand``, also when
@@ -46,6 +46,16 @@ and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
   (``U @ Vt``, ``U @ D @ Vt``, ``np.dot`` / ``np.matmul`` too).  Other SVD uses pass: a
   null vector (triangulation, ``_, _, vt = ...``), a fit that uses the singular values
   (Umeyama's scale in :mod:`spgeo.similarity`).
+* One tracking decision: no module of ``spgeo/`` or ``factors/`` but
+  ``spgeo/vo/frame_tracker.py`` calls ``track_frame`` (the photometric tracker), except
+  ``spgeo/vo/scale_check.py``, whose reverse scale check tracks the previous keyframe's
+  image against a new keyframe (a measurement of its scale, not a frame of the run).
+* One keyframe policy: the thresholds of ``KeyframeDecisionConfig`` are read (``<x>.keyframe.
+  <threshold>``) only in ``spgeo/vo/keyframe_policy.py``.
+* No private reads across objects: in ``spgeo/``, ``factors/`` and ``evaluation/`` an
+  attribute ``_name`` (not a dunder) is read only from ``self`` or ``cls``: an object hands
+  what another needs (the odometry's read side is given its parts, not reading them).
+* ``OdometryConfig`` has at most 22 top-level fields (groups for the rest).
 """
 from __future__ import annotations
 
@@ -625,7 +635,7 @@ def test_functions_at_most_60_lines_of_code():
 MAX_MODULE_LINES = 600
 MAX_ODOMETRY_LINES = 350
 ODOMETRY_MODULES = ("spgeo/vo/odometry.py", "spgeo/vo/readout.py")
-MODE_ATTRIBUTES = {"mapping", "mapping_in_worker", "mapping_schedule"}
+MODE_ATTRIBUTES = {"mode", "in_worker", "schedule"}
 MODE_STRINGS = {"live", "inline"}
 
 
@@ -657,10 +667,10 @@ def mode_mentions(source: str) -> List[int]:
 
 def test_mode_scanner():
     source = ('"""live and inline in a docstring do not count"""\n'
-              "a = config.mapping\n"                        # line 2
-              "b = cfg.mapping_in_worker or x == 'live'\n"   # line 3, twice
+              "a = config.mapping.mode\n"                   # line 2
+              "b = cfg.mapping.in_worker or x == 'live'\n"   # line 3, twice
               "c = 'inline'\n"                               # line 4
-              "d = config.mapping_lead\n")
+              "d = config.mapping.lead\n")
     assert mode_mentions(source) == [2, 3, 3, 4]
 
 
@@ -736,3 +746,87 @@ def test_one_rotation_projection():
     assert not offenders, (f"projections onto a rotation by SVD are made only in "
                            f"{ROTATION_MODULE} (use spgeo.geometry.nearest_rotation):\n"
                            + "\n".join(offenders))
+
+
+TRACKER_MODULE = "spgeo/vo/frame_tracker.py"     # the one tracking decision
+TRACK_EXCEPTIONS = {"spgeo/vo/scale_check.py"}   # tracks a keyframe image, not a frame
+POLICY_MODULE = "spgeo/vo/keyframe_policy.py"     # the one keyframe policy
+MAX_ODOMETRY_FIELDS = 22
+
+
+def call_lines(source: str, name: str) -> List[int]:
+    """Lines of ``source`` that call a function named ``name`` (by name or attribute)."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call):
+            f = node.func
+            if (isinstance(f, ast.Name) and f.id == name) or (
+                    isinstance(f, ast.Attribute) and f.attr == name):
+                lines.append(node.lineno)
+    return sorted(lines)
+
+
+def threshold_reads(source: str, fields: Set[str]) -> List[int]:
+    """Lines of ``source`` reading ``<x>.keyframe.<f>`` for ``f`` in ``fields``."""
+    return sorted(node.lineno for node in ast.walk(ast.parse(source))
+                  if isinstance(node, ast.Attribute) and node.attr in fields
+                  and isinstance(node.value, ast.Attribute) and node.value.attr == "keyframe")
+
+
+def private_reads(source: str) -> List[int]:
+    """Lines of ``source`` with an attribute ``_name`` (not a dunder) of anything but
+    ``self`` / ``cls``."""
+    return sorted(node.lineno for node in ast.walk(ast.parse(source))
+                  if isinstance(node, ast.Attribute) and node.attr.startswith("_")
+                  and not node.attr.startswith("__")
+                  and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")))
+
+
+def test_decision_scanners():
+    source = ("from spgeo.vo.tracking import track_frame\n"
+              "tr = track_frame(kf, img, T)\n"                        # line 2
+              "tr = tracking.track_frame(kf, img, T)\n"               # line 3
+              "ok = cfg.keyframe.max_translation > 1\n"               # line 4
+              "no = cfg.tracker.min_valid_fraction\n"
+              "x = self._map\n"
+              "y = vo._map.latest\n"                                  # line 7
+              "z = obj.__class__\n")
+    assert call_lines(source, "track_frame") == [2, 3]
+    assert threshold_reads(source, {"max_translation", "min_valid_fraction"}) == [4]
+    assert private_reads(source) == [7]
+
+
+def test_one_tracking_decision():
+    files = [p for folder in ("spgeo", "factors") for p in _python_files(folder)]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 if path.relative_to(ROOT).as_posix() not in TRACK_EXCEPTIONS | {TRACKER_MODULE}
+                 for line in call_lines(path.read_text(encoding="utf-8"), "track_frame")]
+    assert call_lines((ROOT / TRACKER_MODULE).read_text(encoding="utf-8"), "track_frame")
+    assert not offenders, (f"frames are tracked only through {TRACKER_MODULE} "
+                           "(FrameTracker.track):\n" + "\n".join(offenders))
+
+
+def test_one_keyframe_policy():
+    from spgeo.vo.config import KeyframeDecisionConfig
+    import dataclasses
+    fields = {f.name for f in dataclasses.fields(KeyframeDecisionConfig)}
+    files = [p for p in _python_files("spgeo") if p != ROOT / POLICY_MODULE]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 for line in threshold_reads(path.read_text(encoding="utf-8"), fields)]
+    assert not offenders, (f"the keyframe thresholds are read only in {POLICY_MODULE} "
+                           "(KeyframePolicy):\n" + "\n".join(offenders))
+
+
+def test_no_private_reads_across_objects():
+    files = [p for folder in ("spgeo", "factors", "evaluation") for p in _python_files(folder)]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 for line in private_reads(path.read_text(encoding="utf-8"))]
+    assert not offenders, ("private attributes are read from self / cls only (hand an object "
+                           "what it needs):\n" + "\n".join(offenders))
+
+
+def test_odometry_config_has_few_top_level_fields():
+    import dataclasses
+    from spgeo.vo.config import OdometryConfig
+    n = len(dataclasses.fields(OdometryConfig))
+    assert n <= MAX_ODOMETRY_FIELDS, f"OdometryConfig has {n} top-level fields"

@@ -12,8 +12,7 @@ from spgeo import synthetic
 from spgeo.evaluation.trajectory import ate_sim3
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.validation import InputError
-from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
-from spgeo.vo.odometry import MAX_LEAD_FRAMES
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig, MappingConfig
 from spgeo.vo.mapping_port import InProcessPort
 from spgeo.vo.mapping_worker import MappingJob, MappingWorker, MappingWorkerError
 
@@ -30,7 +29,7 @@ def frames():
 
 def _run(frames, mapping, wait=False):
     fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
-    cfg = OdometryConfig(mapping=mapping, keyframe=KeyframeDecisionConfig(max_translation=0.1))
+    cfg = OdometryConfig(mapping=MappingConfig(mode=mapping), keyframe=KeyframeDecisionConfig(max_translation=0.1))
     with Odometry(CAM, cfg, fe, wait_for_mapper=wait) as vo:
         for f in frames:
             vo.track(f)
@@ -71,7 +70,7 @@ def test_live_mapping_is_as_accurate_and_reports_itself(frames, inline):
     """Tracking goes on while the worker solves: the trajectory stays within the
     inline one's accuracy (small tolerance: live timing varies), and report.json
     says how many frames were tracked against a map whose update was pending (at most
-    MAX_LEAD_FRAMES after each new keyframe)."""
+    OdometryConfig.mapping.lead after each new keyframe)."""
     res, rep, _ = _run(frames, "live")
     ate0, ate = _ate(frames, inline[0]), _ate(frames, res)
     assert ate < 1.5 * ate0 + 0.01, (ate, ate0)
@@ -79,26 +78,26 @@ def test_live_mapping_is_as_accurate_and_reports_itself(frames, inline):
     assert rep["mapping_mode"] == "live"
     assert live["updates"] == rep["n_keyframes"] - 1
     assert 0 <= live["frames_tracked_against_older_map"] < N_FRAMES
-    # the tracker never runs more than MAX_LEAD_FRAMES ahead of its map
-    assert 0 <= live["latency_frames_max"] <= MAX_LEAD_FRAMES and live["worker_peak_rss_mib"] > 0
+    # the tracker never runs more than the mapping lead ahead of its map
+    assert 0 <= live["latency_frames_max"] <= OdometryConfig().mapping.lead and live["worker_peak_rss_mib"] > 0
     assert set(live["worker_seconds"]) >= {"landmarks", "mapping"}
 
 
 def test_live_smoother_is_out_of_reach_and_config_checked():
     fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
     with Odometry(CAM, OdometryConfig(), fe) as vo:
-        with pytest.raises(RuntimeError, match="mapping='inline'"):
+        with pytest.raises(RuntimeError, match="mode='inline'"):
             vo.smoother_estimate()
-    with pytest.raises(InputError, match="mapping"):
-        OdometryConfig(mapping="threads")
-    with pytest.raises(InputError, match="mapping_schedule"):
-        OdometryConfig(mapping_schedule="soon")
-    with pytest.raises(InputError, match="mapping_lead"):
-        OdometryConfig(mapping_lead=-1)
+    with pytest.raises(InputError, match="mapping.mode"):
+        MappingConfig(mode="threads")
+    with pytest.raises(InputError, match="mapping.schedule"):
+        MappingConfig(schedule="soon")
+    with pytest.raises(InputError, match="mapping.lead"):
+        OdometryConfig(mapping=MappingConfig(lead=-1))
     # loop closure runs behind the port (issue 37): live mapping stays live with it
     cfg = OdometryConfig(loop_closure=dataclasses.replace(OdometryConfig().loop_closure,
                                                           enabled=True))
-    assert cfg.mapping_in_worker and OdometryConfig().mapping_in_worker
+    assert cfg.mapping.in_worker and OdometryConfig().mapping.in_worker
 
 
 def test_worker_imports_the_callers_spgeo_from_any_directory(tmp_path, monkeypatch):
@@ -174,7 +173,8 @@ def _run_port(frames, make, returned=None):
     """``(result, report)`` of the VO over ``frames`` with the port ``make(cam, cfg)``
     (None: the default); ``returned`` (a list) receives the online results."""
     fe = make_frontend("classical", FrontEndConfig(working_size=(160, 120)))
-    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1), mapping_lead=3)
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1),
+                         mapping=MappingConfig(lead=3))
     cam = CAM.resized(*cfg.processing_size_for(CAM.size))
     with Odometry(CAM, cfg, fe, port=make(cam, cfg) if make else None) as vo:
         for f in frames:
@@ -185,10 +185,10 @@ def _run_port(frames, make, returned=None):
 
 
 def test_the_fixed_schedule_gives_one_trajectory_whatever_the_timing(frames):
-    """Recorded input (issue 37): an update is applied mapping_lead frames after its
+    """Recorded input (issue 37): an update is applied mapping.lead frames after its
     keyframe, waited for when not ready, so a slow and a fast back end, in this
     process or in the worker, give the same trajectory bit for bit; the updates
-    arrive at most mapping_lead frames after their keyframe, and some arrive later
+    arrive at most mapping.lead frames after their keyframe, and some arrive later
     than the next frame (the map is live, not inline)."""
     runs = [_run_port(frames, lambda cam, cfg: _SlowPort(cam, cfg, lead=3)),
             _run_port(frames, lambda cam, cfg: _FastPort(cam, cfg, lead=3)),

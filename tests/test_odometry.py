@@ -12,7 +12,7 @@ from spgeo.evaluation.trajectory import ate_sim3, read_status, read_tum
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.graph.keys import pose_key, scale_key
-from spgeo.vo import InitConfig, KeyframeDecisionConfig, Odometry, OdometryConfig
+from spgeo.vo import InitConfig, KeyframeDecisionConfig, Odometry, OdometryConfig, MappingConfig
 
 log = logging.getLogger(__name__)
 CAM = synthetic.default_camera(160, 120)
@@ -48,7 +48,7 @@ def run_frequent_kf(frames):
     """As ``run`` with keyframes every 0.1 median depths of translation (3
     keyframes on this sequence, so two mapping updates)."""
     vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1),
-                                      mapping="inline"), frontend())
+                                      mapping=MappingConfig(mode="inline")), frontend())
     for i, f in enumerate(frames):
         if i == BLANK:
             f = Frame(np.zeros_like(f.image), CAM, f.timestamp, depth=f.depth, name="blank")
@@ -125,8 +125,8 @@ def test_fixed_lag_marginalises_old_keyframes(frames):
     """Default 5-keyframe window; frequent keyframes (relative-cost threshold
     0.08, 3 LM iterations per update, for test time): once more than 5 keyframes exist, the oldest keyframes' keys
     have left the smoother (marginalised) and exactly the last 5 remain."""
-    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08), map_iterations=3,
-                         mapping="inline")   # the smoother is reached
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08), 
+                         mapping=MappingConfig(iterations=3, mode="inline"))   # the smoother is reached
     vo = Odometry(CAM, cfg, frontend())
     for f in frames:
         vo.track(f)
@@ -153,7 +153,7 @@ def test_bad_input_raises(frames):
         Odometry(CAM, OdometryConfig(), None)
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
-    for bad in ({"map_pixel_fraction": 0.0}, {"init": InitConfig(min_gap=0)},
+    for bad in ({"mapping": MappingConfig(pixel_fraction=0.0)}, {"init": InitConfig(min_gap=0)},
                 {"init": InitConfig(min_gap=31)}, {"init": InitConfig(extra_views=-1)},
                 {"render_prior_weight": 0.0}):
         with pytest.raises(ValueError):
@@ -266,7 +266,7 @@ def test_mapping_failure_restarts_the_window(frames, caplog):
 
     # keyframes every 0.1 median depths: a third keyframe maps after the failure
     vo = Odometry(CAM, OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.1),
-                                      mapping="inline"), frontend())
+                                      mapping=MappingConfig(mode="inline")), frontend())
     injected = False
     for i, f in enumerate(frames):
         if not injected and len(vo.keyframes) >= 2:

@@ -19,7 +19,7 @@ from spgeo.apps.vo_run import VORunConfig, run_odometry
 from spgeo.cli import main
 from spgeo.io.outputs import MANIFEST, FileInfo, StagedFolder, describe_folder, read_manifest
 from spgeo.trajectory import Trajectory
-from spgeo.vo import OdometryConfig
+from spgeo.vo import OdometryConfig, MappingConfig
 
 N = 10
 CAM = synthetic.default_camera(160, 120)
@@ -195,7 +195,8 @@ def test_from_ground_truth_leaves_out_frames_without_one():
 @pytest.fixture(scope="module")
 def library_run(frames):
     cfg = VORunConfig(frontend="depth", progress=False,
-                      odometry=OdometryConfig(resolution=(160, 120), mapping="inline"))
+                      odometry=OdometryConfig(resolution=(160, 120),
+                                                       mapping=MappingConfig(mode="inline")))
     return run_odometry(frames, cfg)
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from spgeo import synthetic
 from spgeo.frontend import make_frontend
-from spgeo.vo import OdometryConfig
+from spgeo.vo import OdometryConfig, MappingConfig
 from spgeo.graph.keys import pose_key, scale_key, support_brightness_key, support_pose_key
 from spgeo.vo.map import MapKeyframe
 from spgeo.vo.smoother import WindowMapper
@@ -138,9 +138,9 @@ def test_keyframe_levels_use_the_selection(keyframe_pair):
 def test_tracker_and_mapping_factors_share_pixels_and_cost(keyframe_pair, level):
     """With the tracker's pixel selection on the keyframe, the tracker's cost on
     all pixels of a level equals the error of the mapper's photometric factors
-    (same level, same pixels: mapping uses every pixel of ``map_level``)."""
+    (same level, same pixels: mapping uses every pixel of ``mapping.level``)."""
     cam, image, prims, T_kf, T_f, frame = keyframe_pair
-    cfg = OdometryConfig(pixel_budget=600, map_level=level)
+    cfg = OdometryConfig(pixel_budget=600, mapping=MappingConfig(level=level))
     kf = Keyframe.build(image, prims, T_kf, cfg.keyframe_levels, cfg.selection)
     mkf = MapKeyframe(0, 0, image, kf)
     mapper = WindowMapper(cfg)

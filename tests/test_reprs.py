@@ -5,7 +5,7 @@ import pytest
 
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_odometry
-from spgeo.vo import OdometryConfig
+from spgeo.vo import OdometryConfig, MappingConfig
 
 #: longest repr accepted (a few hundred characters, one line)
 MAX_REPR = 400
@@ -106,5 +106,5 @@ def test_empty_trajectory_and_odometry():
     assert _bounded(empty).startswith("Trajectory(0 frames, 0 keyframes, t -, status {}")
     assert "<table>" in empty._repr_html_() and empty.finite.shape == (0,)
     cam = synthetic.default_camera(160, 120)
-    with Odometry(cam, OdometryConfig(mapping="inline"), make_frontend("classical")) as vo:
+    with Odometry(cam, OdometryConfig(mapping=MappingConfig(mode="inline")), make_frontend("classical")) as vo:
         assert _bounded(vo).startswith("Odometry(160x120, 0 frames, 0 keyframes")

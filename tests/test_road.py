@@ -135,10 +135,10 @@ def test_straight_street_is_tracked_with_the_feature_check(street_frames):
     from dataclasses import replace
 
     from spgeo.evaluation.kitti_metrics import kitti_relative_errors
-    from spgeo.vo import OdometryConfig
+    from spgeo.vo import MappingConfig, OdometryConfig
     from spgeo.vo.feature_retry import FeatureRetryConfig
 
-    cfg = OdometryConfig(mapping="inline")
+    cfg = OdometryConfig(mapping=MappingConfig(mode="inline"))
     status, res = _drive(street_frames, cfg)
     first = next(i for i in range(1, len(status)) if status[i] not in ("init", "lost"))
     assert first <= 2 and "lost" not in status[first:], status

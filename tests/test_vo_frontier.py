@@ -12,19 +12,19 @@ from spgeo.evaluation.vo.frontier import (COLUMNS, Cell, main, make_grid, markdo
 
 def test_parse_setting_splits_on_field_names_only():
     assert parse_setting("defaults") == [] and parse_setting("  ") == []
-    assert parse_setting("map_level=0, tracker.levels=4") == ["map_level=0", "tracker.levels=4"]
+    assert parse_setting("mapping.level=0, tracker.levels=4") == ["mapping.level=0", "tracker.levels=4"]
     assert parse_setting("a=(1, 2) b=None,c='x y'") == ["a=(1, 2)", "b=None", "c='x y'"]
-    assert setting_config("map_level=0 tracker.levels=4").tracker.levels == 4
+    assert setting_config("mapping.level=0 tracker.levels=4").tracker.levels == 4
     with pytest.raises(ConfigError, match="unknown field 'no_such_field'"):
         setting_config("no_such_field=1")
 
 
 def test_make_grid_order_and_defaults():
     cells = make_grid(["7scenes", "synthetic"], ["classical"], [(160, 120), (320, 240)],
-                      ["defaults", "map_level=0"], seeds=[0, 1], sevenscenes="/x")
+                      ["defaults", "mapping.level=0"], seeds=[0, 1], sevenscenes="/x")
     assert len(cells) == 2 * 2 + 2 * 2 * 2
     assert cells[0] == Cell("7scenes", "classical", (160, 120), "defaults", 300, None, "/x")
-    assert cells[-1] == Cell("synthetic", "classical", (320, 240), "map_level=0", 150, 1)
+    assert cells[-1] == Cell("synthetic", "classical", (320, 240), "mapping.level=0", 150, 1)
     with pytest.raises(ValueError, match="unknown data set"):
         make_grid(["kitti"], ["classical"], [(160, 120)], [""])
 

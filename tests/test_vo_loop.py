@@ -8,7 +8,7 @@ from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.loop import LoopClosureConfig, LoopCorrection
 from spgeo.similarity import sim3, sim3_parts
-from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig, MappingConfig
 from spgeo.vo.landmarks import LandmarkConfig
 
 CAM = synthetic.default_camera(160, 120)
@@ -29,7 +29,8 @@ def _run(images, landmarks=True, mapping="inline", wait=False, **loop):
     said (runs compared bit for bit)."""
     cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
                          loop_closure=LoopClosureConfig(**loop),
-                         landmarks=LandmarkConfig(enabled=landmarks), mapping=mapping)
+                         landmarks=LandmarkConfig(enabled=landmarks),
+                         mapping=MappingConfig(mode=mapping))
     vo = Odometry(CAM, cfg, make_frontend("classical", FrontEndConfig(working_size=(160, 120))),
                   wait_for_mapper=wait)
     for i, im in enumerate(images):

@@ -12,7 +12,7 @@ from spgeo.evaluation.vo.memory import growth_per_1000, palindrome
 from spgeo.factors.photometric_group import PhotometricFactorGroup
 from spgeo.frame import Frame
 from spgeo.frontend import FrontEndConfig, make_frontend
-from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, Odometry, OdometryConfig, MappingConfig
 from spgeo.vo.keyframe_store import KeyframeStore
 from spgeo.vo.result import write_keyframe_clouds
 
@@ -46,7 +46,7 @@ def run():
     poses = synthetic.make_trajectory(60, 0)
     vo = Odometry(CAM, OdometryConfig(window=WINDOW,
                                       keyframe=KeyframeDecisionConfig(max_translation=0.02),
-                                      mapping="inline"),    # the groups are in this process
+                                      mapping=MappingConfig(mode="inline")),    # the groups are in this process
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     gc.collect()
     before = weakref.WeakSet(_groups())     # other tests' groups, still alive

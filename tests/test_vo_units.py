@@ -13,7 +13,7 @@ from spgeo import synthetic
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.geometry import invert_pose, rotation_angle_deg
 from spgeo.graph.keys import pose_key, scale_key
-from spgeo.vo import InitConfig, OdometryConfig
+from spgeo.vo import InitConfig, OdometryConfig, MappingConfig
 from spgeo.vo.initialisation import FAILED, START, WAIT, Initialiser
 from spgeo.vo.map import MapKeyframe, SupportCandidate
 from spgeo.vo.smoother import WindowMapper
@@ -94,7 +94,7 @@ def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, fro
     for r in dec.retracked:
         t_err, r_err = _pose_error(r.T_world_frame, frames[r.frame].T_world_cam)
         assert t_err < 0.01 and r_err < 0.5, (r.frame, t_err, r_err)
-        np.testing.assert_allclose(dec.keyframe0.T_world_kf @ r.T_kf0_frame, r.T_world_frame,
+        np.testing.assert_allclose(dec.keyframe0.T_world_kf @ r.T_kf_frame, r.T_world_frame,
                                    atol=1e-12)
     np.testing.assert_array_equal(dec.T_world_last, dec.retracked[-1].T_world_frame)
 
@@ -146,7 +146,7 @@ def test_initialiser_spaces_out_retries_after_a_failed_sfm(frames, frontend):
 def mapped(frames, frontend):
     """Keyframes 0, 3, 6, 9 of the frames (poses: ground truth, keyframe 3's
     moved 2 cm and 0.5 deg), mapped one by one in a window of 3."""
-    cfg = dataclasses.replace(INIT, window=3, map_iterations=5)
+    cfg = dataclasses.replace(INIT, window=3, mapping=MappingConfig(iterations=5))
     mapper = WindowMapper(cfg)
     kfs = []
     moved = frames[3].T_world_cam.copy()

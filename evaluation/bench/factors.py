@@ -142,7 +142,7 @@ def _graph_fns(args: argparse.Namespace):
 
         def run(method, g=graph, v=values, groups=groups):
             for grp in groups:      # a group serves repeated calls at equal values from cache
-                grp._cache = None
+                grp.forget_cache()
             return getattr(g, method)(v)
         fns[f"linearize {bk}"] = lambda run=run: run("linearize")
         fns[f"error {bk}"] = lambda run=run: run("error")

@@ -12,11 +12,11 @@ Four measurements on one rendered synthetic sequence
    chosen front-end): FPS over all frames, mapping seconds per keyframe and
    seconds per stage (tracking, front-end, mapping, two-view initialisation).
 3. *Mapping resolution*: the same pipeline mapping at full resolution on the
-   highest-gradient half of the pixels (``map_level=0``,
-   ``map_pixel_fraction=0.5``: slower, more accurate) beside the default
+   highest-gradient half of the pixels (``mapping.level=0``,
+   ``mapping.pixel_fraction=0.5``: slower, more accurate) beside the default
    (level 1, all pixels).
 4. *Mapping factor granularity*: the same pipeline with one gtsam factor per
-   primitive (``map_chunk=1``) vs the default chunks, mapping seconds per
+   primitive (``mapping.chunk=1``) vs the default chunks, mapping seconds per
    keyframe (same cost, see :class:`spgeo.factors.photometric_group.PhotometricFactorGroup`).
 
 ``--settings`` replaces the pipeline rows of 2-4 by its own: one string of
@@ -46,7 +46,7 @@ __all__ = ["bench_tracking", "build_parser", "run", "main"]
 
 #: the default pipeline rows (``--settings``): defaults, full-resolution mapping
 #: on half the pixels, one factor per primitive
-_DEFAULT_SETTINGS = ("defaults", "map_level=0 map_pixel_fraction=0.5", "map_chunk=1")
+_DEFAULT_SETTINGS = ("defaults", "mapping.level=0 mapping.pixel_fraction=0.5", "mapping.chunk=1")
 
 
 def bench_tracking(frames, config: TrackerConfig = TrackerConfig(),
@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-chunk-compare", action="store_true")
     ap.add_argument("--settings", nargs="+", default=None, metavar="SETTING",
                     help="pipeline rows: OdometryConfig overrides per row, e.g. 'defaults' "
-                         "'map_level=0 tracker.levels=4' (default: rows 2-4 above)")
+                         "'mapping.level=0 tracker.levels=4' (default: rows 2-4 above)")
     return ap
 
 

@@ -2,7 +2,7 @@
 
     spgeo eval vo_frontier [--datasets 7scenes synthetic] [--frames N]
         [--resolutions 160x120 320x240] [--frontends classical depth]
-        [--set-grid "defaults" "map_level=0" "tracker.levels=4 map_chunk=1"]
+        [--set-grid "defaults" "mapping.level=0" "tracker.levels=4 mapping.chunk=1"]
         [--seeds 0] [--sevenscenes PATH] [--out DIR] [--workers N | --address ADDR]
 
 The grid is every (data set, front-end, resolution, setting) and, for the
@@ -333,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--frontends", nargs="+", default=["classical"])
     ap.add_argument("--set-grid", nargs="+", default=["defaults"], metavar="SETTING",
                     help="one string per setting: FIELD=VALUE overrides separated by spaces "
-                         "or commas ('defaults': none), e.g. 'map_level=0 tracker.levels=4'")
+                         "or commas ('defaults': none), e.g. 'mapping.level=0 tracker.levels=4'")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="synthetic seeds")
     ap.add_argument("--in-process", action="store_true",
                     help="run the cells in this process (no peak memory)")

@@ -442,7 +442,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
             or ``given_camera`` (:func:`~spgeo.datasets.open_dataset`).
 
     The run's ``intrinsics`` (``report.json``) is the reader's ``intrinsics``.  A live
-    camera (``"camera"``) runs with ``OdometryConfig.mapping_schedule="ready"`` (its
+    camera (``"camera"``) runs with ``OdometryConfig.mapping.schedule="ready"`` (its
     input already depends on timing: updates are applied as soon as they are ready);
     recorded input keeps the configured schedule (default ``"fixed"``: deterministic).
 
@@ -483,14 +483,14 @@ def run_live(source: Iterable[Frame], config: VORunConfig = VORunConfig(),
     """The VO on a live source (a camera, or a simulated one): its frames read
     by a capture thread into a :class:`~spgeo.datasets.capture.CaptureRing` of
     ``config.capture_ring`` frames, and :func:`run_odometry` with
-    ``OdometryConfig.mapping_schedule="ready"`` (the input already depends on
+    ``OdometryConfig.mapping.schedule="ready"`` (the input already depends on
     timing: the tracker never waits for the back end, :mod:`spgeo.vo.mapping_port`).
     The returned :attr:`VORun.capture` is the ring's report (frames dropped, with
     their names); arguments and errors as :func:`run_odometry`."""
     from ..datasets.capture import CaptureRing
 
     config = dataclasses.replace(config, odometry=dataclasses.replace(
-        config.odometry, mapping_schedule="ready"))
+        config.odometry, mapping=dataclasses.replace(config.odometry.mapping, schedule="ready")))
     ring = CaptureRing(source, config.capture_ring)
     try:
         run = run_odometry(ring, config, frontend, on_frame=on_frame)

@@ -93,27 +93,27 @@ class FactorBatch:
 def mapping_pixels(config: OdometryConfig, ref: MapKeyframe):
     """Mapping pixels of a (live) keyframe: ``(entries, compact ids, primitive
     index, reference intensities)`` or None when no primitive has enough
-    pixels: the pixels of level ``map_level``; with ``map_pixel_fraction < 1``
+    pixels: the pixels of level ``mapping.level``; with ``mapping.pixel_fraction < 1``
     its highest-gradient fraction (at least ``min_level_pixels`` per
     primitive).  Cached in ``ref.map_pixels`` (mapping changes scales and pose,
     never pixels or image)."""
     cfg = config
     if ref.map_pixels is not None:
         return ref.map_pixels[0]
-    data = ref.keyframe.level_data(cfg.map_level, 1, cfg.tracker.min_level_pixels, None)
+    data = ref.keyframe.level_data(cfg.mapping.level, 1, cfg.tracker.min_level_pixels, None)
     out = None
     if data.prim_index.size:
         entries, ids, ref_int = data.entries, data.ids, data.ref_intensity
-        if cfg.map_pixel_fraction < 1.0:
+        if cfg.mapping.pixel_fraction < 1.0:
             # central differences, as the factors' bilinear image derivatives
-            img = ref.keyframe.pyramid.images[cfg.map_level].astype(np.float64)
+            img = ref.keyframe.pyramid.images[cfg.mapping.level].astype(np.float64)
             gy, gx = np.gradient(img)
             mag = np.hypot(gx, gy)
             w = ref.keyframe.primitives.camera.width
-            stride = 2 ** cfg.map_level
+            stride = 2 ** cfg.mapping.level
             pix = ref.keyframe.primitives.pixels[entries]
             g = mag[(pix // w) // stride, (pix % w) // stride]
-            thr = np.quantile(g, 1.0 - cfg.map_pixel_fraction)
+            thr = np.quantile(g, 1.0 - cfg.mapping.pixel_fraction)
             order = np.lexsort((-g, ids))                  # by primitive, strongest first
             rank = np.empty(ids.size, dtype=np.int64)
             starts = np.concatenate([[0], np.cumsum(np.bincount(ids))[:-1]])
@@ -130,7 +130,7 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
                       bkey: int) -> Optional[PhotometricFactorGroup]:
     """The photometric factors of ``ref``'s primitives (its :func:`mapping_pixels`)
     observed in a target: pose key ``tgt_key``, grey image ``tgt_image`` (H, W)
-    of camera ``tgt_camera`` (level ``map_level``), brightness key ``bkey``.
+    of camera ``tgt_camera`` (level ``mapping.level``), brightness key ``bkey``.
     None when ``ref`` has no mapping pixel."""
     sel = mapping_pixels(config, ref)
     if sel is None:
@@ -146,7 +146,7 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
     return PhotometricFactorGroup(pose_key(ref.index), tgt_key, keys, shape, offsets,
                                   ref_int, tgt_image, tgt_camera, bkey,
                                   config.tracker.photometric, n_pixels=counts.astype(float),
-                                  chunk=max(1, config.map_chunk // shape.dim))
+                                  chunk=max(1, config.mapping.chunk // shape.dim))
 
 
 def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig) -> None:
@@ -185,10 +185,10 @@ def add_factor_group(batch: FactorBatch, group: Optional[PhotometricFactorGroup]
 def link_keyframe_pair(batch: FactorBatch, config: OdometryConfig, a: MapKeyframe,
                        b: MapKeyframe, t: int, groups: List[PhotometricFactorGroup]) -> int:
     """Photometric factors between two live keyframes in both directions (a's
-    primitives in b's image and b's in a's, level ``map_level``), each
+    primitives in b's image and b's in a's, level ``mapping.level``), each
     direction with its brightness (:func:`~spgeo.graph.keys.pair_brightness_key`, initial 0,
     timestamp ``t``); the groups go to ``groups``.  Returns the factor count."""
-    lvl = config.map_level
+    lvl = config.mapping.level
     n = 0
     for ref, tgt in ((a, b), (b, a)):
         bkey = pair_brightness_key(ref.index, tgt.index)

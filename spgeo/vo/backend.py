@@ -10,7 +10,7 @@ and landmarks before the window is solved) and the window smoother's update
 what changed, for the caller to apply to its map
 (:meth:`spgeo.vo.map.KeyframeMap.apply_update`).
 
-The same object runs in the caller's process (``OdometryConfig.mapping="inline"``)
+The same object runs in the caller's process (``OdometryConfig.mapping.mode="inline"``)
 or in the mapping worker process (``"live"``, :mod:`spgeo.vo.mapping_worker`);
 both are reached through :mod:`spgeo.vo.mapping_port`, and the same job gives the
 same numbers in both.

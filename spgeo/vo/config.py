@@ -22,13 +22,13 @@ from .pixels import PixelSelectionConfig
 from .processing import DEFAULT_TARGET_PIXELS, processing_size
 
 __all__ = ["TrackerConfig", "KeyframeDecisionConfig", "ScaleCheckConfig", "InitConfig",
-           "OdometryConfig", "INIT_METHODS", "MAPPING_MODES", "MAPPING_SCHEDULES"]
+           "MappingConfig", "OdometryConfig", "INIT_METHODS", "MAPPING_MODES", "MAPPING_SCHEDULES"]
 
 #: how a monocular map's initialisation SfM starts (``InitConfig.method``)
 INIT_METHODS = ("twoview", "tracked")
-#: where the VO's back end runs (``OdometryConfig.mapping``)
+#: where the VO's back end runs (``MappingConfig.mode``)
 MAPPING_MODES = ("live", "inline")
-#: when live mapping's updates are applied (``OdometryConfig.mapping_schedule``)
+#: when live mapping's updates are applied (``MappingConfig.schedule``)
 MAPPING_SCHEDULES = ("fixed", "ready")
 
 
@@ -219,6 +219,72 @@ class InitConfig:
     parallax_percentile: float = 95.0
 
 
+@config_class
+@dataclass(frozen=True)
+class MappingConfig:
+    """Where, when and how the VO's back end runs (``OdometryConfig.mapping``; the
+    mapping port, :mod:`spgeo.vo.mapping_port`, and the window smoother,
+    :mod:`spgeo.vo.smoother`).
+
+    Attributes:
+        mode: where a new keyframe's landmarks and window update run, one of
+            :data:`MAPPING_MODES`: ``"live"`` (default) in a worker process
+            (:mod:`spgeo.vo.mapping_worker`) while the next frames are tracked
+            against the map before the update; ``"inline"`` between two frames,
+            in this process (the smoother can be reached).  Both run the same
+            back end (landmarks, loop closure, window update) through the
+            mapping port.
+        lead: live mapping: an update is applied before the frame ``lead``
+            frames after its keyframe, waited for when not ready (>= 0; default
+            8, about what a 30 Hz camera gives during one update on two cores;
+            docs/results.md).  Frames may apply it earlier (a keyframe decision,
+            a lost frame), the same way on any machine.
+        schedule: live mapping, one of :data:`MAPPING_SCHEDULES`: ``"fixed"``
+            (default; recorded input) only the rule above, so the trajectory does
+            not depend on the machine or its load; ``"ready"`` (a live camera) the
+            tracker never waits for the back end: the update is applied at the
+            first frame that finds it ready (``lead`` unused) and a keyframe wanted
+            before it is deferred (:class:`~spgeo.vo.keyframe_policy.KeyframePolicy`).
+        level: pyramid level of the mapping factors (default 1: half resolution,
+            80x60 at 160x120), in ``[0, OdometryConfig.keyframe_levels)``: speed
+            against accuracy (level 0 is more accurate and slower).
+        iterations: LM iterations per smoother update (>= 1; default 10; the
+            other LM constants are :mod:`spgeo.vo.smoother`'s module constants).
+        pixel_fraction: fraction of the level's primitive pixels used by mapping,
+            those with the largest reference image gradient (at least
+            ``tracker.min_level_pixels`` per primitive), in (0, 1] (default 1: all).
+        chunk: shape-variable columns per gtsam factor in mapping (>= 1; default
+            128: 128 scaled or 42 planar primitives; 1 = one factor per primitive;
+            the cost and the Gauss-Newton system are identical,
+            :class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`, whose
+            chunks are in square-root form).  gtsam's Python ``CustomFactor``
+            copies the whole ``Values`` on every call, so per-primitive factors
+            make a window update quadratic in its size; very large chunks make
+            gtsam's dense blocks large instead.
+    """
+
+    mode: str = "live"
+    lead: int = 8
+    schedule: str = "fixed"
+    level: int = 1
+    iterations: int = 10
+    pixel_fraction: float = 1.0
+    chunk: int = 128
+
+    @property
+    def in_worker(self) -> bool:
+        """Whether the back end runs in the mapping worker process (``mode`` ``"live"``)."""
+        return self.mode == "live"
+
+    def __post_init__(self) -> None:
+        if self.mode not in MAPPING_MODES:
+            raise InputError(f"MappingConfig.mode (OdometryConfig.mapping.mode) must be one of "
+                             f"{MAPPING_MODES}, got {self.mode!r}")
+        if self.schedule not in MAPPING_SCHEDULES:
+            raise InputError(f"MappingConfig.schedule (OdometryConfig.mapping.schedule) must be "
+                             f"one of {MAPPING_SCHEDULES}, got {self.schedule!r}")
+
+
 #: what each condition name of :data:`_ODOMETRY_CHECKS` requires of a value
 _CONDITIONS = {
     ">= 0": lambda v: v >= 0,
@@ -234,8 +300,9 @@ _CONDITIONS = {
 
 #: ``(field, condition)`` checks of :meth:`OdometryConfig.__post_init__`, in order
 _ODOMETRY_CHECKS = (
-    ("window", ">= 2"), ("map_iterations", ">= 1"), ("init.max_gap", ">= 1"),
-    ("max_lost_frames", ">= 1"), ("map_chunk", ">= 1"), ("map_pixel_fraction", "in (0, 1]"),
+    ("window", ">= 2"), ("mapping.iterations", ">= 1"), ("init.max_gap", ">= 1"),
+    ("max_lost_frames", ">= 1"), ("mapping.chunk", ">= 1"),
+    ("mapping.pixel_fraction", "in (0, 1]"),
     ("pixel_budget", "None or >= 1"), ("init.extra_views", ">= 0"), ("n_support", ">= 0"),
     ("scale_prior_weight", "> 0"), ("render_prior_weight", "> 0"),
     ("keyframe.min_valid_fraction", "in [0, 1]"), ("keyframe.max_translation", "> 0"),
@@ -243,7 +310,7 @@ _ODOMETRY_CHECKS = (
     ("keyframe.max_relative_cost", "> 0"), ("render_tolerance", ">= 0"),
     ("scale_check.min_parallax", ">= 0"), ("scale_check.max_change", "> 0"),
     ("keyframe_levels", ">= 1"), ("init.min_parallax_deg", "None or > 0"),
-    ("init.parallax_percentile", "in [0, 100]"), ("mapping_lead", ">= 0"))
+    ("init.parallax_percentile", "in [0, 100]"), ("mapping.lead", ">= 0"))
 
 
 @config_class
@@ -273,30 +340,14 @@ class OdometryConfig:
             docs/results.md says why).
         keyframe_levels: pyramid levels built for each keyframe (default 3); the
             tracker uses at most ``tracker.levels`` of them, mapping works on
-            ``map_level``.
-        map_level: pyramid level of the mapping factors (default 1: half
-            resolution, 80x60 at 160x120), in ``[0, keyframe_levels)``: speed against
-            accuracy (level 0 is more accurate and slower).
-        map_pixel_fraction: fraction of the level's primitive pixels used by
-            mapping, those with the largest reference image gradient (at least
-            ``min_level_pixels`` per primitive), in (0, 1] (default 1: all).
+            ``mapping.level``.
         pixel_budget: about this many tracking pixels per pyramid level,
             selected by :func:`spgeo.vo.pixels.select_pixels` with
             ``pixel_selection``'s options (default 1500; docs/results.md
             says why); None: every primitive pixel of a level's lattice.
-            The mapping factors use every pixel of ``map_level``.
+            The mapping factors use every pixel of ``mapping.level``.
         pixel_selection: :class:`~spgeo.vo.pixels.PixelSelectionConfig` (its
             ``budget`` is replaced by ``pixel_budget``).
-        map_iterations: LM iterations per smoother update (default 10; the
-            other LM constants are :mod:`spgeo.vo.smoother`'s module constants).
-        map_chunk: shape-variable columns per gtsam factor in mapping
-            (default 128: 128 scaled or 42 planar primitives; 1 = one factor
-            per primitive; the cost and the Gauss-Newton system
-            are identical, :class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`,
-            whose chunks are in square-root form).  gtsam's Python
-            ``CustomFactor`` copies the whole ``Values`` on every call, so
-            per-primitive factors make a window update quadratic in its size;
-            very large chunks make gtsam's dense blocks large instead.
         primitive_model: one of :data:`PRIMITIVE_MODELS` (ablations).
         scale_prior_weight: weight of each log-scale's prior to its initial
             value (paper: 1e-5).
@@ -333,25 +384,8 @@ class OdometryConfig:
             keyframes with a Sim(3) pose graph (default off).
         landmarks: :class:`~spgeo.vo.landmarks.LandmarkConfig`: sparse feature
             landmarks with projection factors in the window (default on).
-        mapping: where a new keyframe's landmarks and window update run, one of
-            :data:`MAPPING_MODES`: ``"live"`` (default) in a worker process
-            (:mod:`spgeo.vo.mapping_worker`) while the next frames are tracked
-            against the map before the update; ``"inline"`` between two frames,
-            in this process (the smoother can be reached).  Both run the same
-            back end (landmarks, loop closure, window update) through the
-            mapping port (:mod:`spgeo.vo.mapping_port`).
-        mapping_lead: live mapping: an update is applied before the frame
-            ``mapping_lead`` frames after its keyframe, waited for when not
-            ready (default 8, about what a 30 Hz camera gives during one update
-            on two cores; docs/results.md).  Frames may apply it earlier
-            (a keyframe decision, a lost frame), the same way on any machine.
-        mapping_schedule: live mapping, one of :data:`MAPPING_SCHEDULES`:
-            ``"fixed"`` (default; recorded input) only the rule above, so the
-            trajectory does not depend on the machine or its load; ``"ready"``
-            (a live camera) the tracker never waits for the back end: the update
-            is applied at the first frame that finds it ready (``mapping_lead``
-            unused) and a keyframe wanted before it is deferred
-            (:mod:`spgeo.vo.mapping_port`).
+        mapping: :class:`MappingConfig`: where, when and how a new keyframe's back
+            end (landmarks, loop closure, the window update) runs.
     """
 
     #: the table of a ``spgeo vo`` config file that is this config's
@@ -365,12 +399,8 @@ class OdometryConfig:
     window: int = 5
     n_support: int = 2
     keyframe_levels: int = 3
-    map_level: int = 1
-    map_iterations: int = 10
-    map_pixel_fraction: float = 1.0
     pixel_budget: Optional[int] = 1500
     pixel_selection: PixelSelectionConfig = field(default_factory=PixelSelectionConfig)
-    map_chunk: int = 128
     primitive_model: str = "integrated"
     scale_prior_weight: float = 1e-5
     render_prior_weight: float = 1e-2
@@ -383,27 +413,13 @@ class OdometryConfig:
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
-    mapping: str = "live"
-    mapping_lead: int = 8
-    mapping_schedule: str = "fixed"
-
-    @property
-    def mapping_in_worker(self) -> bool:
-        """Whether the back end runs in the mapping worker process (``mapping``
-        ``"live"``)."""
-        return self.mapping == "live"
+    mapping: MappingConfig = field(default_factory=MappingConfig)
 
     def __post_init__(self) -> None:
         self._check_size()
         if self.init.method not in INIT_METHODS:
             raise InputError(f"OdometryConfig.init.method must be one of {INIT_METHODS}, "
                              f"got {self.init.method!r}")
-        if self.mapping not in MAPPING_MODES:
-            raise InputError(f"OdometryConfig.mapping must be one of {MAPPING_MODES}, "
-                             f"got {self.mapping!r}")
-        if self.mapping_schedule not in MAPPING_SCHEDULES:
-            raise InputError(f"OdometryConfig.mapping_schedule must be one of "
-                             f"{MAPPING_SCHEDULES}, got {self.mapping_schedule!r}")
         if self.primitive_model not in PRIMITIVE_MODELS:
             raise InputError(f"OdometryConfig.primitive_model must be one of {PRIMITIVE_MODELS}, "
                              f"got {self.primitive_model!r}")
@@ -413,8 +429,8 @@ class OdometryConfig:
                 value = getattr(value, part)
             if not _CONDITIONS[expected](value):    # NaN fails every comparison
                 raise InputError(f"OdometryConfig.{name} must be {expected}, got {value!r}")
-        if not 0 <= self.map_level < self.keyframe_levels:
-            raise InputError("OdometryConfig.map_level must be in [0, keyframe_levels)")
+        if not 0 <= self.mapping.level < self.keyframe_levels:
+            raise InputError("OdometryConfig.mapping.level must be in [0, keyframe_levels)")
         if not 1 <= self.init.min_gap <= self.init.max_gap:
             raise InputError("OdometryConfig: 1 <= init.min_gap <= init.max_gap required")
 

@@ -26,16 +26,19 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..geometry import invert_pose, ray_angles_deg, rotation_angle_deg
+from ..geometry import invert_pose, ray_angles_deg
 from ..primitive_models import apply_primitive_model
 from ..primitives import PrimitiveSet
 from ..sfm import SfMResult, few_view_sfm
 from ..sfm.init import twoview_initialisation
 from .config import OdometryConfig
+from .frame_tracker import FrameTracker, RetrackedFrame
+from .keyframe_policy import KeyframePolicy
 from .map import MapKeyframe
-from .tracking import Keyframe, TrackResult, constant_velocity_guess, track_frame
+from .motion import MotionModel
+from .tracking import Keyframe, TrackResult
 
-__all__ = ["Initialiser", "InitDecision", "InitJob", "InitSolution", "RetrackedFrame", "Solving",
+__all__ = ["Initialiser", "InitDecision", "InitJob", "InitSolution", "Solving",
            "init_views", "init_rejection", "append_bounded", "twoview_start", "sfm_parallax_deg",
            "solve_keyframe1", "solved_keyframe0", "retrack"]
 
@@ -254,28 +257,6 @@ def solve_keyframe1(job: InitJob) -> Tuple[SfMResult, int]:
 
 
 @dataclass
-class RetrackedFrame:
-    """A buffered frame re-tracked against the solved keyframe 0.
-
-    Attributes:
-        frame: frame number.
-        image: its image.
-        ok: whether it tracked.
-        T_world_frame: its re-tracked pose, or (not ``ok``) the last good pose
-            before it in the buffer.
-        T_kf0_frame: its pose in keyframe 0 (``ok`` only).
-        brightness: its tracked ``(a, b)`` (``ok`` only).
-    """
-
-    frame: int
-    image: np.ndarray
-    ok: bool
-    T_world_frame: np.ndarray
-    T_kf0_frame: Optional[np.ndarray] = None
-    brightness: Optional[np.ndarray] = None
-
-
-@dataclass
 class InitDecision:
     """What :meth:`Initialiser.step` decided for one frame.
 
@@ -315,8 +296,8 @@ class Initialiser:
     """The map initialisation of one :class:`spgeo.vo.Odometry` (module docstring).
 
     Args:
-        config: the VO's :class:`OdometryConfig` (``init_*``, ``sfm``, ``keyframe_levels``,
-            ``kf_*`` overlap thresholds, ``primitive_model``, ``tracker``).
+        config: the VO's :class:`OdometryConfig` (``init``, ``sfm``, ``keyframe_levels``,
+            ``keyframe`` overlap thresholds, ``primitive_model``, ``tracker``).
         camera: the frames' intrinsics.
         uses_depth: whether the front-end uses depth (metric primitives).
         solver: where the keyframe-1 solve runs: an object with
@@ -325,6 +306,9 @@ class Initialiser:
             (None while in flight), e.g. the VO's
             :class:`~spgeo.vo.mapping_port.MappingPort`; default None: solved here,
             at once.
+        policy: the VO's :class:`~spgeo.vo.keyframe_policy.KeyframePolicy`, whose
+            view-overlap test ends the wait for keyframe 1 (default None: one of
+            ``config.keyframe`` on ``solver``).
 
     Attributes:
         failure: why the last keyframe-1 SfM was refused (None: none yet in
@@ -336,8 +320,9 @@ class Initialiser:
     """
 
     def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool,
-                 solver=None) -> None:
+                 solver=None, policy: Optional[KeyframePolicy] = None) -> None:
         self.config = config
+        self.policy = policy if policy is not None else KeyframePolicy(config.keyframe, solver)
         self.camera = camera
         self.uses_depth = bool(uses_depth)
         self.solver = solver
@@ -453,9 +438,7 @@ class Initialiser:
         cfg = self.config
         # keyframe 1 must still overlap keyframe 0: the overlap criteria of
         # keyframes (valid fraction, rotation) end the wait too
-        rot = rotation_angle_deg(T_kf0_f[:3, :3])
-        overlap_ending = tr.ok and (tr.valid_fraction < cfg.keyframe.min_valid_fraction
-                                    or rot > cfg.keyframe.max_rotation_deg)
+        overlap_ending = tr.ok and self.policy.leaves_view(tr, T_kf0_f)
         # a frame lost against keyframe 0's unscaled shapes (large motion) ends
         # the wait too (retries spaced out); its SfM must then pass its own checks
         wait = gap < cfg.init.max_gap and not overlap_ending and (
@@ -518,7 +501,7 @@ def solved_keyframe0(job: InitJob, sfm: SfMResult) -> Tuple[Keyframe, np.ndarray
         new_prims = apply_primitive_model(new_prims, config.primitive_model)
     if not job.uses_depth and job.segment > 0:
         # a re-initialised monocular segment keeps the previous map's depth scale
-        # (keyframe 0's primitives were set to it by Odometry._reinitialise)
+        # (keyframe 0's primitives were set to it by Odometry._start at re-initialisation)
         med = np.median(np.exp(kf0.primitives.scaled_log_depth()))
         med_new = np.median(np.exp(new_prims.scaled_log_depth()))
         c = float(np.log(med / med_new))
@@ -533,32 +516,21 @@ def solved_keyframe0(job: InitJob, sfm: SfMResult) -> Tuple[Keyframe, np.ndarray
 
 
 def retrack(keyframe0: Keyframe, job: InitJob, T_01: np.ndarray
-            ) -> Tuple[List["RetrackedFrame"], np.ndarray]:
-    """Re-track ``job``'s buffered frames against the solved keyframe 0: from the
-    constant-velocity guess, else from the pose interpolated between keyframes
-    0 and 1 at the frame's place in the gap (a failed frame leaves no velocity).
-    Returns the frames and the last good pose."""
-    tracker = job.config.tracker
-    frame0, idx, brightness = job.kf0_frame, job.idx, job.brightness
+            ) -> Tuple[List[RetrackedFrame], np.ndarray]:
+    """Re-track ``job``'s buffered frames against the solved keyframe 0
+    (:meth:`FrameTracker.retrack <spgeo.vo.frame_tracker.FrameTracker.retrack>`):
+    from a motion model started at keyframe 0 with the job's brightness (one
+    constant-velocity step per buffered frame), then from the pose interpolated
+    between keyframes 0 and 1 at the frame's place in the gap.  Returns the frames
+    and the last good pose (keyframe 0's when none tracked)."""
     T_w0 = keyframe0.T_world_kf
-    prev = None
-    last = T_w0.copy()
     xi01 = gtsam.Pose3.Logmap(gtsam.Pose3(T_01))
-    out: List[RetrackedFrame] = []
-    for j, img in job.buffer:
-        tj = track_frame(keyframe0, img, constant_velocity_guess(last, prev), brightness,
-                         tracker)
-        if not tj.ok:
-            frac = (j - frame0) / max(idx - frame0, 1)
-            T_guess = T_w0 @ gtsam.Pose3.Expmap(frac * xi01).matrix()
-            tj2 = track_frame(keyframe0, img, T_guess, brightness, tracker)
-            if tj2.ok or tj2.photometric_cost < tj.photometric_cost:
-                tj = tj2
-        if tj.ok:
-            prev, last = last, tj.T_world_frame
-            out.append(RetrackedFrame(j, img, True, tj.T_world_frame.copy(),
-                                      invert_pose(T_w0) @ tj.T_world_frame,
-                                      np.asarray(tj.brightness, float)))
-        else:
-            out.append(RetrackedFrame(j, img, False, last.copy()))
-    return out, last
+    span = max(job.idx - job.kf0_frame, 1)
+    motion = MotionModel()
+    motion.reset(T_w0)
+    motion.brightness = np.asarray(job.brightness, float).copy()
+    kf0 = MapKeyframe(0, job.kf0_frame, job.kf0_image, keyframe0, job.segment)
+    out = FrameTracker(job.camera, job.config).retrack(
+        kf0, [(j, img, None) for j, img in job.buffer], motion,
+        lambda j: T_w0 @ gtsam.Pose3.Expmap((j - job.kf0_frame) / span * xi01).matrix())
+    return out, motion.last_good

@@ -20,10 +20,8 @@ from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..geometry import nearest_rigid
 from ..similarity import moved_frame
 from .keyframe_store import KeyframeStore
-from .motion import MotionModel
 from .result import FrameResult, FrameStatus
 from .keyframe import with_shape_values
 from .tracking import Keyframe
@@ -196,6 +194,11 @@ class KeyframeMap:
         """The current segment's last ``window + extra`` keyframes, oldest first."""
         return [self.kfs[k] for k in self.seg_kfs[-(self.window + extra):]]
 
+    def older_in_window(self) -> List[MapKeyframe]:
+        """The current segment's window keyframes before the newest, newest first
+        (relocalisation's order)."""
+        return [self.kfs[k] for k in reversed(self.seg_kfs[-self.window:-1])]
+
     def segment_live(self) -> List[MapKeyframe]:
         """The current segment's keyframes not retired, in order."""
         return [self.kfs[j] for j in self.seg_kfs if not self.kfs[j].retired]
@@ -247,13 +250,18 @@ class KeyframeMap:
         """``T_world_frame`` of a frame tracked against keyframe ``k``: the
         keyframe's latest pose composed with the tracked relative pose, whose
         translation is rescaled by the change of the keyframe's median depth
-        since tracking (mapping refines the keyframe's scales; the tracked
-        translation was measured in the old depth units)."""
-        kf = self.kfs[k]
+        since tracking (:meth:`relative_pose`)."""
+        return self.kfs[k].T_world_kf @ self.relative_pose(k, T_kf_frame, median_then)
+
+    def relative_pose(self, k: int, T_kf_frame: np.ndarray, median_then: float) -> np.ndarray:
+        """``T_kf_frame`` (tracked against keyframe ``k`` when its median depth was
+        ``median_then``) in ``k``'s current depth units: its translation rescaled by
+        the change of the median depth since (mapping refines the keyframe's
+        scales; the tracked translation was measured in the old units); a copy."""
         T = np.array(T_kf_frame, dtype=float)
         if median_then > 0:
-            T[:3, 3] *= kf.median_depth / median_then
-        return kf.T_world_kf @ T
+            T[:3, 3] *= self.kfs[k].median_depth / median_then
+        return T
 
     def frame_poses(self, frames: Sequence[FrameResult]) -> Tuple[np.ndarray, np.ndarray]:
         """``(poses (n, 4, 4), is_keyframe (n,))`` of ``frames`` (every frame so
@@ -304,19 +312,22 @@ class KeyframeMap:
         taken, self.candidates = self.candidates, []
         return taken
 
-    def apply_update(self, upd, primitive_model: str, motion: Optional[MotionModel]
-                     ) -> Dict[int, Keyframe]:
+    def apply_update(self, upd, primitive_model: str, follow_newest: bool
+                     ) -> Tuple[Dict[int, Keyframe], Optional[np.ndarray]]:
         """Apply a back end's :class:`~spgeo.vo.backend.MappingUpdate`: its loop
-        correction first (:meth:`apply_loop_correction`; ``motion`` moved with the
-        newest keyframe unless None), then the refreshed keyframes (the back
-        end's own objects where it sent them, else
-        :func:`~spgeo.vo.keyframe.with_shape_values` of ours: equal numbers), the
-        supporting frames' poses, a window restart (the segment keeps its last
-        two keyframes) and retirement.  Returns keyframe index -> the new
-        :class:`Keyframe` of every live keyframe that changed."""
+        correction first (:meth:`apply_loop_correction`, ``follow_newest`` passed
+        on), then the refreshed keyframes (the back end's own objects where it
+        sent them, else :func:`~spgeo.vo.keyframe.with_shape_values` of ours:
+        equal numbers), the supporting frames' poses, a window restart (the
+        segment keeps its last two keyframes) and retirement.  Returns
+        ``(changed, W)``: keyframe index -> the new :class:`Keyframe` of every
+        live keyframe that changed, and the loop correction's world similarity of
+        the newest keyframe for the caller's motion model (None: no loop
+        correction, or it left the newest keyframe or ``follow_newest`` is off)."""
         changed: Dict[int, Keyframe] = {}
+        W = None
         if upd.loop is not None:
-            self.apply_loop_correction(upd.loop, motion)
+            W = self.apply_loop_correction(upd.loop, follow_newest)
             changed.update({k: self.kfs[k].keyframe for k in upd.loop.kf_ids
                             if not self.kfs[k].retired})
         for j, (T, th) in sorted(upd.keyframes.items()):
@@ -329,60 +340,54 @@ class KeyframeMap:
         if upd.restarted:
             self.seg_kfs = self.seg_kfs[-2:]
         self.retire_outside_window()
-        return {k: kf for k, kf in changed.items() if not self.kfs[k].retired}
+        return {k: kf for k, kf in changed.items() if not self.kfs[k].retired}, W
 
-    def adopt_retracked(self, kf0: MapKeyframe, retracked: Sequence,
-                        frames: Sequence[FrameResult],
-                        status: FrameStatus = FrameStatus.INIT) -> None:
-        """An initialisation's re-tracked frames (``retracked``:
-        :class:`~spgeo.vo.initialisation.RetrackedFrame`, against the solved keyframe
-        0 ``kf0``, or against keyframe 1 for the frames of a solve that ran beside
-        the tracker) written into their :class:`FrameResult` in ``frames`` (pose
-        and ``status`` / ``LOST``); the ones tracked become anchored to ``kf0`` and
-        supporting-frame candidates, the others lose their anchor."""
+    def adopt_retracked(self, kf: MapKeyframe, retracked: Sequence) -> None:
+        """Frames tracked again against the live keyframe ``kf`` (``retracked``:
+        :class:`~spgeo.vo.frame_tracker.RetrackedFrame`; an initialisation's
+        buffer against its solved keyframe 0, or the frames of a solve beside the
+        tracker against keyframe 1): the ones tracked become anchored to ``kf``
+        and supporting-frame candidates, the others lose their anchor.  Their
+        :class:`FrameResult` is the caller's to rewrite."""
         for r in retracked:
-            res = frames[r.frame]
-            res.T_world_cam = r.T_world_frame
             if r.ok:
-                res.status = status
-                self.anchors[r.frame] = (kf0.index, r.T_kf0_frame, kf0.keyframe.median_depth)
-                self.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf0_frame,
+                self.anchors[r.frame] = (kf.index, r.T_kf_frame, kf.keyframe.median_depth)
+                self.candidates.append(SupportCandidate(r.frame, r.image, r.T_kf_frame,
                                                         r.brightness))
             else:
-                res.status = FrameStatus.LOST
                 self.anchors.pop(r.frame, None)
 
-    def apply_loop_correction(self, corr, motion: Optional[MotionModel]) -> None:
+    def apply_loop_correction(self, corr, follow_newest: bool) -> Optional[np.ndarray]:
         """Move the segment's map by a :class:`spgeo.loop.LoopCorrection`: every
         keyframe's pose and depths (:meth:`MapKeyframe.correct`), then what
-        follows them (:meth:`apply_similarity`; the candidates' translations in
-        the previous keyframe's depth units)."""
+        follows them (:meth:`apply_similarity` with ``follow_newest``; the
+        candidates' translations in the previous keyframe's depth units).
+        Returns :meth:`apply_similarity`'s similarity of the newest keyframe."""
         for k in corr.kf_ids:
             self.kfs[k].correct(corr.T_world_kf[k], corr.scales[k])
         s_prev = corr.scales.get(self.seg_kfs[-2], 1.0) if len(self.seg_kfs) >= 2 else 1.0
-        self.apply_similarity(corr.W_new_old, motion, s_prev)
+        return self.apply_similarity(corr.W_new_old, s_prev, follow_newest)
 
-    def apply_similarity(self, W_new_old: Dict[int, np.ndarray], motion: Optional[MotionModel],
-                         candidate_scale: float) -> None:
+    def apply_similarity(self, W_new_old: Dict[int, np.ndarray], candidate_scale: float,
+                         follow_newest: bool = True) -> Optional[np.ndarray]:
         """The one similarity move of what follows keyframes whose map moved by the
         world similarities ``W_new_old`` (keyframe index -> 4x4 ``S_world_kf(new) @
         inv(T_world_kf(old))``; the keyframes themselves are the caller's): frames
         anchored to a keyframe follow it in :meth:`frame_poses` through its pose
         and median depth; the supporting frames' smoothed poses move by their
         keyframe's ``W`` (:func:`spgeo.similarity.moved_frame`); when the
-        segment's newest keyframe moved and ``motion`` is given (else what
-        follows the newest keyframe is left to the caller), ``motion``'s poses
-        move by its ``W`` (made exactly rigid again,
-        :func:`~spgeo.geometry.nearest_rigid`: the tracker starts from them) and
-        the candidates' translations (in its depth units) are multiplied by
-        ``candidate_scale``."""
+        segment's newest keyframe moved and ``follow_newest`` (else what follows
+        the newest keyframe is left to the caller), the candidates' translations
+        (in its depth units) are multiplied by ``candidate_scale`` and its ``W``
+        is returned: the caller's motion model follows it
+        (:meth:`~spgeo.vo.motion.MotionModel.follow`).  Otherwise None."""
         sup = self.support_pose
         for f in list(sup):
             k = self.anchors[f][0] if f in self.anchors else None
             if k in W_new_old:
                 sup[f] = moved_frame(W_new_old[k], sup[f])
         newest = self.seg_kfs[-1] if self.seg_kfs else None
-        if motion is None or newest not in W_new_old:
-            return
-        motion.move(lambda T: nearest_rigid(moved_frame(W_new_old[newest], T)))
+        if not follow_newest or newest not in W_new_old:
+            return None
         self.candidates = [c.scaled(candidate_scale) for c in self.candidates]
+        return W_new_old[newest]

@@ -11,20 +11,21 @@ motion model, telling itself which keyframes now equal the back end's.  The back
 keeps its own copies of the window, so the caller's keyframes change only when it
 applies an update.
 
-* :class:`InProcessPort` (``OdometryConfig.mapping="inline"``): the back end in this
+* :class:`InProcessPort` (``OdometryConfig.mapping.mode="inline"``): the back end in this
   process, run when the update is received.
 * :class:`WorkerPort` (``"live"``): the back end in the mapping worker process
   (:mod:`spgeo.vo.mapping_worker`), solving while the next frames are tracked.
 
-The schedule (:meth:`MappingPort.due`).  With ``OdometryConfig.mapping_schedule=
+The schedule (:meth:`MappingPort.due`).  With ``OdometryConfig.mapping.schedule=
 "fixed"`` (recorded input) an update is applied before the frame that is ``lead``
-frames after its keyframe (``mapping="inline"``: ``lead`` 0, i.e. before the next
+frames after its keyframe (``mode="inline"``: ``lead`` 0, i.e. before the next
 frame), waited for when it is not ready, so the trajectory is the same on any
 machine under any load; a keyframe wanted while an update is pending applies it
 first (waiting).  With ``"ready"`` (a live camera, whose input already depends on
 timing) the tracker never waits for the back end: an update is applied at the first
 frame that finds it ready, whatever the lead, and a keyframe wanted while it is not
-ready is deferred (:meth:`MappingPort.defers_keyframe`): the frame stays tracked
+ready is deferred (:class:`~spgeo.vo.keyframe_policy.KeyframePolicy`,
+:meth:`MappingPort.update_available`): the frame stays tracked
 against the latest keyframe, and a later frame makes the keyframe.  In both
 schedules a frame lost against the pending map, a new segment, or a call that reads
 the map applies the update, waiting for it.
@@ -46,7 +47,7 @@ from .config import OdometryConfig
 from .initialisation import InitJob, InitSolution
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_worker import MappingWorker
-from .motion import MotionModel
+from .motion import MotionChange
 from .smoother import adopt_selection, choose_support
 from .tracking import Keyframe
 
@@ -110,6 +111,10 @@ class MappingRecord:
         self.peak_rss_mib = upd.peak_rss_mib
         for key, sec in upd.timings.items():
             self.seconds[key] = self.seconds.get(key, 0.0) + float(sec)
+
+    def defer_keyframe(self) -> None:
+        """A keyframe decision deferred (:class:`~spgeo.vo.keyframe_policy.KeyframePolicy`)."""
+        self.deferred_keyframes += 1
 
     def report(self) -> dict:
         """JSON-ready: updates applied, frames tracked against an older map,
@@ -184,14 +189,17 @@ class MappingPort:
             return self._ready()
         return self.record.lead(n_frames) >= self.lead
 
-    def defers_keyframe(self) -> bool:
-        """Whether a keyframe wanted now is deferred (module docstring): an
-        update is pending and, on the ``"ready"`` schedule, not ready.  A
-        deferral is counted (:attr:`MappingRecord.deferred_keyframes`)."""
-        if not (self.pending and self.schedule == "ready" and not self._ready()):
-            return False
-        self.record.deferred_keyframes += 1
-        return True
+    def update_available(self) -> bool:
+        """Whether the schedule lets a keyframe wanted now wait for the pending
+        update (module docstring): on ``"fixed"`` always (it is waited for), on
+        ``"ready"`` only when it is ready (the tracker never waits); the
+        :class:`~spgeo.vo.keyframe_policy.KeyframePolicy` defers the keyframe
+        otherwise."""
+        return self.schedule != "ready" or self._ready()
+
+    def defer_keyframe(self) -> None:
+        """A keyframe decision deferred (:meth:`MappingRecord.defer_keyframe`)."""
+        self.record.defer_keyframe()
 
     def note_frame(self) -> None:
         """A frame is tracked now (counted when an update is pending)."""
@@ -207,31 +215,30 @@ class MappingPort:
         self.record.record(upd, n_frames - job.n_frames)
         return upd, job, seconds
 
-    def apply_pending(self, kmap: KeyframeMap, motion: MotionModel, n_frames: int
-                      ) -> Dict[str, float]:
+    def apply_pending(self, kmap: KeyframeMap, n_frames: int
+                      ) -> Tuple[Dict[str, float], MotionChange]:
         """The one apply of the pending update (:meth:`receive`, waiting for it),
         when ``n_frames`` have been processed: the map's part
         (:meth:`KeyframeMap.apply_update`), :meth:`synced` for the keyframes that
-        now equal the back end's, then ``motion``: with no frame tracked since
-        the job was sent it restarts at the new keyframe's smoothed pose
-        (:meth:`MotionModel.to_keyframe`); else what was tracked meanwhile
-        (motion, candidates) moves with the new keyframe's similarity
-        (:meth:`KeyframeMap.apply_similarity`).  Returns the seconds it cost the
-        caller's thread per stage."""
+        now equal the back end's.  With no frame tracked since the job was sent
+        the motion model restarts at the new keyframe's smoothed pose; else what
+        was tracked meanwhile (motion, candidates) moves with the new keyframe's
+        similarity (:meth:`KeyframeMap.apply_similarity`).  Returns the seconds it
+        cost the caller's thread per stage and the caller's
+        :class:`~spgeo.vo.motion.MotionChange`."""
         upd, job, seconds = self.receive(n_frames)
         tracked_since = n_frames > job.n_frames
-        changed = kmap.apply_update(upd, self.config.primitive_model,
-                                    None if tracked_since else motion)
+        changed, W_loop = kmap.apply_update(upd, self.config.primitive_model,
+                                            not tracked_since)
         for j, kf in changed.items():
             self.synced(j, kf)
         new = kmap.kfs[job.keyframe]
         if not tracked_since:
-            motion.to_keyframe(new.T_world_kf)
-            return seconds
+            return seconds, MotionChange([] if W_loop is None else [W_loop], new.T_world_kf)
         s = new.median_depth / job.median_depth
         W = sim3(new.T_world_kf[:3, :3], new.T_world_kf[:3, 3], s) @ invert_pose(job.T_world_kf)
-        kmap.apply_similarity({job.keyframe: W}, motion, s)
-        return seconds
+        W_new = kmap.apply_similarity({job.keyframe: W}, s)
+        return seconds, MotionChange([w for w in (W_loop, W_new) if w is not None])
 
     def synced(self, k: int, keyframe: Keyframe) -> None:
         """Keyframe ``k``'s :class:`Keyframe` is now ``keyframe``, equal to the
@@ -268,7 +275,7 @@ class MappingPort:
     def backend(self) -> WindowBackend:
         """The :class:`WindowBackend` (in this process only; else ``RuntimeError``)."""
         raise RuntimeError("the window smoother is in the mapping worker process "
-                           "(OdometryConfig.mapping='live'); use mapping='inline' to reach it")
+                           "(OdometryConfig.mapping.mode='live'); use mode='inline' to reach it")
 
     def report(self) -> dict:
         """Entries of :meth:`spgeo.vo.Odometry.report` that only this port has."""
@@ -296,7 +303,7 @@ class MappingPort:
 class InProcessPort(MappingPort):
     """The back end in this process, run when its update is received (its
     stages' seconds are the caller's).  Default ``lead`` 0: the update before
-    the next frame (``OdometryConfig.mapping="inline"``)."""
+    the next frame (``OdometryConfig.mapping.mode="inline"``)."""
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig, lead: int = 0,
                  schedule: str = "fixed") -> None:
@@ -363,11 +370,11 @@ class WorkerPort(MappingPort):
 
 
 def make_port(camera: PinholeCamera, config: OdometryConfig, wait: bool = False) -> MappingPort:
-    """The port of ``config.mapping`` (module docstring): ``"inline"`` an
+    """The port of ``config.mapping.mode`` (module docstring): ``"inline"`` an
     :class:`InProcessPort` (lead 0), ``"live"`` a :class:`WorkerPort` with
-    ``config.mapping_lead`` and ``config.mapping_schedule`` (``wait``: lead 0,
+    ``config.mapping.lead`` and ``config.mapping.schedule`` (``wait``: lead 0,
     the inline numbers through the worker)."""
-    if config.mapping == "inline":
+    if config.mapping.mode == "inline":
         return InProcessPort(camera, config)
-    lead = 0 if wait else config.mapping_lead
-    return WorkerPort(camera, config, lead, config.mapping_schedule)
+    lead = 0 if wait else config.mapping.lead
+    return WorkerPort(camera, config, lead, config.mapping.schedule)

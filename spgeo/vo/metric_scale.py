@@ -32,7 +32,7 @@ import numpy as np
 from ..configs import config_class
 from ..trajectory import METRES, Trajectory
 from .tracking import Keyframe
-from .odometry import Odometry
+from .readout import OdometryReadout
 
 __all__ = ["MetricScaleConfig", "MetricScale", "estimate_metric_scale", "scaled_keyframe",
            "scaled_trajectory", "ScaledOdometry"]
@@ -228,6 +228,6 @@ class ScaledOdometry:
         return {k: scaled_keyframe(kf, self.scale)
                 for k, kf in self.odometry.window_keyframes().items()}
 
-    #: :meth:`spgeo.vo.Odometry.save` over this view: trajectory and clouds scaled
-    #: (without it the odometry's own ``save`` would write them in VO units)
-    save = Odometry.save
+    #: :meth:`spgeo.vo.readout.OdometryReadout.save` over this view: trajectory and
+    #: clouds scaled (without it the odometry's own ``save`` would write them in VO units)
+    save = OdometryReadout.save

@@ -10,20 +10,39 @@ applied per period.  A ratio within :data:`SAME_STEP` of 1 (timestamp jitter) is
 one step exactly."""
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Callable, List, Optional
 
 import gtsam
 import numpy as np
 
 from ..geometry import invert_pose, nearest_rigid, nearest_rotation
+from ..similarity import moved_frame
 from .tracking import TrackResult, constant_velocity_guess
 
-__all__ = ["MotionModel", "SAME_STEP", "MAX_STEPS"]
+__all__ = ["MotionModel", "MotionChange", "SAME_STEP", "MAX_STEPS"]
 
 #: a ratio of time gaps within this of 1 is one constant-velocity step (jitter)
 SAME_STEP = 0.25
 #: the most constant-velocity steps one prediction extrapolates
 MAX_STEPS = 4.0
+
+
+@dataclass
+class MotionChange:
+    """How an applied mapping update moves the motion model
+    (:meth:`MotionModel.follow`; :meth:`spgeo.vo.mapping_port.MappingPort.apply_pending`).
+
+    Attributes:
+        similarities: 4x4 world similarities ``S_world_kf(new) @ inv(T_world_kf(old))``
+            of the newest keyframe, applied in order (the map moved under the frames
+            tracked since).
+        keyframe_pose: or the new keyframe's smoothed ``T_world_kf``, when no frame
+            was tracked since (:meth:`MotionModel.to_keyframe`).
+    """
+
+    similarities: List[np.ndarray] = field(default_factory=list)
+    keyframe_pose: Optional[np.ndarray] = None
 
 
 class MotionModel:
@@ -119,6 +138,16 @@ class MotionModel:
         self.last_good = frame_pose(self.last_good)
         if self.prev_good is not None:
             self.prev_good = frame_pose(self.prev_good)
+
+    def follow(self, change: MotionChange) -> None:
+        """Follow the map an update moved (:class:`MotionChange`): both poses moved
+        by each similarity in turn (made exactly rigid again,
+        :func:`~spgeo.geometry.nearest_rigid`: tracking starts from them), then
+        :meth:`to_keyframe` of its keyframe pose."""
+        for W in change.similarities:
+            self.move(lambda T, W=W: nearest_rigid(moved_frame(W, T)))
+        if change.keyframe_pose is not None:
+            self.to_keyframe(change.keyframe_pose)
 
     def to_keyframe(self, T_new: np.ndarray) -> None:
         """The new keyframe's smoothed pose ``T_new`` replaces the last good

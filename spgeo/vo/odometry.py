@@ -1,25 +1,13 @@
-"""Keyframe-based monocular visual odometry on SuperPrimitives (docs/design.md §5):
-the per-frame state machine (initialise, track, lose, re-initialise).
-
-One call per frame (:meth:`Odometry.track`); the states and their rules are stated
-in docs/design.md §5.1, options are :class:`~spgeo.vo.config.OdometryConfig`'s.
-``Odometry`` drives them over the objects that own the state: the keyframe map
-(:class:`spgeo.vo.map.KeyframeMap`), the frame tracker
-(:class:`spgeo.vo.frame_tracker.FrameTracker`: the motion model's guesses, the
-retries, relocalisation, the keyframe decision), the initialiser
-(:class:`spgeo.vo.initialisation.Initialiser`, whose
-:class:`~spgeo.vo.initialisation.InitDecision` ``Odometry`` applies), the keyframe
-maker (:class:`spgeo.vo.keyframing.KeyframeMaker`) and the mapping port
-(:mod:`spgeo.vo.mapping_port`: where and when a new keyframe's back end runs).
-
-Ablations: ``OdometryConfig.primitive_model`` (docs/design.md §5); oracle normals:
-the ``"depth"`` front-end.
+"""Keyframe-based monocular visual odometry on SuperPrimitives: the per-frame state
+machine (initialise, track, lose, re-initialise; docs/design.md §5.1, which also
+names the objects it drives: map, motion model, tracking decision, keyframe policy,
+initialiser, keyframe builder, mapping port, and the read side it owns).
 """
 from __future__ import annotations
 
 import logging
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
@@ -28,28 +16,28 @@ from ..frame import Frame
 from ..primitives import PrimitiveSet
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, nearest_rigid
+from ..images import featureless
 from ..validation import check_camera
 from .config import OdometryConfig
-from .initialisation import FAILED, START, InitDecision, Initialiser
-from .keyframe_store import KeyframeStore
 from .frame_tracker import FrameTracker
-from .keyframing import KeyframeMaker
+from .initialisation import FAILED, START, InitDecision, Initialiser
+from .keyframe_builder import KeyframeBuilder
+from .keyframe_policy import AFTER_UPDATE, KEYFRAME, KeyframePolicy
+from .keyframe_store import KeyframeStore
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_port import MappingPort, make_port
+from .motion import MotionModel
 from .processing import checked_frame, opencv_threads
-from .readout import OdometryReadout
-from .result import FrameResult, FrameStatus, add_seconds, frame_result, timed
-from .tracking import TrackResult, track_frame
+from .readout import OdometryReadout, read_side
+from .result import FrameLog, FrameResult, FrameStatus, add_seconds, frame_result, timed
+from .tracking import TrackResult
 
-__all__ = ["Odometry", "MAX_LEAD_FRAMES"]
-
-#: the default of ``OdometryConfig.mapping_lead`` (its name before the mapping port)
-MAX_LEAD_FRAMES = OdometryConfig.mapping_lead
+__all__ = ["Odometry"]
 
 log = logging.getLogger(__name__)
 
 
-class Odometry(OdometryReadout):
+class Odometry:
     """Streaming monocular VO (module docstring).
 
     Args:
@@ -64,16 +52,18 @@ class Odometry(OdometryReadout):
         store: where keyframes that left the window keep their image and
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
-        wait_for_mapper: with live mapping, apply each update before the next
-            frame (lead 0): the numbers of ``"inline"`` mapping, through the
-            worker (its tests).
+        wait_for_mapper: with live mapping, apply each update before the next frame
+            (lead 0): the numbers of ``"inline"`` mapping, through the worker (tests).
         port: the :class:`~spgeo.vo.mapping_port.MappingPort` (default None: the
-            one of ``config.mapping``, :func:`~spgeo.vo.mapping_port.make_port`).
+            one of ``config.mapping.mode``, :func:`~spgeo.vo.mapping_port.make_port`).
 
-    Mapping: docs/design.md §5.1, *The mapping port*; reads apply the pending
-    update first; :meth:`close` (or ``with``) stops a worker.  Memory: after a frame
-    only its :class:`FrameResult` and anchor stay; keyframes outside the window are
-    retired to the store (:meth:`spgeo.vo.map.MapKeyframe.retire`).
+    Attributes:
+        readout: the :class:`~spgeo.vo.readout.OdometryReadout`, whose members
+            (:meth:`result`, :attr:`keyframes`, :meth:`report`, :meth:`save`, ...) it forwards.
+
+    Mapping (docs/design.md §5.1): reads apply the pending update first; :meth:`close`
+    (or ``with``) stops a worker.  Memory: after a frame only its :class:`FrameResult`
+    and anchor stay; keyframes leaving the window go to the store.
     """
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
@@ -87,18 +77,30 @@ class Odometry(OdometryReadout):
                             f"{type(config).__name__}")
         self.input_camera = check_camera(camera, "Odometry: camera")
         self.camera = self.input_camera.resized(*config.processing_size_for(camera.size))
-        self.config = config
-        self.frontend = frontend
-        self._frames: List[FrameResult] = []
+        self.config, self.frontend = config, frontend
+        self._frames = FrameLog()
         self._map = KeyframeMap(config.window, config.keyframe_levels, config.n_support, store)
         self._tracker = FrameTracker(self.camera, config)
-        self._motion = self._tracker.motion
+        self._motion = MotionModel()
         self._n_lost = 0
         self._port = port if port is not None else make_port(self.camera, config,
                                                               wait_for_mapper)
+        self._policy = KeyframePolicy(config.keyframe, self._port)
         self._initialiser = Initialiser(config, self.camera, frontend.uses_depth,
-                                        solver=self._port)
-        self._maker = KeyframeMaker(self.camera, config, frontend)
+                                        solver=self._port, policy=self._policy)
+        self._builder = KeyframeBuilder(self.camera, config, frontend)
+        self.readout = OdometryReadout(self.camera, config, frontend, self._frames, self._map,
+                                       self._port, self._initialiser, self._builder,
+                                       self._sync, type(self).__name__)
+
+    # ------------------------------------------------------------ the read side
+    __repr__, result, report, save, frames, units = map(read_side, (
+        "__repr__", "result", "report", "save", "frames", "units"))
+    keyframes, keyframe, n_keyframes, keyframe_image, iter_keyframes = map(read_side, (
+        "keyframes", "keyframe", "n_keyframes", "keyframe_image", "iter_keyframes"))
+    window_keyframes, keyframes_with_depth, initialised, init_failure = map(read_side, (
+        "window_keyframes", "keyframes_with_depth", "initialised", "init_failure"))
+    smoother, smoother_estimate = map(read_side, ("smoother", "smoother_estimate"))
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -108,49 +110,38 @@ class Odometry(OdometryReadout):
         depth-using front-end).
 
         Returns the frame's online :class:`FrameResult` (also in :attr:`frames`),
-        final except for one case: a frame returned while its segment waits for
-        keyframe 1 (``INIT`` / ``LOST``, buffered by the
-        :class:`~spgeo.vo.initialisation.Initialiser`) gets its ``status``
-        and ``T_world_cam`` rewritten once, in place, by the call that creates
-        keyframe 1: re-tracked against the solved keyframe 0 (``INIT`` or
-        ``LOST``); on the ``"ready"`` schedule keyframe 1 may be such an earlier
-        frame (``KEYFRAME``), and the frames after it are re-tracked against it
-        (``OK`` or ``LOST``).  The trajectory's authority is
-        :meth:`result` (it follows the map's smoothed poses and scales).
+        final except while its segment waits for keyframe 1: the call that makes
+        keyframe 1 rewrites the frames it re-tracks once, in place (docs/design.md
+        §5.1, *Initialisation*).  The trajectory's authority is :meth:`result` (it
+        follows the map's smoothed poses and scales).
 
         Raises:
             TypeError: ``frame`` is not a :class:`~spgeo.frame.Frame`.
-            InputError: (a ``ValueError``) the image's (H, W) is neither the input
-                camera's nor the processing camera's, the frame's camera is not that
-                camera, the image holds NaN / inf, or the timestamp is not finite or
-                not strictly after the previous frame's (seconds, or frame numbers
-                for data without time); the frame is not processed (checked_frame).
+            InputError: (a ``ValueError``) a check of
+                :func:`~spgeo.vo.processing.checked_frame` failed (image size or camera,
+                NaN / inf, a timestamp not after the previous); the frame is not processed.
         """
         with opencv_threads(1):
-            return self._track_frame(frame)
-
-    def _track_frame(self, frame: Frame) -> FrameResult:
-        """:meth:`track`'s body."""
-        t0 = time.perf_counter()
-        idx = len(self._frames)
-        frame = checked_frame(frame, idx, self.camera, self.input_camera,
-                              bool(self.frontend.uses_depth),
-                              self._frames[-1].timestamp if self._frames else None)
-        timings: Dict[str, float] = {}
-        if self._port.due(idx):
-            self._sync(timings)
-        self._port.note_frame()
-        if idx == 0:
-            res = self._start(frame, idx, np.eye(4), timings)
-        elif len(self._map.seg_kfs) < 2:
-            res = self._initialise(frame, idx, timings)
-        else:
-            res = self._track(frame, idx, timings)
-        timings["total"] = time.perf_counter() - t0
-        res.timings = timings
-        res.segment = self._map.segment
-        self._frames.append(res)
-        return res
+            t0 = time.perf_counter()
+            idx = len(self._frames)
+            frame = checked_frame(frame, idx, self.camera, self.input_camera,
+                                  bool(self.frontend.uses_depth),
+                                  self._frames[-1].timestamp if self._frames else None)
+            timings: Dict[str, float] = {}
+            if self._port.due(idx):
+                self._sync(timings)
+            self._port.note_frame()
+            if idx == 0:
+                res = self._start(frame, idx, np.eye(4), timings)
+            elif len(self._map.seg_kfs) < 2:
+                res = self._initialise(frame, idx, timings)
+            else:
+                res = self._track(frame, idx, timings)
+            timings["total"] = time.perf_counter() - t0
+            res.timings = timings
+            res.segment = self._map.segment
+            self._frames.append(res)
+            return res
 
     def close(self) -> None:
         """Stop the mapping worker, if any (a pending update is dropped: call
@@ -167,7 +158,7 @@ class Odometry(OdometryReadout):
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
         """Keyframe 0 of a map segment at ``T_world``."""
-        kf = self._maker.first(frame, T_world, timings, median_depth)
+        kf = self._builder.first(frame, T_world, timings, median_depth)
         k = self._map.next_index
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), kf, self._map.segment),
                       new_segment=True)
@@ -180,18 +171,21 @@ class Odometry(OdometryReadout):
         return frame_result(frame, idx, T_world, status, keyframe_index=k)
 
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        """A frame of a segment with only keyframe 0: tracked against it, then
-        the :class:`Initialiser`'s decision applied."""
+        """A frame of a segment with only keyframe 0: tracked against it (without
+        features: its primitives have no depth yet), then the :class:`Initialiser`'s
+        decision applied."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         with timed(timings, "track"):
-            tr = self._tracker.track(kf0.keyframe, frame.image, timestamp=frame.timestamp)
+            tr = self._tracked(kf0, frame, features=False)
         if tr.ok:
             self._motion.accept(tr, float(frame.timestamp))
         self._n_lost = 0 if tr.ok else self._n_lost + 1
         dec = self._initialiser.step(frame.image, idx, kf0, tr, self._motion.brightness,
                                      self._map.segment, timings)
         if dec.action == START:
-            return self._start_map(frame, idx, kf0, dec, timings)
+            res1 = self._start_map(frame, idx, kf0, dec, timings)
+            return res1 if dec.keyframe1 == idx else self._after_late_keyframe1(
+                frame, idx, dec, timings)
         last_good = self._motion.last_good
         if dec.action == FAILED:
             self._n_lost += 1
@@ -202,51 +196,60 @@ class Odometry(OdometryReadout):
                             FrameStatus.INIT if tr.ok else FrameStatus.LOST, track=tr)
 
     def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
-                   timings: Dict[str, float]) -> FrameResult:
+                   timings: Dict[str, float]) -> Optional[FrameResult]:
         """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
-        re-tracked frames their poses and statuses, this frame is keyframe 1; or
-        (solved beside the tracker) an earlier frame is, rewritten in place, the
-        frames after it are tracked again against it (``OK``, else left ``INIT``)
-        and this frame is tracked against it."""
+        re-tracked frames their poses and statuses, and frame ``dec.keyframe1``
+        (this one, or an earlier one whose solve ran beside the tracker) becomes
+        keyframe 1; its result (None when the render gives no scale)."""
         j = dec.keyframe1
         frame1 = frame if j == idx else Frame(dec.image1, self.camera, self._frames[j].timestamp)
         self._map.replace_keyframe(kf0.index, dec.keyframe0)
-        self._map.adopt_retracked(kf0, dec.retracked, self._frames)
+        self._map.adopt_retracked(kf0, dec.retracked)
+        self._frames.rewrite_retracked(dec.retracked, FrameStatus.INIT)
         good = [kf0.frame] + [r.frame for r in dec.retracked if r.ok]
-        t_last = self._frames[good[-1]].timestamp
-        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame1.timestamp), t_last)
+        self._motion.set_poses(dec.T_world_kf1, dec.T_world_last, float(frame1.timestamp),
+                               self._frames[good[-1]].timestamp)
         self._n_lost = 0
         res1 = self._new_keyframe(frame1, j, dec.T_world_kf1, timings, track=dec.track1)
-        if j == idx:
-            return res1
-        if res1 is not None:
+        if j != idx and res1 is not None:     # its returned result rewritten in place
             self._frames[j].rewrite(res1.status, res1.T_world_cam, res1.track, res1.keyframe_index)
+        return res1
+
+    def _after_late_keyframe1(self, frame: Frame, idx: int, dec: InitDecision,
+                              timings: Dict[str, float]) -> FrameResult:
+        """Keyframe 1 made of the earlier frame ``dec.keyframe1``: the frames after
+        it tracked again against it (``OK``, else left ``INIT``), then this frame."""
         with timed(timings, "init"):
-            since = self._tracker.retrack(self._map.latest, [(i, image, self._frames[i].timestamp)
-                                                             for i, image in dec.since])
-        self._map.adopt_retracked(self._map.latest, [r for r in since if r.ok], self._frames,
-                                  FrameStatus.OK)
+            since = [r for r in self._tracker.retrack(
+                self._map.latest, [(i, image, self._frames[i].timestamp) for i, image in dec.since],
+                self._motion) if r.ok]
+        self._map.adopt_retracked(self._map.latest, since)
+        self._frames.rewrite_retracked(since, FrameStatus.OK)
         return self._track(frame, idx, timings)
+
+    def _tracked(self, kf: MapKeyframe, frame: Frame, features: bool = True) -> TrackResult:
+        """``frame`` tracked against ``kf`` from the motion model's guesses
+        (:meth:`FrameTracker.track`)."""
+        return self._tracker.track(kf, frame.image, self._motion.guesses(frame.timestamp),
+                                   self._motion.brightness, features)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of an initialised segment: tracked against the latest keyframe
-        (or relocalised against an older one), then the keyframe decision."""
+        (or relocalised against an older one), then the keyframe policy's decision."""
         latest = ref = self._map.latest
-        t = time.perf_counter()
-        tr = self._tracker.track(latest.keyframe, frame.image, latest, frame.timestamp)
+        with timed(timings, "track"):
+            tr = self._tracked(latest, frame)
         if not tr.ok and self._port.pending:
             # lost against the pending map: tracked again after the update (a wait of mapping's)
-            tracked = time.perf_counter() - t
             self._sync(timings)
-            t = time.perf_counter() - tracked
-            tr = self._tracker.track(latest.keyframe, frame.image, latest, frame.timestamp)
-        relocalised = False
+            with timed(timings, "track"):
+                tr = self._tracked(latest, frame)
         if not tr.ok:
-            older = [self._map.kfs[k] for k in reversed(self._map.seg_kfs[-self.config.window:-1])]
-            tr_old, kf_old = self._tracker.relocalise(older, frame.image)
+            with timed(timings, "track"):
+                tr_old, kf_old = self._tracker.relocalise(self._map.older_in_window(),
+                                                          frame.image, self._motion)
             if tr_old is not None:
-                tr, ref, relocalised = tr_old, kf_old, True
-        timings["track"] = time.perf_counter() - t
+                tr, ref = tr_old, kf_old
         if not tr.ok:
             return self._lost(frame, idx, tr, timings)
         was_lost = self._n_lost > 0
@@ -254,16 +257,15 @@ class Odometry(OdometryReadout):
         self._motion.accept(tr, float(frame.timestamp))
         T_ref_f = invert_pose(ref.keyframe.T_world_kf) @ tr.T_world_frame
         self._map.anchor(idx, ref.index, T_ref_f, ref.keyframe.median_depth)
-        status = FrameStatus.RELOCALISED if (was_lost or relocalised) else FrameStatus.OK
-        # tracked against an older keyframe: make it a keyframe to re-anchor the map
-        if ((ref is not latest or self._tracker.wants_keyframe(tr, T_ref_f, latest))
-                and not self._port.defers_keyframe()):
-            if ref is latest and self._port.pending:
-                tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
-            else:
-                res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
-            if res is not None:
-                return res
+        status = FrameStatus.RELOCALISED if (was_lost or ref is not latest) else FrameStatus.OK
+        decision = self._policy.decide(tr, T_ref_f, ref, latest)
+        res = None
+        if decision == AFTER_UPDATE:
+            tr, T_ref_f, res = self._redecided(frame, idx, tr, timings)
+        elif decision == KEYFRAME:
+            res = self._new_keyframe(frame, idx, tr.T_world_frame, timings, track=tr)
+        if res is not None:
+            return res
         if ref is latest:
             self._map.add_candidate(SupportCandidate(idx, np.asarray(frame.image), T_ref_f,
                                                      np.asarray(tr.brightness, float)))
@@ -279,8 +281,7 @@ class Odometry(OdometryReadout):
         if self._n_lost < self.config.max_lost_frames:
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
         log.warning("frame %d: %d frames lost; re-initialising the map", idx, self._n_lost)
-        grey = np.asarray(frame.image, dtype=np.float64)
-        if float(np.std(grey)) < 1e-3 * max(float(np.max(np.abs(grey))), 1.0):
+        if featureless(frame.image):
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST)
         self._sync(timings)
         med = self._map.latest.keyframe.median_depth
@@ -291,14 +292,14 @@ class Odometry(OdometryReadout):
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult],
                       prims: Optional[PrimitiveSet] = None) -> Optional[FrameResult]:
-        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeMaker`;
+        """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeBuilder`;
         ``prims``: its primitives, already made) and send its job to the port, on
         the map updated first (the frame's pose moved with the keyframe it was
         tracked against).  None when the render gives no scale."""
         if self._sync(timings) and idx in self._map.anchors:
             T_world = nearest_rigid(self._map.frame_pose(*self._map.anchors[idx]))
         k = self._map.next_index
-        made = self._maker.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings,
+        made = self._builder.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings,
                                     prims=prims)
         if made is None:
             return None
@@ -316,25 +317,23 @@ class Odometry(OdometryReadout):
     def _redecided(self, frame: Frame, idx: int, tr: TrackResult, timings: Dict[str, float]
                    ) -> Tuple[TrackResult, np.ndarray, Optional[FrameResult]]:
         """A keyframe wanted before the latest keyframe's update (design.md §5.1):
-        primitives made, update applied, tracked and decided again.  Returns
+        primitives made, update applied, tracked again from its pose moved with the
+        update and decided again (:meth:`KeyframePolicy.crosses`).  Returns
         ``(track result, T_latest_frame, keyframe FrameResult or None)``."""
         latest = self._map.latest
         with timed(timings, "frontend"):
-            prims = self._maker.primify(frame)
-        ref, _, median_then = self._map.anchors[idx]
+            prims = self._builder.primify(frame)
         self._sync(timings)
-        T0 = self._map.frame_pose(*self._map.anchors[idx])    # moved with the update
+        T_ref_f = self._map.relative_pose(*self._map.anchors[idx])    # moved with the update
         with timed(timings, "track"):
-            tr2 = track_frame(latest.keyframe, frame.image, T0, tr.brightness, self.config.tracker)
+            tr2 = self._tracker.track(latest, frame.image, [lambda: latest.keyframe.T_world_kf
+                                                            @ T_ref_f], tr.brightness)
         if tr2.ok:
             tr = tr2
             self._motion.replace_last(tr)
             T_ref_f = invert_pose(latest.keyframe.T_world_kf) @ tr.T_world_frame
-        else:
-            T_ref_f = self._map.anchors[idx][1].copy()
-            T_ref_f[:3, 3] *= latest.keyframe.median_depth / median_then
-        self._map.anchor(idx, ref, T_ref_f, latest.keyframe.median_depth)
-        if not self._tracker.wants_keyframe(tr, T_ref_f, latest):
+        self._map.anchor(idx, latest.index, T_ref_f, latest.keyframe.median_depth)
+        if not self._policy.crosses(tr, T_ref_f, latest):
             return tr, T_ref_f, None
         T_world = nearest_rigid(latest.keyframe.T_world_kf @ T_ref_f)
         return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, prims=prims)
@@ -345,6 +344,7 @@ class Odometry(OdometryReadout):
         ``timings``.  Returns whether an update was applied."""
         if not self._port.pending:
             return False
-        seconds = self._port.apply_pending(self._map, self._motion, len(self._frames))
+        seconds, change = self._port.apply_pending(self._map, len(self._frames))
+        self._motion.follow(change)
         add_seconds({} if timings is None else timings, seconds)
         return True

@@ -1,29 +1,57 @@
-"""What a caller reads of a VO run (:class:`OdometryReadout`, the base of
-:class:`spgeo.vo.Odometry`): the trajectory, the keyframes, the run's report and its
-files, the window smoother where it is in this process.  Every read applies the
-mapping port's pending update first (``_sync``), so it sees the map as it will be.
+"""What a caller reads of a VO run (:class:`OdometryReadout`, owned by
+:class:`spgeo.vo.Odometry` as ``readout``, which hands it the parts it reads): the
+trajectory, the keyframes, the run's report and its files, the window smoother where
+it is in this process.  Every read applies the mapping port's pending update first
+(the ``sync`` it is given), so it sees the map as it will be.  :func:`read_side`
+makes the odometry's own members that forward to it.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
+import inspect
 from pathlib import Path
-from typing import Dict, Iterable, Iterator, List, Optional, Tuple, Union
+from typing import Callable, Dict, Iterable, Iterator, List, Optional, Tuple, Union
 
 import numpy as np
 
 import gtsam
 
 from ..trajectory import METRES, VO_UNITS
+from ..camera import PinholeCamera
+from ..frontend import PrimitiveFrontEnd
+from .config import OdometryConfig
+from .initialisation import Initialiser
+from .keyframe_builder import KeyframeBuilder
+from .map import KeyframeMap
+from .mapping_port import MappingPort
 from .result import FrameResult, OdometryResult, frame_records, save_run, timing_statistics
 from .tracking import Keyframe
 
-__all__ = ["OdometryReadout"]
+__all__ = ["OdometryReadout", "read_side"]
 
 
 class OdometryReadout:
-    """The read side of :class:`spgeo.vo.Odometry` (module docstring); the state
-    it reads (``_frames``, ``_map``, ``_port``, ``_initialiser``, ``_maker``,
-    ``config``, ``frontend``) and ``_sync`` are the odometry's."""
+    """The read side of :class:`spgeo.vo.Odometry` (module docstring).
+
+    Args:
+        camera, config, frontend: the odometry's processing camera, config and
+            front-end.
+        frames: the odometry's list of :class:`FrameResult` (it appends; this reads).
+        kmap, port, initialiser, builder: its map, mapping port, initialiser and
+            keyframe builder (their reports and state are read, never changed).
+        sync: applies the pending update (waiting for it) before a read.
+        name: the class name its repr shows.
+    """
+
+    def __init__(self, camera: PinholeCamera, config: OdometryConfig,
+                 frontend: PrimitiveFrontEnd, frames: List[FrameResult], kmap: KeyframeMap,
+                 port: MappingPort, initialiser: Initialiser, builder: KeyframeBuilder,
+                 sync: Callable[[], object], name: str = "Odometry") -> None:
+        self.camera, self.config, self.frontend = camera, config, frontend
+        self._frames, self._map, self._port = frames, kmap, port
+        self._initialiser, self._builder, self._sync = initialiser, builder, sync
+        self._name = name
 
     def __repr__(self) -> str:
         """One line: working size, frames, keyframes, segments, the last frame's
@@ -31,9 +59,9 @@ class OdometryReadout:
         cam = self.camera
         last = self._frames[-1].status if self._frames else "no frame yet"
         segments = len({f.segment for f in self._frames})
-        return (f"{type(self).__name__}({cam.width}x{cam.height}, {len(self._frames)} frames, "
+        return (f"{self._name}({cam.width}x{cam.height}, {len(self._frames)} frames, "
                 f"{len(self._map.order)} keyframes, {segments} segment(s), last {last}, "
-                f"mapping {self.config.mapping}, window {self.config.window})")
+                f"mapping {self.config.mapping.mode}, window {self.config.window})")
 
     def result(self) -> OdometryResult:
         """Per-frame trajectory (docs/design.md §5.1, *Trajectory*;
@@ -62,7 +90,7 @@ class OdometryReadout:
     @property
     def smoother(self) -> gtsam.BatchFixedLagSmoother:
         """The window's ``gtsam.BatchFixedLagSmoother`` (:class:`WindowMapper`;
-        ``OdometryConfig.mapping="inline"`` only: live, it is in the worker
+        ``OdometryConfig.mapping.mode="inline"`` only: live, it is in the worker
         process, and this raises ``RuntimeError``)."""
         return self._port.backend.mapper.smoother
 
@@ -156,9 +184,9 @@ class OdometryReadout:
             "config": dataclasses.asdict(self.config),
             "frontend": getattr(self.frontend, "name", str(self.frontend)),
             "sfm": self._initialiser.reports,
-            "scale_checks": self._maker.scale_checks,
+            "scale_checks": self._builder.scale_checks,
             "mapping": list(rec.reports),
-            "mapping_mode": self.config.mapping,
+            "mapping_mode": self.config.mapping.mode,
             **self._port.report(),
             "loop_closures": loops,
             **({} if rec.landmarks is None else {"landmarks": rec.landmarks}),
@@ -178,3 +206,20 @@ class OdometryReadout:
         traj = self.result() if trajectory is None else trajectory
         return save_run(directory, traj, {**self.report(), **(extra_report or {})},
                         kfs if clouds else None)
+
+
+def read_side(name: str):
+    """A member of :class:`spgeo.vo.Odometry` that forwards to its ``readout``'s
+    member ``name`` of :class:`OdometryReadout`: a property (with its setter) for a
+    property, else a method with the same signature and docstring."""
+    member = inspect.getattr_static(OdometryReadout, name)
+    if isinstance(member, property):
+        def set_value(self, value) -> None:
+            setattr(self.readout, name, value)
+        return property(lambda self: getattr(self.readout, name),
+                        set_value if member.fset is not None else None, doc=member.__doc__)
+
+    @functools.wraps(member)
+    def forward(self, *args, **kwargs):
+        return getattr(self.readout, name)(*args, **kwargs)
+    return forward

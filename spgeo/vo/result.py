@@ -20,7 +20,7 @@ from ..jsonio import json_default
 from ..trajectory import STATUSES, FrameStatus, Trajectory
 from .tracking import Keyframe, TrackResult
 
-__all__ = ["FrameResult", "OdometryResult", "STATUSES", "FrameStatus", "timing_statistics",
+__all__ = ["FrameResult", "FrameLog", "OdometryResult", "STATUSES", "FrameStatus", "timing_statistics",
            "frame_result", "timed", "add_seconds",
            "frame_records", "save_run", "write_keyframe_clouds"]
 
@@ -85,6 +85,20 @@ class FrameResult:
         :meth:`spgeo.vo.Odometry.track`)."""
         self.status, self.T_world_cam = FrameStatus(status), np.array(T_world_cam, dtype=float)
         self.track, self.keyframe_index = track, keyframe_index
+
+
+class FrameLog(List[FrameResult]):
+    """The :class:`FrameResult` of every frame of a run, in frame order (a list:
+    :class:`spgeo.vo.Odometry` appends one per frame).  Its rewrites are the
+    initialisation's, once per frame (:meth:`spgeo.vo.Odometry.track`)."""
+
+    def rewrite_retracked(self, retracked: Iterable, status: FrameStatus) -> None:
+        """Frames tracked again (:class:`~spgeo.vo.frame_tracker.RetrackedFrame`)
+        take their new pose and ``status``, ``LOST`` where not tracked."""
+        for r in retracked:
+            res = self[r.frame]
+            res.rewrite(status if r.ok else FrameStatus.LOST, r.T_world_frame, res.track,
+                        res.keyframe_index)
 
 
 @contextlib.contextmanager

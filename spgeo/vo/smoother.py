@@ -10,7 +10,7 @@ factors in both directions, and the previous keyframe to up to ``n_support``
 supporting non-keyframes tracked against it (evenly spaced; paper: 4), whose
 poses are optimised too.  One
 :class:`~spgeo.factors.photometric.PrimitivePhotometricFactor` per primitive
-and pair, built at pyramid level ``map_level``; the factors of a pair are
+and pair, built at pyramid level ``mapping.level``; the factors of a pair are
 evaluated together (:class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`,
 identical values, one vectorised pass).  The first keyframe's pose has a tight
 gauge prior; every shape variable a weak prior (weight ``scale_prior_weight``)
@@ -27,8 +27,8 @@ are rebuilt from the smoother's estimate.
 
 With ``OdometryConfig.pixel_budget`` the keyframes entering the window take
 the tracker's pixel selection (:mod:`spgeo.vo.pixels`); the factors use every
-pixel of ``map_level`` (``Keyframe.level_data`` without selection), or with
-``map_pixel_fraction < 1`` the strongest-gradient ones.  Primitives left
+pixel of ``mapping.level`` (``Keyframe.level_data`` without selection), or with
+``mapping.pixel_fraction < 1`` the strongest-gradient ones.  Primitives left
 without pixels have no photometric factor, are held by their priors and are
 counted in the report (``primitives_without_pixels``).
 
@@ -114,7 +114,7 @@ class WindowMapper:
     def new_smoother(self) -> gtsam.BatchFixedLagSmoother:
         """An empty smoother with the configured LM parameters and lag."""
         p = gtsam.LevenbergMarquardtParams()
-        p.setMaxIterations(int(self.config.map_iterations))
+        p.setMaxIterations(int(self.config.mapping.iterations))
         p.setRelativeErrorTol(float(MAP_RELATIVE_TOL))
         p.setAbsoluteErrorTol(1e-9)
         p.setlambdaUpperBound(float(MAP_LAMBDA_MAX))
@@ -224,7 +224,7 @@ class WindowMapper:
     def _add_support(self, batch: FactorBatch, prev: MapKeyframe,
                      chosen: Sequence[SupportCandidate]) -> int:
         """The supporting frames' poses and their factors from ``prev``."""
-        lvl = self.config.map_level
+        lvl = self.config.mapping.level
         n_sup = 0
         for c in chosen:
             pkey = support_pose_key(c.frame)

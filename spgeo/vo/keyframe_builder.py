@@ -1,4 +1,5 @@
-"""Making the VO's keyframes (docs/design.md §5.1, *Keyframes*): a frame's
+"""Building the VO's keyframes (docs/design.md §5.1, *Keyframes*; when a frame
+becomes one is :class:`~spgeo.vo.keyframe_policy.KeyframePolicy`'s decision): a frame's
 primitives from the front-end, their log-scales (keyframe 0 of a segment: one
 constant; later keyframes: rendered from the window, then the reverse scale
 check), the primitive-model ablation, and the keyframe's pyramid."""
@@ -22,7 +23,7 @@ from .rendering import init_scales_from_render, render_primitives
 from .scale_check import reverse_scale_check
 from .tracking import Keyframe
 
-__all__ = ["KeyframeMaker", "RENDER_SPLAT"]
+__all__ = ["KeyframeBuilder", "RENDER_SPLAT"]
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +31,7 @@ log = logging.getLogger(__name__)
 RENDER_SPLAT = 2
 
 
-class KeyframeMaker:
+class KeyframeBuilder:
     """Builds the :class:`~spgeo.vo.tracking.Keyframe` of a frame for one
     :class:`~spgeo.vo.Odometry` (processing ``camera``, ``config``, ``frontend``).
 
