@@ -58,7 +58,7 @@ class TrackerConfig:
             :mod:`spgeo.vo.tracking`'s module constants.
         min_level_pixels: primitives with fewer pixels at a level are left
             out of that level, and out of the mapping factors at
-            ``OdometryConfig.map_level`` (as :class:`spgeo.sfm.SfMConfig`;
+            ``OdometryConfig.mapping.level`` (as :class:`spgeo.sfm.SfMConfig`;
             default 4).
         min_valid_fraction: status ``"lost"`` when fewer of the decision
             pixels (``decision_width``) project inside the frame at the final
