@@ -56,6 +56,9 @@ and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
   attribute ``_name`` (not a dunder) is read only from ``self`` or ``cls``: an object hands
   what another needs (the odometry's read side is given its parts, not reading them).
 * ``OdometryConfig`` has at most 22 top-level fields (groups for the rest).
+* One triangulator: in ``spgeo/`` and ``factors/`` nothing calls OpenCV's
+  ``triangulatePoints``, and a function named ``triangulate*`` outside
+  ``spgeo/triangulation.py`` is an adapter that calls its ``triangulate`` or ``dlt_points``.
 """
 from __future__ import annotations
 
@@ -830,3 +833,38 @@ def test_odometry_config_has_few_top_level_fields():
     from spgeo.vo.config import OdometryConfig
     n = len(dataclasses.fields(OdometryConfig))
     assert n <= MAX_ODOMETRY_FIELDS, f"OdometryConfig has {n} top-level fields"
+
+
+TRIANGULATION_MODULE = "spgeo/triangulation.py"   # the one triangulator
+
+
+def triangulator_twins(source: str) -> List[int]:
+    """Lines of ``source``: calls of ``triangulatePoints``, and functions named
+    ``triangulate*`` that call neither ``triangulate`` nor ``dlt_points``."""
+    tree = ast.parse(source)
+    lines = call_lines(source, "triangulatePoints")
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and \
+                node.name.startswith("triangulate"):
+            body = ast.unparse(node)
+            if not (call_lines(body, "triangulate") or call_lines(body, "dlt_points")):
+                lines.append(node.lineno)
+    return sorted(lines)
+
+
+def test_triangulator_scanner():
+    source = ("def triangulate_pair(a, b):\n"                    # line 1: its own DLT
+              "    return np.linalg.svd(a)\n"
+              "def triangulate_depths(a):\n"                     # an adapter
+              "    return triangulate(cam, poses, a)[:, 2]\n"
+              "X = cv2.triangulatePoints(P1, P2, x1, x2)\n")     # line 5
+    assert triangulator_twins(source) == [1, 5]
+
+
+def test_one_triangulator():
+    files = [p for folder in ("spgeo", "factors") for p in _python_files(folder)
+             if p != ROOT / TRIANGULATION_MODULE]
+    offenders = [f"{path.relative_to(ROOT).as_posix()}:{line}" for path in files
+                 for line in triangulator_twins(path.read_text(encoding="utf-8"))]
+    assert not offenders, (f"points are triangulated only by {TRIANGULATION_MODULE}:\n"
+                           + "\n".join(offenders))
