@@ -6,6 +6,8 @@
   (``len``, ``seq[i]``, ``seq[a:b]`` -> list, iteration, ``.camera``, ``.name``),
   with the shared constructor steps (:meth:`FrameSequence._open`,
   :func:`numbered_frames`, :func:`check_camera`, :func:`config_from_kwargs`).
+* :class:`FileRecord`: the one per-frame record of every reader (frame number,
+  timestamp, image / depth / pose files, the pose read when opening).
 
 The file readers (:mod:`spgeo.datasets.files`) and :func:`warp_image` /
 :func:`photometric_error` (:mod:`spgeo.datasets.warp`) are re-exported here.
@@ -147,13 +149,28 @@ def select_frames(numbers: Sequence[int], selection: FrameSelection) -> List[int
 # ------------------------------------------------------------------ records
 @dataclass
 class FileRecord:
-    """One frame of a reader's selection: its data-set frame number, timestamp
-    (seconds, or the frame number where the data set has no times) and files."""
+    """One frame of a reader's selection (the one record type of every
+    :class:`FrameSequence`; a reader subclasses it only for a field of its own).
+
+    Attributes:
+        number: the data-set frame number.
+        timestamp: seconds, or the frame number where the data set has no times.
+        color_path: the file the frame's image is read from (for a video, the
+            video file; named in :class:`~spgeo.validation.FrameReadError`).
+        depth_path: the frame's depth file where the reader knows it when opening,
+            else None (no depth, or found when loading, as by the folder reader).
+        pose: camera-to-world ground truth read when opening (one pose file of the
+            sequence), None where unknown or read per frame from ``pose_path``.
+        pose_path: the frame's own pose file (7-Scenes, ScanNet), read by the
+            reader's :meth:`FrameSequence._pose`; None where there is none.
+    """
 
     number: int
     timestamp: float
     color_path: Path
-    depth_path: Optional[Path]
+    depth_path: Optional[Path] = None
+    pose: Optional[np.ndarray] = None
+    pose_path: Optional[Path] = None
 
 
 # ------------------------------------------------------------------ cameras
@@ -260,12 +277,12 @@ class FrameSequence(CameraSource, _SequenceABC):
 
     Subclasses set ``self._raw_camera`` (the camera of the files, possibly with
     distortion), ``self._undistort``, ``self._name`` and the per-frame records
-    (``self._records``), and implement :meth:`_load`.  Where the camera comes
-    from is :attr:`intrinsics` (``"file"``: the data set's calibration file or
-    published intrinsics, ``"given"``, ``"guessed"``).
+    (``self._records``, :class:`FileRecord`), and implement :meth:`_load`.
+    Where the camera comes from is :attr:`intrinsics` (``"file"``: the data
+    set's calibration file or published intrinsics, ``"given"``, ``"guessed"``).
     """
 
-    _records: List[Any]
+    _records: List[FileRecord]
 
     def __init__(self) -> None:
         self._maps: Optional[Tuple[np.ndarray, np.ndarray]] = None
@@ -335,11 +352,10 @@ class FrameSequence(CameraSource, _SequenceABC):
     def _check_config(self, config: Any) -> None:
         """Raise ``ValueError`` for invalid option values (default: none checked)."""
 
-    def _pose(self, record: Any) -> Optional[np.ndarray]:
+    def _pose(self, record: FileRecord) -> Optional[np.ndarray]:
         """Camera-to-world pose of a record: a copy of ``record.pose``, None where
-        the record has none (readers with pose files override this)."""
-        pose = getattr(record, "pose", None)
-        return None if pose is None else pose.copy()
+        the record has none (readers with per-frame pose files override this)."""
+        return None if record.pose is None else record.pose.copy()
 
     def _get(self, i: int) -> Frame:
         """Frame ``i`` (:meth:`_load`); a file that cannot be read (the reader's
@@ -351,13 +367,11 @@ class FrameSequence(CameraSource, _SequenceABC):
         try:
             return self._load(i, record)
         except (InputError, OSError) as exc:
-            path = getattr(record, "color_path", None) or getattr(record, "path", None)
-            stamp = getattr(record, "timestamp", None)
             cls = FrameFileMissing if isinstance(exc, FileNotFoundError) else FrameReadError
-            raise cls(i, None if path is None else str(path), str(exc), stamp) from exc
+            raise cls(i, str(record.color_path), str(exc), record.timestamp) from exc
 
     @abstractmethod
-    def _load(self, index: int, record: Any) -> Frame:
+    def _load(self, index: int, record: FileRecord) -> Frame:
         """Load the frame at position ``index`` described by ``record``."""
 
     def _finish_depth(self, depth: np.ndarray) -> np.ndarray:

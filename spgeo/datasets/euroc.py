@@ -134,11 +134,6 @@ def read_euroc_sensor(path: PathLike) -> Tuple[PinholeCamera, np.ndarray]:
     return camera, nearest_rigid(T_BS, f"{path} T_BS")
 
 
-@dataclass
-class _Record(FileRecord):
-    pose: Optional[np.ndarray]
-
-
 class EuRoCSequence(FrameSequence):
     """Lazy reader of a EuRoC MAV sequence (see the module docstring)."""
 
@@ -158,9 +153,8 @@ class EuRoCSequence(FrameSequence):
             raise InputError(f"{cam_dir / 'data.csv'} lists no images")
         keep = select_frames(range(len(stamps)), cfg.frames)
         poses = self._poses(mav, stamps[keep], T_BS) if cfg.load_pose else [None] * len(keep)
-        self._records: List[_Record] = [
-            _Record(k, float(stamps[k]), cam_dir / "data" / rows[k][0], None, T)
-            for k, T in zip(keep, poses)]
+        self._records = [FileRecord(k, float(stamps[k]), cam_dir / "data" / rows[k][0], pose=T)
+                         for k, T in zip(keep, poses)]
         if cfg.check_files:
             check_selection_files([r.color_path for r in self._records], "image")
 
@@ -187,7 +181,7 @@ class EuRoCSequence(FrameSequence):
             out.append(T_world_body @ T_BS)
         return out
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
         meta = {"dataset": "euroc", "sequence": self._name, "index": index,
                 "frame_number": rec.number, "rgb_path": str(rec.color_path),

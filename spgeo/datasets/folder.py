@@ -25,7 +25,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional, Tuple, Union
+from typing import Optional, Tuple, Union
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from ..configs import config_class
 from ..frame import Frame
 from ..validation import InputError
 from .calibration import CameraSpec
-from .common import FrameSelection, FrameSequence, select_frames
+from .common import FileRecord, FrameSelection, FrameSequence, select_frames
 from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
 
 __all__ = ["FolderConfig", "FolderSequence", "read_intrinsics_txt"]
@@ -96,13 +96,6 @@ class FolderConfig:
     extensions: Tuple[str, ...] = (".png", ".jpg", ".jpeg")
 
 
-@dataclass
-class _Record:
-    number: int
-    timestamp: float
-    path: Path
-
-
 class FolderSequence(FrameSequence):
     """Lazy reader of a plain image folder (see the module docstring)."""
 
@@ -127,7 +120,7 @@ class FolderSequence(FrameSequence):
         if times_path.is_file():
             times = self._read_times(times_path, len(images))
         keep = select_frames(range(len(images)), cfg.frames)
-        self._records: List[_Record] = [_Record(k, float(times[k]), images[k]) for k in keep]
+        self._records = [FileRecord(k, float(times[k]), images[k]) for k in keep]
 
     def _resolve_camera(self, camera, first_image: Path) -> PinholeCamera:
         """Given camera, else ``camera.json``, else ``intrinsics.txt`` (source
@@ -177,16 +170,16 @@ class FolderSequence(FrameSequence):
             return depth, npy
         return None, None
 
-    def _load(self, index: int, rec: _Record) -> Frame:
-        image = self._finish_image(read_rgb(rec.path, self._raw_camera))
+    def _load(self, index: int, rec: FileRecord) -> Frame:
+        image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
         depth, depth_path = (None, None)
         if self.config.load_depth:
-            depth, depth_path = self._read_depth(rec.path.stem)
+            depth, depth_path = self._read_depth(rec.color_path.stem)
             if depth is not None:
                 depth = self._finish_depth(depth)
         meta = {"dataset": "folder", "sequence": self._name, "index": index,
-                "frame_number": rec.number, "rgb_path": str(rec.path),
+                "frame_number": rec.number, "rgb_path": str(rec.color_path),
                 "depth_path": None if depth_path is None else str(depth_path),
                 "depth_registered": True}
         return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
-                     name=rec.path.stem, meta=meta)
+                     name=rec.color_path.stem, meta=meta)

@@ -25,7 +25,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, Optional
 
 import numpy as np
 
@@ -117,11 +117,6 @@ class ICLConfig:
     depth_scale: float = 5000.0
 
 
-@dataclass
-class _Record(FileRecord):
-    pose: Optional[np.ndarray]
-
-
 class ICLSequence(FrameSequence):
     """Lazy reader of an ICL-NUIM sequence folder (see the module docstring)."""
 
@@ -150,13 +145,13 @@ class ICLSequence(FrameSequence):
             else:
                 logger.info("%s: no %s, frames will have no pose", root, cfg.pose_file)
 
-        self._records: List[_Record] = []
+        self._records = []
         for n in selected:
             T = poses.get(n)
-            self._records.append(_Record(n, float(n), found[n], root / "depth" / found[n].name,
-                                         None if T is None else icl_pose_to_opencv(T)))
+            self._records.append(FileRecord(n, float(n), found[n], root / "depth" / found[n].name,
+                                            None if T is None else icl_pose_to_opencv(T)))
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         image = read_rgb(rec.color_path, self._raw_camera)
         depth = None
         if self.config.load_depth:

@@ -120,11 +120,6 @@ def read_kitti_poses(path: PathLike) -> List[np.ndarray]:
     return poses
 
 
-@dataclass
-class _Record(FileRecord):
-    pose: Optional[np.ndarray]
-
-
 class KITTISequence(FrameSequence):
     """Lazy reader of a KITTI odometry sequence folder (see the module docstring)."""
 
@@ -154,11 +149,11 @@ class KITTISequence(FrameSequence):
         T_cam0_cam[:3, 3] = -np.linalg.solve(K, P[:, 3])
         times = self._times(root / "times.txt")
         poses = self._poses(root) if cfg.load_pose else None
-        self._records: List[_Record] = []
+        self._records = []
         for n in selected:
             t = float(times[n]) if times is not None and n < len(times) else n / KITTI_FPS
             T = poses[n] @ T_cam0_cam if poses is not None and n < len(poses) else None
-            self._records.append(_Record(n, t, found[n], None, T))
+            self._records.append(FileRecord(n, t, found[n], pose=T))
 
     @staticmethod
     def _times(path: Path) -> Optional[np.ndarray]:
@@ -179,7 +174,7 @@ class KITTISequence(FrameSequence):
         logger.info("%s: no ground-truth poses", root)
         return None
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         image = read_rgb(rec.color_path, self._raw_camera)
         meta = {"dataset": "kitti", "sequence": self._name, "index": index,
                 "frame_number": rec.number, "rgb_path": str(rec.color_path)}

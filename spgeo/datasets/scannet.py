@@ -104,11 +104,6 @@ class ScanNetConfig:
     frames: FrameSelection = None
 
 
-@dataclass
-class _Record(FileRecord):
-    pose_path: Path
-
-
 class ScanNetScene(FrameSequence):
     """Lazy reader of one exported ScanNet scene (see the module docstring).
 
@@ -128,9 +123,8 @@ class ScanNetScene(FrameSequence):
                                         "(expected the SensReader export layout)")
         found, selected = numbered_frames(root / "color", _FRAME_RE, "images", cfg.frames,
                                           lambda: f"no <frame>.jpg images in {root / 'color'}")
-        self._records: List[_Record] = [
-            _Record(n, float(n), found[n], root / "depth" / f"{n}.png", root / "pose" / f"{n}.txt")
-            for n in selected]
+        self._records = [FileRecord(n, float(n), found[n], root / "depth" / f"{n}.png",
+                                    pose_path=root / "pose" / f"{n}.txt") for n in selected]
 
         # sizes: colour from the first image, depth from the first depth map
         self.color_size = _image_size(self._records[0].color_path)
@@ -175,10 +169,10 @@ class ScanNetScene(FrameSequence):
                 return i
         raise ValueError(f"ScanNet scene {self._name}: no frame number {number}")
 
-    def _pose(self, rec: _Record) -> Optional[np.ndarray]:
+    def _pose(self, rec: FileRecord) -> Optional[np.ndarray]:
         return read_pose_file(rec.pose_path, "ScanNet", read_scannet_matrix)
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         cam = self._raw_camera
         image = read_rgb(rec.color_path)
         if image.shape[:2] != cam.shape:

@@ -24,7 +24,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional
+from typing import Optional
 
 import numpy as np
 
@@ -43,6 +43,12 @@ logger = logging.getLogger(__name__)
 SEVEN_SCENES_CAMERA = PinholeCamera(585.0, 585.0, 320.0, 240.0, 640, 480)
 
 _COLOR_RE = re.compile(r"^frame-(\d+)\.color\.(png|jpg|jpeg)$", re.IGNORECASE)
+
+
+def _frame_stem(color_path: Path) -> str:
+    """``frame-NNNNNN`` of a colour image ``frame-NNNNNN.color.png|jpg`` (its depth
+    and pose files are ``<stem>.depth.png`` and ``<stem>.pose.txt``)."""
+    return color_path.name[:color_path.name.lower().index(".color.")]
 
 
 @config_class
@@ -70,12 +76,6 @@ class SevenScenesConfig:
     depth_scale: float = 1000.0
 
 
-@dataclass
-class _Record(FileRecord):
-    pose_path: Path
-    stem: str
-
-
 class SevenScenesSequence(FrameSequence):
     """Lazy reader of a 7-Scenes sequence folder (see the module docstring)."""
 
@@ -100,17 +100,16 @@ class SevenScenesSequence(FrameSequence):
         else:
             self._raw_camera = SEVEN_SCENES_CAMERA
 
-        self._records: List[_Record] = []
+        self._records = []
         for n in selected:
-            cp = found[n]
-            stem = cp.name[:cp.name.lower().index(".color.")]
-            self._records.append(_Record(n, float(n), cp, root / f"{stem}.depth.png",
-                                         root / f"{stem}.pose.txt", stem))
+            stem = _frame_stem(found[n])
+            self._records.append(FileRecord(n, float(n), found[n], root / f"{stem}.depth.png",
+                                            pose_path=root / f"{stem}.pose.txt"))
 
-    def _pose(self, rec: _Record) -> Optional[np.ndarray]:
+    def _pose(self, rec: FileRecord) -> Optional[np.ndarray]:
         return read_pose_file(rec.pose_path, "7-Scenes", lambda p: read_matrix_file(p, (4, 4)))
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
         depth = None
         if self.config.load_depth:
@@ -123,4 +122,4 @@ class SevenScenesSequence(FrameSequence):
                 "pose_path": str(rec.pose_path), "depth_registered": False,
                 "timestamp_is_frame_number": True}
         return Frame(image=image, camera=self.camera, timestamp=rec.timestamp, depth=depth,
-                     T_world_cam=pose, name=rec.stem, meta=meta)
+                     T_world_cam=pose, name=_frame_stem(rec.color_path), meta=meta)

@@ -255,8 +255,9 @@ def interpolate_poses(gt_stamps: np.ndarray, gt_tum: np.ndarray, query: np.ndarr
 # --------------------------------------------------------------------- reader
 @dataclass
 class _TUMRecord(FileRecord):
-    depth_timestamp: Optional[float]
-    pose: Optional[np.ndarray]
+    """A TUM frame's record: also the stamp of its associated depth image."""
+
+    depth_timestamp: Optional[float] = None
 
 
 class TUMSequence(FrameSequence):

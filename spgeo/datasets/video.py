@@ -29,7 +29,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, List, Optional, Tuple, Union
+from typing import Iterator, Optional, Tuple, Union
 
 import numpy as np
 
@@ -38,7 +38,7 @@ from ..configs import config_class
 from ..frame import Frame
 from ..validation import InputError, check_input_file
 from .calibration import CameraSpec
-from .common import (CameraSource, FrameSelection, FrameSequence, config_from_kwargs,
+from .common import (CameraSource, FileRecord, FrameSelection, FrameSequence, config_from_kwargs,
                      parse_frame_range, select_frames)
 from .files import PathLike
 
@@ -123,13 +123,6 @@ def _to_rgb(bgr: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(to_float_image(bgr[..., 2::-1]), dtype=np.float32)
 
 
-@dataclass
-class _Record:
-    number: int
-    timestamp: float
-    path: Path
-
-
 class VideoSequence(FrameSequence):
     """Lazy reader of a video file (see the module docstring).
 
@@ -153,7 +146,7 @@ class VideoSequence(FrameSequence):
         stamps, size = self._scan()
         self._raw_camera = self._given_or_guessed(cfg.camera, size[0], size[1])
         keep = select_frames(range(len(stamps)), cfg.frames)
-        self._records: List[_Record] = [_Record(k, float(stamps[k]), self.root) for k in keep]
+        self._records = [FileRecord(k, float(stamps[k]), self.root) for k in keep]
 
     def _scan(self) -> Tuple[np.ndarray, Tuple[int, int]]:
         """Grab every frame once: ``(timestamps in seconds, (width, height))``."""
@@ -194,7 +187,7 @@ class VideoSequence(FrameSequence):
                 raise InputError(f"video {self.root} ends before frame {number}")
             self._next += 1
 
-    def _load(self, index: int, rec: _Record) -> Frame:
+    def _load(self, index: int, rec: FileRecord) -> Frame:
         self._seek(rec.number)
         ok = self._cap.grab()
         self._next += 1
