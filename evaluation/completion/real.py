@@ -62,6 +62,7 @@ from spgeo.completion.sparse_points import (keypoint_sparse_depth, track_sparse_
 
 from spgeo.evaluation.jobs import Job, RunnerConfig, add_runner_arguments, run_jobs, runner_config
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_table
 from spgeo.evaluation.references.depth_completion import (colorization_completion,
                                                           ip_basic_completion,
                                                           linear_interpolation_completion)
@@ -128,21 +129,20 @@ class RealCompletionResult:
         return out
 
     def table(self) -> str:
+        """Markdown: per method the means over the frames and the gains over the best
+        baseline, the methods not run, then :meth:`winner_table` and
+        :meth:`agreement_table`."""
         mean, gains = self.mean(), self.gains()
-        rows = [f"**{self.dataset}**: {len(self.frames)} frames, {self.n_points} sparse points "
-                f"(regime {self.regime!r}); reference = sensor depth in (0.2, 5.0) m",
-                "",
-                "| method | MAE [mm] | RMSE [mm] | iMAE [1/km] | iRMSE [1/km] | s/frame "
-                "| MAE gain | iMAE gain |",
-                "|---|---:|---:|---:|---:|---:|---:|---:|"]
-        for m, v in mean.items():
-            g = gains[m]
-            rows.append(f"| {m} | {v['mae_mm']:.1f} | {v['rmse_mm']:.1f} | {v['imae_per_km']:.2f} "
-                        f"| {v['irmse_per_km']:.2f} | {v['seconds']:.2f} "
-                        f"| {100 * g['mae_mm']:+.0f} % | {100 * g['imae_per_km']:+.0f} % |")
-        for m, why in self.not_run.items():
-            rows.append(f"| {m} | not run: {why} | | | | | | |")
-        return "\n".join(rows) + self.winner_table() + self.agreement_table()
+        rows = [[m, cell(v["mae_mm"], 1), cell(v["rmse_mm"], 1), cell(v["imae_per_km"]),
+                 cell(v["irmse_per_km"]), cell(v["seconds"]),
+                 cell(100 * gains[m]["mae_mm"], "{:+.0f} %"),
+                 cell(100 * gains[m]["imae_per_km"], "{:+.0f} %")] for m, v in mean.items()]
+        rows += [[m, f"not run: {why}"] + [""] * 6 for m, why in self.not_run.items()]
+        lines = [f"**{self.dataset}**: {len(self.frames)} frames, {self.n_points} sparse points "
+                 f"(regime {self.regime!r}); reference = sensor depth in (0.2, 5.0) m", ""]
+        lines += markdown_table(["method", "MAE [mm]", "RMSE [mm]", "iMAE [1/km]", "iRMSE [1/km]",
+                                 "s/frame", "MAE gain", "iMAE gain"], rows, "l" + "r" * 7)
+        return "\n".join(lines) + self.winner_table() + self.agreement_table()
 
     def agreement_table(self) -> str:
         """Markdown: per held-out-choice row, the means over the frames of
@@ -150,17 +150,15 @@ class RealCompletionResult:
         held-out score with the dense error); empty when there is none."""
         if not self.agreement:
             return ""
-        rows = ["", "", "held-out score vs dense error (means over frames; log errors x 1000):",
-                "", "| row | Spearman (candidates) | pixels whose region's dominant "
-                "candidate is its dense-best | chosen dense log error "
-                "| per-region dense-best (oracle) |",
-                "|---|---:|---:|---:|---:|"]
-        for m, a in self.agreement.items():
-            rows.append(f"| {m} | {np.nanmean(a['spearman']):.2f} "
-                        f"| {100 * np.mean(a['region_agreement']):.0f} % "
-                        f"| {1e3 * np.mean(a['chosen_log_error']):.1f} "
-                        f"| {1e3 * np.mean(a['oracle_log_error']):.1f} |")
-        return "\n".join(rows)
+        rows = [[m, cell(np.nanmean(a["spearman"])),
+                 cell(100 * np.mean(a["region_agreement"]), "{:.0f} %"),
+                 cell(1e3 * np.mean(a["chosen_log_error"]), 1),
+                 cell(1e3 * np.mean(a["oracle_log_error"]), 1)] for m, a in self.agreement.items()]
+        return "\n".join(
+            ["", "", "held-out score vs dense error (means over frames; log errors x 1000):", ""]
+            + markdown_table(["row", "Spearman (candidates)", "pixels whose region's dominant "
+                              "candidate is its dense-best", "chosen dense log error",
+                              "per-region dense-best (oracle)"], rows, "lrrrr"))
 
     def winner_table(self) -> str:
         """Markdown: regions (primitives / cells) each candidate won, summed over
@@ -168,11 +166,10 @@ class RealCompletionResult:
         if not self.winners:
             return ""
         names = sorted({c for w in self.winners.values() for c in w})
-        rows = ["", "", "regions whose blend weighs each candidate most (summed over frames):", "",
-                "| row | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
-        for m, w in self.winners.items():
-            rows.append(f"| {m} | " + " | ".join(str(w.get(c, 0)) for c in names) + " |")
-        return "\n".join(rows)
+        rows = [[m] + [cell(w.get(c, 0)) for c in names] for m, w in self.winners.items()]
+        return "\n".join(
+            ["", "", "regions whose blend weighs each candidate most (summed over frames):", ""]
+            + markdown_table(["row"] + names, rows, "l" + "r" * len(names)))
 
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "frames": self.frames, "n_points": self.n_points,

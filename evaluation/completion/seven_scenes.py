@@ -55,6 +55,7 @@ from spgeo.evaluation.references.depth_completion import (IPBasicConfig, coloriz
                                                           linear_interpolation_completion)
 
 from spgeo.evaluation.runner import protocol_parser, run_protocol
+from spgeo.evaluation.tables import cell, markdown_table
 
 from .real import sparse_frames
 from .void import METRIC_KEYS, void_metrics
@@ -88,17 +89,16 @@ class SevenScenesCompletionResult:
                 | {"seconds": float(np.mean(self.seconds[m]))} for m, v in self.per_frame.items()}
 
     def table(self) -> str:
-        rows = [f"7-Scenes redkitchen, {len(self.frames)} frames, {self.n_points} sparse points "
-                "at FAST keypoints from the (unregistered, approximate) Kinect depth; reference = "
-                "the same Kinect depth in (0.2, 5.0) m",
-                "| method | MAE [mm] | RMSE [mm] | iMAE [1/km] | iRMSE [1/km] | s/frame |",
-                "|---|---:|---:|---:|---:|---:|"]
-        for m, v in self.mean().items():
-            rows.append(f"| {m} | {v['mae_mm']:.1f} | {v['rmse_mm']:.1f} | {v['imae_per_km']:.2f} "
-                        f"| {v['irmse_per_km']:.2f} | {v['seconds']:.2f} |")
-        for m, why in self.not_run.items():
-            rows.append(f"| {m} | not run: {why} | | | | |")
-        return "\n".join(rows)
+        """Markdown: per method the means over the frames, then the methods not run."""
+        rows = [[m, cell(v["mae_mm"], 1), cell(v["rmse_mm"], 1), cell(v["imae_per_km"]),
+                 cell(v["irmse_per_km"]), cell(v["seconds"])] for m, v in self.mean().items()]
+        rows += [[m, f"not run: {why}"] + [""] * 4 for m, why in self.not_run.items()]
+        return "\n".join(
+            [f"7-Scenes redkitchen, {len(self.frames)} frames, {self.n_points} sparse points "
+             "at FAST keypoints from the (unregistered, approximate) Kinect depth; reference = "
+             "the same Kinect depth in (0.2, 5.0) m"]
+            + markdown_table(["method", "MAE [mm]", "RMSE [mm]", "iMAE [1/km]", "iRMSE [1/km]",
+                              "s/frame"], rows, "l" + "r" * 5))
 
 
 def _methods(config: CompletionConfig, with_onnx: bool, camera):
