@@ -41,6 +41,7 @@ from spgeo.evaluation.vo.frontier import setting_config
 from spgeo.apps.vo_run import VORunConfig, blas_threads
 from spgeo.evaluation.vo.synthetic import SyntheticVOConfig, run_synthetic_vo, synthetic_sequence
 from spgeo.vo.tracking import Keyframe, TrackerConfig, track_frame
+from spgeo.evaluation.tables import cell, markdown_row, markdown_table
 
 __all__ = ["bench_tracking", "build_parser", "run", "main"]
 
@@ -114,16 +115,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"tracking alone: {tr['fps']:.1f} FPS (median {1e3 * tr['median_s']:.1f} ms over "
           f"{tr['frames']} frames vs keyframe 0; median translation error "
           f"{1e3 * tr['median_translation_err_m']:.1f} mm)")
-    print("| pipeline | FPS | track FPS | mapping s/KF | KFs | s track | s front-end | "
-          "s mapping | s init | per-frame ATE % |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for name, cfg in runs:
+    print("\n".join(markdown_table(
+        ["pipeline", "FPS", "track FPS", "mapping s/KF", "KFs", "s track", "s front-end",
+         "s mapping", "s init", "per-frame ATE %"], [])))
+    for name, cfg in runs:     # a row as each run ends
         r = run_synthetic_vo(frames, args.frontend, cfg)
         st = r["seconds_per_stage"]
-        print(f"| {args.frontend} {name} | {r['fps']:.2f} | {r['tracking_fps']:.1f} | "
-              f"{r['mapping_s_per_kf']:.2f} | {r['keyframes']} | {st['track']:.1f} | "
-              f"{st['frontend']:.1f} | {st['mapping']:.1f} | {st['init']:.1f} | "
-              f"{r['per-frame']['percent']:.2f} |", flush=True)
+        print(markdown_row([f"{args.frontend} {name}", cell(r["fps"], 2),
+                            cell(r["tracking_fps"], 1), cell(r["mapping_s_per_kf"], 2),
+                            cell(r["keyframes"]), cell(st["track"], 1), cell(st["frontend"], 1),
+                            cell(st["mapping"], 1), cell(st["init"], 1),
+                            cell(r["per-frame"]["percent"], 2)]), flush=True)
     return 0
 
 

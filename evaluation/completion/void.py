@@ -38,6 +38,7 @@ from spgeo.metrics.depth import (VOID_MAX_DEPTH as MAX_DEPTH, VOID_METRIC_KEYS a
 from spgeo.evaluation.runner import protocol_parser, run_protocol
 from spgeo.evaluation.references.depth_completion import (IPBasicConfig, ip_basic_completion,
                                                           linear_interpolation_completion)
+from spgeo.evaluation.tables import cell, markdown_table
 
 __all__ = [
     "VOID_SPLITS", "PAPER_VOID150", "VOIDSample", "VOIDDataset", "read_void_depth",
@@ -122,19 +123,18 @@ class VOIDResult:
 
     def table(self, with_paper: bool = True) -> str:
         """Markdown table (MAE, RMSE in mm; iMAE, iRMSE in 1/km)."""
-        rows = [f"VOID-{self.split} {self.subset}, {len(self.names)} images, GT in "
-                f"({MIN_DEPTH}, {MAX_DEPTH}) m",
-                "| method | MAE [mm] | RMSE [mm] | iMAE [1/km] | iRMSE [1/km] | s/image |",
-                "|---|---:|---:|---:|---:|---:|"]
-        for m, v in self.mean().items():
-            rows.append(f"| {m} | {v['mae_mm']:.1f} | {v['rmse_mm']:.1f} | "
-                        f"{v['imae_per_km']:.2f} | {v['irmse_per_km']:.2f} | {v['seconds']:.2f} |")
+        rows = [[m, cell(v["mae_mm"], 1), cell(v["rmse_mm"], 1), cell(v["imae_per_km"], 2),
+                 cell(v["irmse_per_km"], 2), cell(v["seconds"], 2)]
+                for m, v in self.mean().items()]
         if with_paper and self.split == "150":
             p = PAPER_VOID150
-            rows.append(f"| paper (SuperPrimitive, zero-shot, 800 images) | {p['mae_mm']:.1f} | "
-                        f"{p['rmse_mm']:.2f} | {p['imae_per_km']:.2f} | "
-                        f"{p['irmse_per_km']:.2f} | |")
-        return "\n".join(rows)
+            rows.append(["paper (SuperPrimitive, zero-shot, 800 images)", cell(p["mae_mm"], 1),
+                         cell(p["rmse_mm"], 2), cell(p["imae_per_km"], 2),
+                         cell(p["irmse_per_km"], 2), ""])
+        return "\n".join([f"VOID-{self.split} {self.subset}, {len(self.names)} images, GT in "
+                          f"({MIN_DEPTH}, {MAX_DEPTH}) m"]
+                         + markdown_table(["method", "MAE [mm]", "RMSE [mm]", "iMAE [1/km]",
+                                           "iRMSE [1/km]", "s/image"], rows, align="lrrrrr"))
 
 
 def run_void(root: PathLike, split: Union[str, int] = "150",
