@@ -47,12 +47,13 @@ from .config import OdometryConfig
 from .initialisation import InitJob, InitSolution
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_worker import MappingWorker
-from .motion import MotionChange
+from .motion import MotionChange, MotionModel
+from .result import add_seconds
 from .smoother import adopt_selection, choose_support
 from .tracking import Keyframe
 
 __all__ = ["MappingPort", "InProcessPort", "WorkerPort", "PendingJob", "MappingRecord",
-           "make_port"]
+           "make_port", "apply_pending_update"]
 
 
 @dataclass(frozen=True)
@@ -378,3 +379,19 @@ def make_port(camera: PinholeCamera, config: OdometryConfig, wait: bool = False)
         return InProcessPort(camera, config)
     lead = 0 if wait else config.mapping.lead
     return WorkerPort(camera, config, lead, config.mapping.schedule)
+
+
+def apply_pending_update(port: MappingPort, kmap: KeyframeMap, motion: MotionModel,
+                         frames: Sequence, timings: Optional[Dict[str, float]] = None) -> bool:
+    """A VO's one apply of ``port``'s pending update, waiting for it: the map's part and
+    the port's (:meth:`MappingPort.apply_pending`, ``len(frames)`` frames processed),
+    then ``motion`` follows (:meth:`MotionModel.follow`); the seconds it cost this thread
+    are added to ``timings``.  Returns whether an update was applied.
+    :class:`spgeo.vo.Odometry` and its read side call it through a
+    ``functools.partial`` of the odometry's parts (no reference back to the odometry)."""
+    if not port.pending:
+        return False
+    seconds, change = port.apply_pending(kmap, len(frames))
+    motion.follow(change)
+    add_seconds({} if timings is None else timings, seconds)
+    return True

@@ -5,6 +5,7 @@ initialiser, keyframe builder, mapping port, and the read side it owns).
 """
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from typing import Dict, Optional, Tuple
@@ -25,11 +26,11 @@ from .keyframe_builder import KeyframeBuilder
 from .keyframe_policy import AFTER_UPDATE, KEYFRAME, KeyframePolicy
 from .keyframe_store import KeyframeStore
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
-from .mapping_port import MappingPort, make_port
+from .mapping_port import MappingPort, apply_pending_update, make_port
 from .motion import MotionModel
 from .processing import checked_frame, opencv_threads
 from .readout import OdometryReadout, read_side
-from .result import FrameLog, FrameResult, FrameStatus, add_seconds, frame_result, timed
+from .result import FrameLog, FrameResult, FrameStatus, frame_result, timed
 from .tracking import TrackResult
 
 __all__ = ["Odometry"]
@@ -89,6 +90,8 @@ class Odometry:
         self._initialiser = Initialiser(config, self.camera, frontend.uses_depth,
                                         solver=self._port, policy=self._policy)
         self._builder = KeyframeBuilder(self.camera, config, frontend)
+        self._sync = functools.partial(apply_pending_update, self._port, self._map, self._motion,
+                                       self._frames)
         self.readout = OdometryReadout(self.camera, config, frontend, self._frames, self._map,
                                        self._port, self._initialiser, self._builder,
                                        self._sync, type(self).__name__)
@@ -337,14 +340,3 @@ class Odometry:
             return tr, T_ref_f, None
         T_world = nearest_rigid(latest.keyframe.T_world_kf @ T_ref_f)
         return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, prims=prims)
-
-    def _sync(self, timings: Optional[Dict[str, float]] = None) -> bool:
-        """Apply the pending update to the map and the motion model, waiting for it
-        (:meth:`MappingPort.apply_pending`); the seconds it cost this thread go to
-        ``timings``.  Returns whether an update was applied."""
-        if not self._port.pending:
-            return False
-        seconds, change = self._port.apply_pending(self._map, len(self._frames))
-        self._motion.follow(change)
-        add_seconds({} if timings is None else timings, seconds)
-        return True
