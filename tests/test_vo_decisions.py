@@ -195,3 +195,27 @@ def test_relocalisation_goes_through_the_one_decision():
     assert [c[0] for c in tracker.calls] == older[:2]   # newest first, stops at the first
     tracker.truth = {k: _pose((9.0, 0, 0)) for k in truth}
     assert tracker.relocalise(older, image, motion) == (None, None)
+
+
+def test_the_read_side_holds_no_reference_back_to_the_odometry():
+    """The readout is given the odometry's parts (and a partial of them that applies a
+    pending update), not the odometry: dropping an odometry frees it at once, without
+    the cycle collector (its keyframe store and mapping worker go with it)."""
+    import gc
+    import weakref
+
+    from spgeo.frontend import make_frontend
+    from spgeo.vo import MappingConfig, Odometry
+
+    vo = Odometry(CAM, OdometryConfig(mapping=MappingConfig(mode="inline")),
+                  make_frontend("classical"))
+    assert vo.readout is not None and repr(vo).startswith("Odometry(80x60, 0 frames")
+    ref = weakref.ref(vo)
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        del vo
+        assert ref() is None
+    finally:
+        if enabled:
+            gc.enable()
