@@ -131,7 +131,11 @@ def test_straight_street_is_tracked_with_the_feature_check(street_frames):
     """Driving 1.2 m per frame past the facades: initialised by frame 2 and no
     frame lost after it, the frames refused for their cost alone kept by the
     feature check, the estimated steps within 5 % of each other (one scale) and
-    t_rel under 3 %; without the check (min_agreement None) frames are lost."""
+    t_rel under 3 %.  Without the check (min_agreement None) the frames refused
+    for their cost against the latest keyframe are relocalised against an older
+    one, through the one tracking decision and so with the feature retry (issue 50;
+    before it, relocalisation had no retry and 20 of these frames were lost):
+    none lost, t_rel under 3 % too."""
     from dataclasses import replace
 
     from spgeo.evaluation.kitti_metrics import kitti_relative_errors
@@ -149,5 +153,8 @@ def test_straight_street_is_tracked_with_the_feature_check(street_frames):
     scale = _steps(gt[first:]).sum() / steps.sum()       # the path's length: one Sim(3) scale
     assert kitti_relative_errors(est[first:], gt[first:], scale).t_rel_pct < 3.0
     off = replace(cfg, feature_retry=FeatureRetryConfig(min_agreement=None))
-    status_off, _ = _drive(street_frames, off)
-    assert "lost" in status_off[first:]
+    status_off, res_off = _drive(street_frames, off)
+    assert "lost" not in status_off[first:], status_off
+    est_off = np.stack(res_off.poses)
+    scale_off = _steps(gt[first:]).sum() / _steps(est_off[first:]).sum()
+    assert kitti_relative_errors(est_off[first:], gt[first:], scale_off).t_rel_pct < 3.0
