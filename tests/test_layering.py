@@ -34,8 +34,8 @@ and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
   ``spgeo/vo/odometry.py`` (the per-frame state machine) at most 350.
 * One mapping port: the odometry (``spgeo/vo/odometry.py`` and its read side
   ``spgeo/vo/readout.py``) names the mapping mode at most twice in code (an attribute
-  ``mode`` / ``in_worker`` / ``schedule`` (of ``OdometryConfig.mapping``), or the strings ``"live"`` /
-  ``"inline"``; docstrings do not count): live and inline differ in the port only.
+  ``mode`` / ``in_worker`` / ``schedule`` (of ``OdometryConfig.mapping``), or the strings
+  ``"live"`` / ``"inline"``; docstrings do not count): live and inline differ in the port only.
 * One key scheme: no module of ``spgeo/`` or ``factors/`` but ``spgeo/graph/keys.py`` makes a
   gtsam key (``gtsam.symbol`` / ``gtsam.Symbol`` / ``gtsam.symbol_shorthand``, also when
   imported by name); every graph takes its keys from :mod:`spgeo.graph.keys`.

@@ -125,8 +125,9 @@ def test_fixed_lag_marginalises_old_keyframes(frames):
     """Default 5-keyframe window; frequent keyframes (relative-cost threshold
     0.08, 3 LM iterations per update, for test time): once more than 5 keyframes exist, the oldest keyframes' keys
     have left the smoother (marginalised) and exactly the last 5 remain."""
-    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08), 
-                         mapping=MappingConfig(iterations=3, mode="inline"))   # the smoother is reached
+    cfg = OdometryConfig(keyframe=KeyframeDecisionConfig(max_relative_cost=0.08),
+                         # inline: the smoother is reached
+                         mapping=MappingConfig(iterations=3, mode="inline"))
     vo = Odometry(CAM, cfg, frontend())
     for f in frames:
         vo.track(f)

@@ -106,5 +106,6 @@ def test_empty_trajectory_and_odometry():
     assert _bounded(empty).startswith("Trajectory(0 frames, 0 keyframes, t -, status {}")
     assert "<table>" in empty._repr_html_() and empty.finite.shape == (0,)
     cam = synthetic.default_camera(160, 120)
-    with Odometry(cam, OdometryConfig(mapping=MappingConfig(mode="inline")), make_frontend("classical")) as vo:
+    with Odometry(cam, OdometryConfig(mapping=MappingConfig(mode="inline")),
+                  make_frontend("classical")) as vo:
         assert _bounded(vo).startswith("Odometry(160x120, 0 frames, 0 keyframes")

@@ -12,7 +12,8 @@ from spgeo.evaluation.vo.frontier import (COLUMNS, Cell, main, make_grid, markdo
 
 def test_parse_setting_splits_on_field_names_only():
     assert parse_setting("defaults") == [] and parse_setting("  ") == []
-    assert parse_setting("mapping.level=0, tracker.levels=4") == ["mapping.level=0", "tracker.levels=4"]
+    assert parse_setting("mapping.level=0, tracker.levels=4") == ["mapping.level=0",
+                                                                   "tracker.levels=4"]
     assert parse_setting("a=(1, 2) b=None,c='x y'") == ["a=(1, 2)", "b=None", "c='x y'"]
     assert setting_config("mapping.level=0 tracker.levels=4").tracker.levels == 4
     with pytest.raises(ConfigError, match="unknown field 'no_such_field'"):

@@ -46,7 +46,8 @@ def run():
     poses = synthetic.make_trajectory(60, 0)
     vo = Odometry(CAM, OdometryConfig(window=WINDOW,
                                       keyframe=KeyframeDecisionConfig(max_translation=0.02),
-                                      mapping=MappingConfig(mode="inline")),    # the groups are in this process
+                                      # inline: the groups are in this process
+                                      mapping=MappingConfig(mode="inline")),
                   make_frontend("depth", FrontEndConfig(working_size=(160, 120))))
     gc.collect()
     before = weakref.WeakSet(_groups())     # other tests' groups, still alive

@@ -20,7 +20,8 @@ from ..jsonio import json_default
 from ..trajectory import STATUSES, FrameStatus, Trajectory
 from .tracking import Keyframe, TrackResult
 
-__all__ = ["FrameResult", "FrameLog", "OdometryResult", "STATUSES", "FrameStatus", "timing_statistics",
+__all__ = ["FrameResult", "FrameLog", "OdometryResult", "STATUSES", "FrameStatus",
+           "timing_statistics",
            "frame_result", "timed", "add_seconds",
            "frame_records", "save_run", "write_keyframe_clouds"]
 
