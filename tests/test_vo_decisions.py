@@ -151,7 +151,7 @@ class ScriptedTracker(FrameTracker):
                 OdometryConfig().feature_retry, enabled=False)))
         self.truth, self.basin, self.calls = truth, basin, []
 
-    def track(self, kf, image, guesses, brightness, features=True):
+    def track(self, kf, image, guesses, brightness, features=True, landmarks=None):
         self.calls.append((kf, image))
         T_true = self.truth[(id(kf), image)]
         tries = [g() for g in guesses]
@@ -195,6 +195,40 @@ def test_relocalisation_goes_through_the_one_decision():
     assert [c[0] for c in tracker.calls] == older[:2]   # newest first, stops at the first
     tracker.truth = {k: _pose((9.0, 0, 0)) for k in truth}
     assert tracker.relocalise(older, image, motion) == (None, None)
+
+
+def _result(T, reason):
+    from spgeo.vo.tracking import TrackResult
+
+    return TrackResult(T, np.zeros(2), 1.0, 1.0, 0.5, 0.9, [3], [0],
+                       "lost" if reason else "ok", reason, {}, [])
+
+
+def test_a_pose_refused_only_for_its_cost_is_judged_by_the_pnp_poses():
+    """Issue 51: a ``high_cost`` result is ``ok`` at its own pose when a PnP pose's
+    matches agree with it, else at the PnP pose of most inliers; a result lost for
+    another reason stays lost; without PnP poses nothing changes."""
+    from spgeo.vo.feature_retry import pnp_pose
+
+    rng = np.random.default_rng(1)
+    X = np.column_stack([rng.uniform(-1, 1, 60), rng.uniform(-1, 1, 60), rng.uniform(2, 5, 60)])
+    T_true = _pose((0.1, 0.0, 0.0))
+    uv, _ = CAM.project(X - T_true[:3, 3])
+    tracker = FrameTracker(CAM, OdometryConfig())
+    cfg = OdometryConfig().feature_retry
+    strong = pnp_pose(X, uv, CAM, cfg)
+    weak = pnp_pose(X[:30], uv[:30], CAM, cfg)
+    assert strong.inliers == 60 and weak.inliers == 30
+    near = tracker._checked(_result(_pose((0.1, 0.0, 1e-5)), "high_cost"), [weak, strong])
+    assert near.ok and near.feature_checked and not near.feature_pose
+    assert np.allclose(near.T_world_frame, _pose((0.1, 0.0, 1e-5)))
+    far = tracker._checked(_result(_pose((0.5, 0.0, 0.0)), "high_cost"), [weak, strong])
+    assert far.ok and far.feature_pose and far.pnp_inliers == 60
+    assert np.allclose(far.T_world_frame, T_true, atol=1e-6)
+    other = tracker._checked(_result(_pose((0.5, 0.0, 0.0)), "low_overlap"), [strong])
+    assert not other.ok and other.pnp_inliers == 60
+    alone = _result(_pose((0.5, 0.0, 0.0)), "high_cost")
+    assert tracker._checked(alone, []) is alone
 
 
 def test_the_read_side_holds_no_reference_back_to_the_odometry():

@@ -2,8 +2,8 @@
 
 One fresh process per (sequence, variant) run.
 
-    spgeo eval vo_long_run --out DIR [--sequences 7scenes,7scenes-palindrome,kitti,synthetic-loop,
-                                             road-straight,road-block]
+    spgeo eval vo_long_run --out DIR [--sequences 7scenes,7scenes-palindrome,7scenes-foreign,
+                                             kitti,synthetic-loop,road-straight,road-block]
         [--variants default,loops] [--frames N] [--timeout SECONDS] [--reference colmap]
 
 Sequences (:data:`SEQUENCES`; all with ground truth, timestamps = position in
@@ -14,6 +14,11 @@ the run):
 * ``7scenes-palindrome``: the same frames played forward, then back to the
   first (:func:`spgeo.evaluation.vo.memory.palindrome`): real images with an
   exact revisit, the last frame's true pose is the first's;
+* ``7scenes-foreign``: the first 120 of those frames with frames 50-61 replaced
+  by 12 images of other rooms (the shared TUM fr1_desk frames, then ICL-NUIM's;
+  :data:`~spgeo.evaluation.vo.long_run_sequences.FOREIGN_SPAN`): a hand over the
+  lens, someone walking past; the camera is back where it was when they end
+  (issue 51).  The foreign frames have no ground truth;
 * ``kitti``: the shared KITTI odometry clip (grey left camera, intrinsics from
   P0 of ``calib.txt``, ground truth ``poses.txt``), read by the ``folder``
   reader with that camera, no temporary folder;
@@ -46,7 +51,8 @@ the other, with one BLAS / OpenMP thread, through
 says otherwise); the run is saved in ``DIR/<sequence>.<variant>/``
 (:meth:`spgeo.apps.vo_run.VORun.save`: ``report.json``, trajectory, clouds,
 plots) with the process's output in ``log.txt`` and its row in ``row.json``.
-Columns: frames run, tracked (not ``lost``), lost, skipped (unreadable),
+Columns: frames run, tracked (not ``lost``), lost, relocalised (status ``relocalised``:
+tracked again after a loss or against an older keyframe), map segments, skipped (unreadable),
 keyframes, per-frame and keyframe-only Sim(3) ATE RMSE (metres of the ground
 truth; synthetic: scene units), loop closures accepted / rejected
 (``report.json`` ``loop_closures``; ``-`` when loop closure is off), scale

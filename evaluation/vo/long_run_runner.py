@@ -104,6 +104,8 @@ def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, 
     return {
         "status": run.status, "status_counts": counts, "frames": run.n_frames,
         "tracked": run.n_frames - counts.get("lost", 0), "lost": counts.get("lost", 0),
+        "relocalised": counts.get("relocalised", 0),
+        "segments": len(set(run.result().segment.tolist())),
         "skipped": len(run.skipped), "keyframes": int(run.result().is_keyframe.sum()),
         "ate_m": None if per is None else per.rmse,
         "ate_pct": None if per is None else per.rmse_percent_of_length,

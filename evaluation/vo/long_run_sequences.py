@@ -19,7 +19,8 @@ import numpy as np
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.evaluation.vo.memory import palindrome
 
-__all__ = ["SEVENSCENES_FRAMES", "SYNTHETIC_LOOP", "Reordered", "LongRunSequence", "SEQUENCES",
+__all__ = ["SEVENSCENES_FRAMES", "SYNTHETIC_LOOP", "FOREIGN_SPAN", "Reordered", "Spliced",
+           "LongRunSequence", "SEQUENCES",
            "VARIANTS", "run_config"]
 
 #: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
@@ -70,6 +71,54 @@ def _sevenscenes(cap: Optional[int], depth: bool, loop: bool) -> Reordered:
     return Reordered(seq, _order(len(seq), cap, loop), depth=depth)
 
 
+#: ``7scenes-foreign``: frames of another room put in place of the 7-Scenes frames
+#: ``FOREIGN_SPAN`` (a hand over the lens, someone walking past; issue 51).
+FOREIGN_SPAN = (50, 62)
+
+
+class Spliced(SequenceABC):
+    """``base`` with the items at the positions of ``foreign`` (position -> frame)
+    replaced: the foreign frame with ``base``'s camera, timestamp and name and no
+    ground truth or depth (it shows another place)."""
+
+    def __init__(self, base: Sequence, foreign: Mapping[int, Any]) -> None:
+        self.base, self.foreign = base, dict(foreign)
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, i: int):
+        f = self.base[i]
+        if i not in self.foreign:
+            return f
+        g = self.foreign[i]
+        return replace(f, image=g.image, depth=None, T_world_cam=None)
+
+
+def _foreign_frames(n: int) -> List[Any]:
+    """``n`` frames of other rooms at 640x480: the shared TUM fr1_desk frames,
+    then the ICL-NUIM living room's."""
+    from spgeo.datasets import open_dataset
+
+    root = shared_data_root()
+    tum = open_dataset("tum", root / "tum_fr1_desk_9", load_depth=False)
+    icl = open_dataset("icl", root / "icl_nuim_lr_5", load_depth=False)
+    frames = [tum[i] for i in range(len(tum))] + [icl[i] for i in range(len(icl))]
+    if len(frames) < n:
+        raise ValueError(f"only {len(frames)} foreign frames in {root}, {n} needed")
+    return frames[:n]
+
+
+def _sevenscenes_foreign(cap: Optional[int], depth: bool, loop: bool = False) -> Spliced:
+    """7-Scenes frames ``0:120`` with the span :data:`FOREIGN_SPAN` replaced by
+    frames of other rooms (:func:`_foreign_frames`): the camera is back where it
+    was when the foreign frames end."""
+    a, b = FOREIGN_SPAN
+    base = _sevenscenes(min(cap or 120, 120), depth, False)
+    foreign = _foreign_frames(b - a)
+    return Spliced(base, {i: foreign[i - a] for i in range(a, min(b, len(base)))})
+
+
 def _kitti(cap: Optional[int], depth: bool, loop: bool = False) -> Reordered:
     """The KITTI clip: camera from P0 of ``calib.txt``, ground truth ``poses.txt``."""
     import cv2
@@ -116,10 +165,13 @@ def _road_views(kind: str, n: int) -> Tuple[Any, ...]:
     from spgeo.synthetic.road import block_loop, straight_street
 
     road = straight_street() if kind == "straight" else block_loop()
-    poses = road.drive()[:n]
-    frames = synthetic.render_frames(road.scene, synthetic.street_camera(), poses, supersample=2)
-    return tuple(replace(f, image=np.round(255 * np.clip(f.image.mean(axis=2), 0, 1)).astype(
-        np.uint8), depth=None) for f in frames)
+    cam = synthetic.street_camera()
+    out = []
+    for i, T in enumerate(road.drive()[:n]):    # one at a time: a rendered Frame is ~2.5 MB
+        f = synthetic.render_frames(road.scene, cam, T[None], [float(i)], supersample=2)[0]
+        grey = np.round(255 * np.clip(f.image.mean(axis=2), 0, 1)).astype(np.uint8)
+        out.append(replace(f, image=grey, depth=None, meta={}, name=f"{i:06d}"))
+    return tuple(out)
 
 
 def _road(kind: str, total: int) -> Callable[..., Reordered]:
@@ -157,6 +209,7 @@ SEQUENCES: Dict[str, LongRunSequence] = {
     "7scenes": LongRunSequence(_sevenscenes),
     "7scenes-palindrome": LongRunSequence(_sevenscenes, loop=True),
     "kitti": LongRunSequence(_kitti),
+    "7scenes-foreign": LongRunSequence(_sevenscenes_foreign),
     "synthetic-loop": LongRunSequence(
         _synthetic_loop, loop=True,
         overrides={"odometry.resolution": SYNTHETIC_LOOP["size"],
@@ -172,7 +225,7 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
     "no-landmarks": {"odometry.landmarks.enabled": False},
     "no-landmarks+loops": {"odometry.landmarks.enabled": False,
                            "odometry.loop_closure.enabled": True},
-    "inline": {"odometry.mapping": "inline"},
+    "inline": {"odometry.mapping.mode": "inline"},
     "no-feature-check": {"odometry.feature_retry.min_agreement": None},
 }
 

@@ -16,8 +16,9 @@ __all__ = ["TABLE", "REFERENCE_TABLE", "markdown", "write_outputs"]
 #: ``(header, row key, decimals)`` of the Markdown table.
 TABLE: Tuple[Tuple[str, str, int], ...] = (
     ("sequence", "sequence", 0), ("variant", "variant", 0), ("frames", "frames", 0),
-    ("tracked", "tracked", 0), ("lost", "lost", 0), ("skipped", "skipped", 0),
-    ("KFs", "keyframes", 0), ("ATE m", "ate_m", 4), ("ATE %", "ate_pct", 2),
+    ("tracked", "tracked", 0), ("lost", "lost", 0), ("reloc.", "relocalised", 0),
+    ("segments", "segments", 0), ("skipped", "skipped", 0), ("KFs", "keyframes", 0),
+    ("ATE m", "ate_m", 4), ("ATE %", "ate_pct", 2),
     ("KF ATE m", "kf_ate_m", 4), ("t_rel %", "t_rel_pct", 2),
     ("r_rel deg/100m", "r_rel_deg_per_100m", 2), ("loops acc.", "loops_accepted", 0),
     ("loops rej.", "loops_rejected", 0), ("scale drift", "scale_drift", 3),

@@ -27,6 +27,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..loop import LoopCorrection
 from .config import OdometryConfig
+from .landmark_snapshot import LandmarkSnapshot
 from .landmarks import LandmarkMap
 from .loops import SegmentLoopClosure
 from .map import MapKeyframe, SupportCandidate
@@ -80,6 +81,9 @@ class MappingUpdate:
         loops: the loop closer's report after the update (None without).
         peak_rss_mib: the peak resident memory of the back end's process so far
             (MiB; None where ``/proc`` is absent).
+        snapshot: the landmarks for the tracker after the update
+            (:class:`~spgeo.vo.landmark_snapshot.LandmarkSnapshot`; None without
+            landmarks).
         built: keyframe index -> the back end's refreshed
             :class:`~spgeo.vo.keyframe.Keyframe` (equal to ``with_shape_values`` of
             the caller's; only in the caller's process, never sent).
@@ -94,6 +98,7 @@ class MappingUpdate:
     landmarks: Optional[dict] = None
     loops: Optional[dict] = None
     peak_rss_mib: Optional[float] = None
+    snapshot: Optional[LandmarkSnapshot] = None
     built: Dict[int, object] = field(default_factory=dict)
 
     def __getstate__(self) -> dict:
@@ -169,7 +174,7 @@ class WindowBackend:
             None if corr is None else dataclasses.replace(corr, graph=None),
             self.mapper.reports[n_reports:], timings, self.landmarks_report(),
             None if self.loops is None else self.loops.report(), peak_rss_mib(),
-            {k: self.copies[k].keyframe for k in refreshed})
+            self.snapshot(job.segment), {k: self.copies[k].keyframe for k in refreshed})
 
     def _close_loop(self, kfs: List[MapKeyframe], job: MappingJob, timings: Dict[str, float]
                     ) -> Tuple[Optional[LoopCorrection], List[SupportCandidate]]:
@@ -239,6 +244,14 @@ class WindowBackend:
         """A new map segment: the smoother restarts (the landmarks are forgotten
         by the segment's first :meth:`add_landmarks`)."""
         self.mapper.reset()
+
+    def snapshot(self, segment: int) -> Optional[LandmarkSnapshot]:
+        """The tracker's :class:`LandmarkSnapshot` of the landmarks now (None
+        without landmarks)."""
+        if self.landmarks is None:
+            return None
+        return LandmarkSnapshot.of(self.landmarks, segment,
+                                   self.config.landmarks.snapshot_landmarks)
 
     def landmarks_report(self) -> Optional[dict]:
         """:meth:`LandmarkMap.report` (None without landmarks)."""

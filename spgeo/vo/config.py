@@ -368,8 +368,12 @@ class OdometryConfig:
             new monocular keyframe (default on).
         init: :class:`InitConfig`: when and how a map segment is initialised
             (keyframe 1's parallax and frame gap, the SfM's start and extra views).
-        max_lost_frames: re-initialise after this many consecutive lost frames
-            (default 10).
+        max_lost_frames: re-initialise after this many consecutive lost frames,
+            each of which tried relocalisation into the map (landmarks and the
+            window's keyframes); also the frames a segment's keyframe 0 waits for
+            a frame tracked against it before it starts again (default 30: 1 s at
+            30 Hz, 3 s at 10 Hz; with 10 a 12-frame foreign interval re-initialised
+            on a foreign view, docs/results.md issue 51).
         sfm: :class:`SfMConfig` of the two-view initialisation (its
             ``reset_scales`` is overridden: False with a depth-using
             front-end, True otherwise; ``init="twoview"``: when keyframe 1 was
@@ -407,7 +411,7 @@ class OdometryConfig:
     render_tolerance: float = 0.2
     scale_check: ScaleCheckConfig = field(default_factory=ScaleCheckConfig)
     init: InitConfig = field(default_factory=InitConfig)
-    max_lost_frames: int = 10
+    max_lost_frames: int = 30
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False,
                                                              init="twoview"))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)

@@ -30,7 +30,7 @@ from ..primitives import PrimitiveSet
 from ..twoview import FeatureOptions, to_gray_uint8
 from ..twoview.backends import opencv_features, ratio_matches
 
-__all__ = ["FeatureRetryConfig", "FeaturePose", "FeatureRetry"]
+__all__ = ["FeatureRetryConfig", "FeaturePose", "FeatureRetry", "pnp_pose"]
 
 log = logging.getLogger(__name__)
 
@@ -165,8 +165,15 @@ class FeatureRetry:
         found = self.pose(key, kf_image, primitives, T_world_kf, image)
         return None if found is None else found.T_world_frame
 
+    def frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+        """``(pixels (N, 2), descriptors)`` of a frame (size of ``camera``) with
+        this retry's feature options."""
+        return self._features(image)
+
     def pose(self, key: int, kf_image: np.ndarray, primitives: PrimitiveSet,
-             T_world_kf: np.ndarray, image: np.ndarray) -> Optional[FeaturePose]:
+             T_world_kf: np.ndarray, image: np.ndarray,
+             frame_features: Optional[Tuple[np.ndarray, Optional[np.ndarray]]] = None
+             ) -> Optional[FeaturePose]:
         """The PnP pose of ``image`` on the keyframe's features.
 
         Args:
@@ -177,36 +184,50 @@ class FeatureRetry:
                 the features to 3-D; any resolution of the same view).
             T_world_kf: the keyframe's camera-to-world pose.
             image: the frame (size of ``camera``).
+            frame_features: the frame's :meth:`frame_features`, when already
+                computed (default None: computed here).
         Returns:
             :class:`FeaturePose`, or None with too few PnP inliers.
         """
-        import cv2
-
         cfg = self.config
         kf = self._keyframe_features(key, kf_image, primitives)
-        pts, desc = self._features(image)
+        pts, desc = frame_features if frame_features is not None else self._features(image)
         pairs = ratio_matches(kf.descriptors, desc, cfg.features)
         if len(pairs):
             pairs = pairs[np.isfinite(kf.points[pairs[:, 0], 0])]
-        if len(pairs) < cfg.min_inliers:
-            log.debug("feature retry: %d matches with depth", len(pairs))
-            return None
-        K = self.camera.K.astype(np.float64)
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            kf.points[pairs[:, 0]].astype(np.float64), pts[pairs[:, 1]].astype(np.float64),
-            K, None, iterationsCount=int(cfg.ransac_iterations),
-            reprojectionError=float(cfg.reprojection_px), confidence=0.999,
-            flags=cv2.SOLVEPNP_EPNP)
-        n_in = 0 if inliers is None else len(inliers)
-        if not ok or n_in < cfg.min_inliers:
-            log.debug("feature retry: %d PnP inliers of %d matches", n_in, len(pairs))
-            return None
-        T_frame_kf = np.eye(4)
-        T_frame_kf[:3, :3] = cv2.Rodrigues(rvec)[0]
-        T_frame_kf[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
-        if not np.all(np.isfinite(T_frame_kf)):
-            return None
         T_world_kf = np.asarray(T_world_kf, dtype=np.float64)
-        return FeaturePose(T_world_kf @ invert_pose(T_frame_kf), n_in,
-                           transform_points(T_world_kf, kf.points[pairs[:, 0]]),
-                           np.asarray(pts[pairs[:, 1]], dtype=np.float64))
+        return pnp_pose(transform_points(T_world_kf, kf.points[pairs[:, 0]]),
+                        pts[pairs[:, 1]], self.camera, cfg)
+
+
+def pnp_pose(points_world: np.ndarray, pixels: np.ndarray, camera: PinholeCamera,
+             config: FeatureRetryConfig) -> Optional[FeaturePose]:
+    """The RANSAC PnP (EPnP minimal solver, ``config.reprojection_px`` inlier
+    threshold, ``config.ransac_iterations``) camera-to-world pose of a frame whose
+    pixels ``pixels`` (M, 2) see the world points ``points_world`` (M, 3): a
+    :class:`FeaturePose` over the M matches, or None with fewer than
+    ``config.min_inliers`` matches or inliers (the one PnP of the VO's feature
+    poses: keyframe features and map landmarks)."""
+    import cv2
+
+    n = len(points_world)
+    if n < config.min_inliers:
+        log.debug("feature pose: %d matches with a 3-D point", n)
+        return None
+    X = np.ascontiguousarray(points_world, dtype=np.float64)
+    uv = np.ascontiguousarray(pixels, dtype=np.float64)
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        X, uv, camera.K.astype(np.float64), None,
+        iterationsCount=int(config.ransac_iterations),
+        reprojectionError=float(config.reprojection_px), confidence=0.999,
+        flags=cv2.SOLVEPNP_EPNP)
+    n_in = 0 if inliers is None else len(inliers)
+    if not ok or n_in < config.min_inliers:
+        log.debug("feature pose: %d PnP inliers of %d matches", n_in, n)
+        return None
+    T_frame_world = np.eye(4)
+    T_frame_world[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_frame_world[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(T_frame_world)):
+        return None
+    return FeaturePose(invert_pose(T_frame_world), n_in, X, uv)

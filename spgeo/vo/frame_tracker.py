@@ -6,11 +6,18 @@ update, the initialiser's re-tracking of its buffer and the frames of a solve th
 ran beside the tracker (:meth:`FrameTracker.retrack`, the one re-tracking loop).
 
 One decision: the photometric tracker (:func:`~spgeo.vo.tracking.track_frame`) from
-each initial pose guess in the order given, then (with a keyframe whose features
-may lift to depth, ``OdometryConfig.feature_retry.enabled``) the feature-based PnP
-pose; the first ``ok`` result, else the one of lowest photometric cost; a result
-refused only for its cost (``"high_cost"``) is ``ok`` when the PnP pose's matches
-agree with it (:meth:`~spgeo.vo.feature_retry.FeaturePose.agrees`).
+each initial pose guess in the order given, then (``OdometryConfig.feature_retry.enabled``)
+from the feature-based PnP poses: the frame's features matched with the map's
+landmarks (:class:`~spgeo.vo.landmark_snapshot.LandmarkSnapshot`, issue 51), then
+with the keyframe's features lifted by its primitive depth (with a keyframe whose
+features may lift to depth); the first ``ok`` result, else the one of lowest
+photometric cost; a result refused only for its cost (``"high_cost"``) is ``ok``
+at its pose when the matches of a PnP pose agree with it
+(:meth:`~spgeo.vo.feature_retry.FeaturePose.agrees`), else ``ok`` at the PnP pose
+of most inliers (``TrackResult.feature_pose``; issue 51: on a street the right
+pose's photometric cost exceeds the tracker's bound for frames on end, while
+hundreds of landmarks place it).  The frame's features are
+computed once per frame, the landmark pose once per frame and snapshot.
 
 :class:`FrameTracker` holds no pose state: the caller's
 :class:`~spgeo.vo.motion.MotionModel` gives the guesses and the brightness start.
@@ -27,6 +34,7 @@ from ..camera import PinholeCamera
 from ..geometry import invert_pose
 from .config import OdometryConfig
 from .feature_retry import FeaturePose, FeatureRetry
+from .landmark_snapshot import LandmarkSnapshot
 from .map import MapKeyframe
 from .motion import MotionModel
 from .tracking import TrackResult, track_frame
@@ -70,24 +78,36 @@ class FrameTracker:
     def __init__(self, camera: PinholeCamera, config: OdometryConfig) -> None:
         self.config = config
         self._retry = FeatureRetry(camera, config.feature_retry)
+        self._frame: Optional[tuple] = None   # (image, its features, landmark poses)
 
     def track(self, kf: MapKeyframe, image: np.ndarray, guesses: Sequence[Guess],
-              brightness: np.ndarray, features: bool = True) -> TrackResult:
+              brightness: np.ndarray, features: bool = True,
+              landmarks: Optional[LandmarkSnapshot] = None) -> TrackResult:
         """``image`` tracked against the map keyframe ``kf``: the decision of the
         module docstring over ``guesses`` (in order; e.g.
         :meth:`MotionModel.guesses`) from the affine brightness ``brightness``
         ``(a, b)``.  ``features``: whether ``kf``'s primitives carry depth its
         features may be lifted with (the feature retry and check; False for a
-        segment's keyframe 0 before its initialisation).  None only when no
-        guess gives a pose."""
-        pnp: Optional[FeaturePose] = None
+        segment's keyframe 0 before its initialisation).  ``landmarks``: the
+        map's :class:`~spgeo.vo.landmark_snapshot.LandmarkSnapshot` (its PnP pose
+        is the first feature guess; None: none).  None only when no guess gives
+        a pose."""
+        on = self.config.feature_retry.enabled
+        pnps: List[FeaturePose] = []
         tries = list(guesses)
-        if features and self.config.feature_retry.enabled:
+        if on and landmarks is not None and len(landmarks):
+            def landmark_guess() -> Optional[np.ndarray]:
+                p = self._landmark_pose(image, landmarks)
+                pnps.extend([p] if p is not None else [])
+                return None if p is None else p.T_world_frame
+            tries.append(landmark_guess)
+        if features and on:
             def feature_guess() -> Optional[np.ndarray]:
-                nonlocal pnp
                 k = kf.keyframe
-                pnp = self._retry.pose(kf.index, kf.image, k.primitives, k.T_world_kf, image)
-                return None if pnp is None else pnp.T_world_frame
+                p = self._retry.pose(kf.index, kf.image, k.primitives, k.T_world_kf, image,
+                                     self._frame_features(image))
+                pnps.extend([p] if p is not None else [])
+                return None if p is None else p.T_world_frame
             tries.append(feature_guess)
         tr = None
         for guess in tries:
@@ -99,10 +119,43 @@ class FrameTracker:
                 tr = tr2
             if tr.ok:
                 break
-        if (tr is not None and tr.reason == "high_cost" and pnp is not None
-                and pnp.agrees(tr.T_world_frame, self._retry.camera, self.config.feature_retry)):
-            tr = dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
-        return tr
+        return self._checked(tr, pnps)
+
+    def _checked(self, tr: Optional[TrackResult], pnps: List[FeaturePose]
+                 ) -> Optional[TrackResult]:
+        """A result refused only for its photometric cost, judged by the PnP
+        poses ``pnps``: ``ok`` at its pose when one of them agrees with it, else
+        ``ok`` at the PnP pose of most inliers (``feature_pose``)."""
+        if tr is None or not pnps:
+            return tr
+        best = max(pnps, key=lambda p: p.inliers)
+        tr = dataclasses.replace(tr, pnp_inliers=best.inliers)
+        if tr.reason != "high_cost":
+            return tr
+        cfg = self.config.feature_retry
+        if any(p.agrees(tr.T_world_frame, self._retry.camera, cfg) for p in pnps):
+            return dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
+        return dataclasses.replace(tr, T_world_frame=best.T_world_frame.copy(), status="ok",
+                                   reason=None, feature_checked=True, feature_pose=True)
+
+    def _frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+        """The frame's features (:meth:`FeatureRetry.frame_features`), computed once
+        per frame (the last frame's kept)."""
+        if self._frame is None or self._frame[0] is not image:
+            self._frame = (image, self._retry.frame_features(image), {})
+        return self._frame[1]
+
+    def _landmark_pose(self, image: np.ndarray, landmarks: LandmarkSnapshot
+                       ) -> Optional[FeaturePose]:
+        """The frame's PnP pose on ``landmarks`` (:meth:`LandmarkSnapshot.pose`),
+        computed once per frame and snapshot."""
+        feats = self._frame_features(image)
+        done = self._frame[2]
+        if id(landmarks) not in done:
+            done[id(landmarks)] = (landmarks, landmarks.pose(
+                feats, self.config.feature_retry.features, self._retry.camera,
+                self.config.feature_retry))
+        return done[id(landmarks)][1]
 
     def retrack(self, kf: MapKeyframe, frames: Sequence[Tuple[int, np.ndarray, Optional[float]]],
                 motion: MotionModel, extra_guess: Optional[Callable[[int], np.ndarray]] = None
@@ -129,14 +182,16 @@ class FrameTracker:
                 out.append(RetrackedFrame(i, image, False, motion.last_good.copy()))
         return out
 
-    def relocalise(self, older: Sequence[MapKeyframe], image: np.ndarray, motion: MotionModel
+    def relocalise(self, older: Sequence[MapKeyframe], image: np.ndarray, motion: MotionModel,
+                   landmarks: Optional[LandmarkSnapshot] = None
                    ) -> Tuple[Optional[TrackResult], Optional[MapKeyframe]]:
-        """``image`` tracked (:meth:`track`) from ``motion``'s last good pose
-        against the live keyframes ``older`` in the order given (the caller
-        passes newest first); the first ``ok`` result and its keyframe, else
-        ``(None, None)``."""
+        """``image`` tracked (:meth:`track`) from ``motion``'s last good pose,
+        then from its PnP pose on the map's ``landmarks``, against the live
+        keyframes ``older`` in the order given (the caller passes newest first);
+        the first ``ok`` result and its keyframe, else ``(None, None)``."""
         for kf in older:
-            tr = self.track(kf, image, [lambda: motion.last_good], motion.brightness)
-            if tr.ok:
+            tr = self.track(kf, image, [lambda: motion.last_good], motion.brightness,
+                            landmarks=landmarks)
+            if tr is not None and tr.ok:
                 return tr, kf
         return None, None

@@ -71,6 +71,10 @@ class LandmarkConfig:
             window, as a fraction of the observing keyframe's median depth (0.02).
         memory_keyframes: keyframes a landmark is kept without being seen (100).
         max_landmarks: the most landmarks kept (default 20000).
+        snapshot_landmarks: the most landmarks (the most recently seen) each
+            mapping update carries to the tracker for its feature poses and
+            relocalisation (:class:`~spgeo.vo.landmark_snapshot.LandmarkSnapshot`;
+            default 3000: a few keyframes' worth, docs/results.md issue 51).
     """
 
     enabled: bool = True
@@ -85,11 +89,12 @@ class LandmarkConfig:
     prior_sigma: float = 0.02
     memory_keyframes: int = 100
     max_landmarks: int = 20000
+    snapshot_landmarks: int = 3000
 
     def __post_init__(self) -> None:
         if (self.match_keyframes < 1 or not self.pixel_sigma > 0 or not self.huber_px > 0
                 or not self.prior_sigma > 0 or self.memory_keyframes < 1
-                or self.max_landmarks < 1 or self.max_factors < 1
+                or self.max_landmarks < 1 or self.max_factors < 1 or self.snapshot_landmarks < 0
                 or not self.max_reprojection_px > 0):
             raise ValueError(f"LandmarkConfig: invalid values {self}")
 

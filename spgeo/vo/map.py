@@ -151,6 +151,9 @@ class KeyframeMap:
         support_pose: frame number -> smoothed ``T_world_frame`` of a supporting
             frame (from the back end's updates, :meth:`apply_update`).
         candidates: supporting-frame candidates of the newest keyframe.
+        landmarks: the current segment's landmarks as the last applied update
+            left them (:class:`~spgeo.vo.landmark_snapshot.LandmarkSnapshot`), or
+            None (none yet, or without landmarks).
     """
 
     def __init__(self, window: int, levels: int, n_support: int,
@@ -165,6 +168,7 @@ class KeyframeMap:
         self.anchors: Dict[int, Anchor] = {}
         self.support_pose: Dict[int, np.ndarray] = {}
         self.candidates: List[SupportCandidate] = []
+        self.landmarks = None
 
     # ------------------------------------------------------------ keyframes
     @property
@@ -298,8 +302,10 @@ class KeyframeMap:
 
     def begin_segment(self) -> None:
         """A new map segment (re-initialisation): its keyframe 0 comes next
-        (:meth:`add` with ``new_segment``)."""
+        (:meth:`add` with ``new_segment``); the old segment's landmarks are
+        dropped (another scale)."""
         self.segment += 1
+        self.landmarks = None
 
     def replace_keyframe(self, k: int, keyframe: Keyframe) -> None:
         """Live keyframe ``k``'s :class:`Keyframe` becomes ``keyframe`` (e.g. an
@@ -318,7 +324,8 @@ class KeyframeMap:
         correction first (:meth:`apply_loop_correction`, ``follow_newest`` passed
         on), then the refreshed keyframes (the back end's own objects where it
         sent them, else :func:`~spgeo.vo.keyframe.with_shape_values` of ours:
-        equal numbers), the supporting frames' poses, a window restart (the
+        equal numbers), the supporting frames' poses, the landmarks (of this
+        segment), a window restart (the
         segment keeps its last two keyframes) and retirement.  Returns
         ``(changed, W)``: keyframe index -> the new :class:`Keyframe` of every
         live keyframe that changed, and the loop correction's world similarity of
@@ -337,6 +344,8 @@ class KeyframeMap:
                            else with_shape_values(mk.keyframe, th, primitive_model, T))
             changed[j] = mk.keyframe
         self.support_pose.update(upd.support_pose)
+        if upd.snapshot is not None and upd.snapshot.segment == self.segment:
+            self.landmarks = upd.snapshot
         if upd.restarted:
             self.seg_kfs = self.seg_kfs[-2:]
         self.retire_outside_window()

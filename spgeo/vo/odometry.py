@@ -176,7 +176,10 @@ class Odometry:
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it (without
         features: its primitives have no depth yet), then the :class:`Initialiser`'s
-        decision applied."""
+        decision applied; after ``max_lost_frames`` frames not tracked against
+        keyframe 0 (no solve in flight) the segment starts again from this frame
+        (keyframe 0 of a foreign view, e.g. a hand over the lens, never
+        initialises)."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         with timed(timings, "track"):
             tr = self._tracked(kf0, frame, features=False)
@@ -192,6 +195,12 @@ class Odometry:
         last_good = self._motion.last_good
         if dec.action == FAILED:
             self._n_lost += 1
+        if not tr.ok and self._n_lost >= self.config.max_lost_frames and \
+                self._initialiser.solving is None and not featureless(frame.image):
+            log.warning("frame %d: %d frames not tracked against keyframe 0 of segment %d; "
+                        "starting again", idx, self._n_lost, self._map.segment)
+            return self._reinitialise(frame, idx, timings)
+        if dec.action == FAILED:
             return frame_result(frame, idx, last_good, FrameStatus.LOST, track=tr)
         if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
             self._map.anchor(idx, kf0.index, dec.T_kf0_frame, kf0.keyframe.median_depth)
@@ -234,7 +243,8 @@ class Odometry:
         """``frame`` tracked against ``kf`` from the motion model's guesses
         (:meth:`FrameTracker.track`)."""
         return self._tracker.track(kf, frame.image, self._motion.guesses(frame.timestamp),
-                                   self._motion.brightness, features)
+                                   self._motion.brightness, features,
+                                   self._map.landmarks if features else None)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of an initialised segment: tracked against the latest keyframe
@@ -250,7 +260,8 @@ class Odometry:
         if not tr.ok:
             with timed(timings, "track"):
                 tr_old, kf_old = self._tracker.relocalise(self._map.older_in_window(),
-                                                          frame.image, self._motion)
+                                                          frame.image, self._motion,
+                                                          self._map.landmarks)
             if tr_old is not None:
                 tr, ref = tr_old, kf_old
         if not tr.ok:
@@ -286,6 +297,12 @@ class Odometry:
         log.warning("frame %d: %d frames lost; re-initialising the map", idx, self._n_lost)
         if featureless(frame.image):
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST)
+        return self._reinitialise(frame, idx, timings)
+
+    def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        """A new map segment whose keyframe 0 is this frame, at the last good
+        pose and the latest keyframe's median depth (the pending update applied
+        first)."""
         self._sync(timings)
         med = self._map.latest.keyframe.median_depth
         self._map.begin_segment()

@@ -91,6 +91,11 @@ class TrackResult:
         feature_checked: ``"ok"`` although ``relative_cost`` exceeds
             ``TrackerConfig.max_relative_cost``, because feature matches
             agree with the pose (:meth:`spgeo.vo.frame_tracker.FrameTracker.track`).
+        feature_pose: ``T_world_frame`` is a feature-based PnP pose, kept because
+            only the photometric cost refused every start (``feature_checked``
+            too; :meth:`spgeo.vo.frame_tracker.FrameTracker.track`).
+        pnp_inliers: the PnP inliers of the best feature-based pose the decision
+            computed (map landmarks or keyframe features), or None.
     """
 
     T_world_frame: np.ndarray
@@ -108,6 +113,8 @@ class TrackResult:
     decision_stride: int = 1
     decision_steps: int = 0
     feature_checked: bool = False
+    feature_pose: bool = False
+    pnp_inliers: Optional[int] = None
 
     @property
     def ok(self) -> bool:
