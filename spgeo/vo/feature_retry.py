@@ -53,7 +53,8 @@ class FeatureRetryConfig:
             (``"high_cost"``) is kept when it reprojects at least this share of
             the PnP pose's inlier count within ``reprojection_px`` (and at
             least ``min_inliers``); >= 0, default 0.8 (docs/results.md, issue
-            38); None: never kept (the tracker before issue 38).
+            38); None: never kept at the photometric pose (the PnP pose of most
+            inliers is kept instead, :class:`~spgeo.vo.frame_tracker.FrameTracker`).
     """
 
     enabled: bool = True

@@ -138,6 +138,12 @@ class FrameTracker:
         return dataclasses.replace(tr, T_world_frame=best.T_world_frame.copy(), status="ok",
                                    reason=None, feature_checked=True, feature_pose=True)
 
+    def forget(self, keep: set) -> None:
+        """Drop what the decision cached of keyframes whose index is not in
+        ``keep`` (the map's live keyframes; a retired keyframe's features and
+        primitives would otherwise stay in memory for the whole run)."""
+        self._retry.forget(keep)
+
     def _frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
         """The frame's features (:meth:`FeatureRetry.frame_features`), computed once
         per frame (the last frame's kept)."""

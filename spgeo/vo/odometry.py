@@ -326,6 +326,7 @@ class Odometry:
         keyframe, weights = made
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
                                   prior_weights=weights))
+        self._tracker.forget(set(self._map.live))
         self._port.send(self._map.window_kfs(extra=1), self._map.take_candidates(),
                         self._map.segment, len(self._frames))
         self._motion.brightness = np.zeros(2)    # the next frames: relative to keyframe k
