@@ -121,12 +121,15 @@ class FeatureRetry:
     Args:
         camera: camera of the images passed to :meth:`guess`.
         config: :class:`FeatureRetryConfig`.
+        capacity: the most keyframes whose features are cached (those of the
+            highest keys are kept; default None: every one).
     """
 
-    def __init__(self, camera: PinholeCamera, config: FeatureRetryConfig = FeatureRetryConfig()
-                 ) -> None:
+    def __init__(self, camera: PinholeCamera, config: FeatureRetryConfig = FeatureRetryConfig(),
+                 capacity: Optional[int] = None) -> None:
         self.camera = camera
         self.config = config
+        self.capacity = capacity
         self._cache: Dict[int, _KeyframeFeatures] = {}
 
     def _features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
@@ -153,6 +156,8 @@ class FeatureRetry:
         points = np.where(ok[:, None], X, np.nan)
         feats = _KeyframeFeatures(primitives, points, desc)
         self._cache[key] = feats
+        if self.capacity is not None and len(self._cache) > self.capacity:
+            self.forget(set(sorted(self._cache)[-self.capacity:]))
         return feats
 
     def forget(self, keep: set) -> None:

@@ -77,7 +77,9 @@ class FrameTracker:
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig) -> None:
         self.config = config
-        self._retry = FeatureRetry(camera, config.feature_retry)
+        # the window's keyframes and the one leaving it: a retired keyframe's features and
+        # primitives are not kept for the whole run
+        self._retry = FeatureRetry(camera, config.feature_retry, capacity=config.window + 1)
         self._frame: Optional[tuple] = None   # (image, its features, landmark poses)
 
     def track(self, kf: MapKeyframe, image: np.ndarray, guesses: Sequence[Guess],
@@ -137,12 +139,6 @@ class FrameTracker:
             return dataclasses.replace(tr, status="ok", reason=None, feature_checked=True)
         return dataclasses.replace(tr, T_world_frame=best.T_world_frame.copy(), status="ok",
                                    reason=None, feature_checked=True, feature_pose=True)
-
-    def forget(self, keep: set) -> None:
-        """Drop what the decision cached of keyframes whose index is not in
-        ``keep`` (the map's live keyframes; a retired keyframe's features and
-        primitives would otherwise stay in memory for the whole run)."""
-        self._retry.forget(keep)
 
     def _frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
         """The frame's features (:meth:`FeatureRetry.frame_features`), computed once

@@ -42,11 +42,9 @@ class Odometry:
     """Streaming monocular VO (module docstring).
 
     Args:
-        camera: intrinsics of the input frames (:attr:`input_camera`).  The
-            VO works at ``config.processing_size_for(camera.size)``
-            (:mod:`spgeo.vo.processing`; :attr:`camera` is ``camera`` resized to
-            it): :meth:`track` resizes frames of the input size, so a loop over
-            full-size frames processes what ``spgeo vo`` processes.
+        camera: intrinsics of the input frames (:attr:`input_camera`).  The VO works
+            at ``config.processing_size_for(camera.size)`` (:attr:`camera`):
+            :meth:`track` resizes frames of the input size as ``spgeo vo`` does.
         config: :class:`OdometryConfig`.
         frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes (its
             working size: the processing size, or None for the image's).
@@ -63,8 +61,8 @@ class Odometry:
             (:meth:`result`, :attr:`keyframes`, :meth:`report`, :meth:`save`, ...) it forwards.
 
     Mapping (docs/design.md §5.1): reads apply the pending update first; :meth:`close`
-    (or ``with``) stops a worker.  Memory: after a frame only its :class:`FrameResult`
-    and anchor stay; keyframes leaving the window go to the store.
+    (or ``with``) stops a worker.  Memory: after a frame its :class:`FrameResult` and
+    anchor stay; keyframes leaving the window go to the store, their cached features away.
     """
 
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
@@ -176,10 +174,8 @@ class Odometry:
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it (without
         features: its primitives have no depth yet), then the :class:`Initialiser`'s
-        decision applied; after ``max_lost_frames`` frames not tracked against
-        keyframe 0 (no solve in flight) the segment starts again from this frame
-        (keyframe 0 of a foreign view, e.g. a hand over the lens, never
-        initialises)."""
+        decision applied; after ``max_lost_frames`` frames not tracked against it
+        (no solve in flight; e.g. a foreign view) the segment starts again here."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         with timed(timings, "track"):
             tr = self._tracked(kf0, frame, features=False)
@@ -193,13 +189,11 @@ class Odometry:
             return res1 if dec.keyframe1 == idx else self._after_late_keyframe1(
                 frame, idx, dec, timings)
         last_good = self._motion.last_good
-        if dec.action == FAILED:
-            self._n_lost += 1
+        self._n_lost += int(dec.action == FAILED)
         if not tr.ok and self._n_lost >= self.config.max_lost_frames and \
-                self._initialiser.solving is None and not featureless(frame.image):
-            log.warning("frame %d: %d frames not tracked against keyframe 0 of segment %d; "
-                        "starting again", idx, self._n_lost, self._map.segment)
-            return self._reinitialise(frame, idx, timings)
+                self._initialiser.solving is None:
+            log.warning("frame %d: keyframe 0 never tracked; starting again", idx)
+            return self._reinitialise(frame, idx, timings, tr)
         if dec.action == FAILED:
             return frame_result(frame, idx, last_good, FrameStatus.LOST, track=tr)
         if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
@@ -240,11 +234,10 @@ class Odometry:
         return self._track(frame, idx, timings)
 
     def _tracked(self, kf: MapKeyframe, frame: Frame, features: bool = True) -> TrackResult:
-        """``frame`` tracked against ``kf`` from the motion model's guesses
-        (:meth:`FrameTracker.track`)."""
+        """``frame`` tracked against ``kf`` from the motion model's guesses and the map's
+        landmarks (:meth:`FrameTracker.track`; None before a segment's first update)."""
         return self._tracker.track(kf, frame.image, self._motion.guesses(frame.timestamp),
-                                   self._motion.brightness, features,
-                                   self._map.landmarks if features else None)
+                                   self._motion.brightness, features, self._map.landmarks)
 
     def _track(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of an initialised segment: tracked against the latest keyframe
@@ -259,9 +252,8 @@ class Odometry:
                 tr = self._tracked(latest, frame)
         if not tr.ok:
             with timed(timings, "track"):
-                tr_old, kf_old = self._tracker.relocalise(self._map.older_in_window(),
-                                                          frame.image, self._motion,
-                                                          self._map.landmarks)
+                tr_old, kf_old = self._tracker.relocalise(
+                    self._map.older_in_window(), frame.image, self._motion, self._map.landmarks)
             if tr_old is not None:
                 tr, ref = tr_old, kf_old
         if not tr.ok:
@@ -288,21 +280,20 @@ class Odometry:
     def _lost(self, frame: Frame, idx: int, tr: TrackResult,
               timings: Dict[str, float]) -> FrameResult:
         """A frame not tracked: ``LOST`` at the last good pose, or after
-        ``max_lost_frames`` the map re-initialised (not from a featureless
-        frame: it stays lost and the next frame tries again)."""
+        ``max_lost_frames`` the map re-initialised (:meth:`_reinitialise`)."""
         self._n_lost += 1
         log.info("frame %d lost (%s)", idx, tr.reason)
         if self._n_lost < self.config.max_lost_frames:
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
         log.warning("frame %d: %d frames lost; re-initialising the map", idx, self._n_lost)
-        if featureless(frame.image):
-            return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST)
-        return self._reinitialise(frame, idx, timings)
+        return self._reinitialise(frame, idx, timings, tr)
 
-    def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        """A new map segment whose keyframe 0 is this frame, at the last good
-        pose and the latest keyframe's median depth (the pending update applied
-        first)."""
+    def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float],
+                      tr: TrackResult) -> FrameResult:
+        """A new map segment from this frame at the last good pose (a featureless
+        frame stays lost)."""
+        if featureless(frame.image):
+            return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
         self._sync(timings)
         med = self._map.latest.keyframe.median_depth
         self._map.begin_segment()
@@ -326,7 +317,6 @@ class Odometry:
         keyframe, weights = made
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
                                   prior_weights=weights))
-        self._tracker.forget(set(self._map.live))
         self._port.send(self._map.window_kfs(extra=1), self._map.take_candidates(),
                         self._map.segment, len(self._frames))
         self._motion.brightness = np.zeros(2)    # the next frames: relative to keyframe k
