@@ -174,8 +174,8 @@ class Odometry:
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it (without
         features: its primitives have no depth yet), then the :class:`Initialiser`'s
-        decision applied; after ``max_lost_frames`` frames not tracked against it
-        (no solve in flight; e.g. a foreign view) the segment starts again here."""
+        decision applied; when none of the ``max_lost_frames`` or more frames since
+        keyframe 0 tracked against it (e.g. a foreign view) the segment starts again here."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         with timed(timings, "track"):
             tr = self._tracked(kf0, frame, features=False)
@@ -190,10 +190,9 @@ class Odometry:
                 frame, idx, dec, timings)
         last_good = self._motion.last_good
         self._n_lost += int(dec.action == FAILED)
-        if not tr.ok and self._n_lost >= self.config.max_lost_frames and \
-                self._initialiser.solving is None:
-            log.warning("frame %d: keyframe 0 never tracked; starting again", idx)
-            return self._reinitialise(frame, idx, timings, tr)
+        never = self._n_lost >= idx - kf0.frame >= self.config.max_lost_frames  # none tracked
+        if not tr.ok and never and self._initialiser.solving is None:
+            return self._reinitialise(frame, idx, timings, tr, "keyframe 0 never tracked")
         if dec.action == FAILED:
             return frame_result(frame, idx, last_good, FrameStatus.LOST, track=tr)
         if tr.ok:   # waiting for keyframe 1: INIT at the pose tracked against keyframe 0
@@ -285,13 +284,13 @@ class Odometry:
         log.info("frame %d lost (%s)", idx, tr.reason)
         if self._n_lost < self.config.max_lost_frames:
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
-        log.warning("frame %d: %d frames lost; re-initialising the map", idx, self._n_lost)
-        return self._reinitialise(frame, idx, timings, tr)
+        return self._reinitialise(frame, idx, timings, tr, f"{self._n_lost} frames lost")
 
     def _reinitialise(self, frame: Frame, idx: int, timings: Dict[str, float],
-                      tr: TrackResult) -> FrameResult:
+                      tr: TrackResult, why: str) -> FrameResult:
         """A new map segment from this frame at the last good pose (a featureless
         frame stays lost)."""
+        log.warning("frame %d: %s; re-initialising the map", idx, why)
         if featureless(frame.image):
             return frame_result(frame, idx, self._motion.last_good, FrameStatus.LOST, track=tr)
         self._sync(timings)
