@@ -159,3 +159,20 @@ def test_keyframe_features_are_cached_for_the_newest_keyframes_only(room):
         assert p is not None and p.inliers >= FeatureRetryConfig().min_inliers
     assert sorted(retry._cache) == [5, 7, 9]
     assert len(FeatureRetry(CAM)._cache) == 0 and FeatureRetry(CAM).capacity is None
+
+
+def test_frame_features_are_computed_once_per_frame_content(room):
+    """The decision computes a frame's features once however many keyframes it is
+    tried against, and again when the next frame comes in the same array (a camera
+    ring buffer reused in place): never the previous frame's features."""
+    from spgeo.vo.frame_tracker import FrameTracker
+
+    images, _ = room
+    tracker = FrameTracker(CAM, OdometryConfig())
+    frame = images[0].copy()
+    first = tracker._frame_features(frame)
+    assert tracker._frame_features(frame) is first
+    frame[...] = images[3]
+    second = tracker._frame_features(frame)
+    assert second is not first
+    np.testing.assert_array_equal(second[0], FeatureRetry(CAM).frame_features(images[3])[0])

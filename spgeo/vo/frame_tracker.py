@@ -25,6 +25,7 @@ computed once per frame, the landmark pose once per frame and snapshot.
 from __future__ import annotations
 
 import dataclasses
+import zlib
 from dataclasses import dataclass
 from typing import Callable, List, Optional, Sequence, Tuple
 
@@ -80,7 +81,7 @@ class FrameTracker:
         # the window's keyframes and the one leaving it: a retired keyframe's features and
         # primitives are not kept for the whole run
         self._retry = FeatureRetry(camera, config.feature_retry, capacity=config.window + 1)
-        self._frame: Optional[tuple] = None   # (image, its features, landmark poses)
+        self._frame: Optional[tuple] = None   # (image key, its features, landmark poses)
 
     def track(self, kf: MapKeyframe, image: np.ndarray, guesses: Sequence[Guess],
               brightness: np.ndarray, features: bool = True,
@@ -142,9 +143,11 @@ class FrameTracker:
 
     def _frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
         """The frame's features (:meth:`FeatureRetry.frame_features`), computed once
-        per frame (the last frame's kept)."""
-        if self._frame is None or self._frame[0] is not image:
-            self._frame = (image, self._retry.frame_features(image), {})
+        per frame: the last frame's are kept, keyed by its shape and the CRC-32 of
+        its bytes (a caller may reuse one array for the next frame)."""
+        key = (image.shape, str(image.dtype), zlib.crc32(np.ascontiguousarray(image)))
+        if self._frame is None or self._frame[0] != key:
+            self._frame = (key, self._retry.frame_features(image), {})
         return self._frame[1]
 
     def _landmark_pose(self, image: np.ndarray, landmarks: LandmarkSnapshot
