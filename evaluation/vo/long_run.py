@@ -43,7 +43,8 @@ after the sequence's own; ``default`` (none), ``loops``
 remembers the start, so loops are sought), ``inline`` (the back end between two
 frames instead of the live mapping worker) and ``no-feature-check``
 (``odometry.feature_retry.min_agreement=None``: a pose refused for its photometric
-cost is never kept at its own pose; since issue 51 the PnP pose is kept instead).  Adding a variant is one entry there.
+cost is never kept at its own pose; since issue 51 the PnP pose is kept instead).
+Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through

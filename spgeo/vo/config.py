@@ -152,9 +152,8 @@ class ScaleCheckConfig:
         min_parallax: ... only when the two keyframes' translation over the
             new one's median depth reaches this (unitless, >= 0; default 0.01).
         max_change: ... by a factor of at most ``1 + max_change`` either way
-            (> 0; default 0.05: on the synthetic street 0.2 let biased checks under
-            forward motion compound, t_rel 11.7 % over 100 frames against 5.4 %,
-            with the rooms and KITTI within their spread; docs/results.md issue 51).
+            (> 0; default 0.05: on the synthetic street larger limits let biased
+            checks under forward motion compound; docs/results.md, issue 51).
     """
 
     enabled: bool = True

@@ -14,9 +14,9 @@ features may lift to depth); the first ``ok`` result, else the one of lowest
 photometric cost; a result refused only for its cost (``"high_cost"``) is ``ok``
 at its pose when the matches of a PnP pose agree with it
 (:meth:`~spgeo.vo.feature_retry.FeaturePose.agrees`), else ``ok`` at the PnP pose
-of most inliers (``TrackResult.feature_pose``; issue 51: on a street the right
-pose's photometric cost exceeds the tracker's bound for frames on end, while
-hundreds of landmarks place it).  The frame's features are
+of most inliers (``TrackResult.feature_pose``; on a street the right pose's
+photometric cost can exceed the tracker's bound for frames on end while the
+landmarks place it: docs/results.md, issue 51).  The frame's features are
 computed once per frame, the landmark pose once per frame and snapshot.
 
 :class:`FrameTracker` holds no pose state: the caller's
@@ -81,7 +81,8 @@ class FrameTracker:
         # the window's keyframes and the one leaving it: a retired keyframe's features and
         # primitives are not kept for the whole run
         self._retry = FeatureRetry(camera, config.feature_retry, capacity=config.window + 1)
-        self._frame: Optional[tuple] = None   # (image key, its features, landmark poses)
+        # the last frame: (its key, its features, the snapshot it was placed on, that pose)
+        self._frame: Optional[tuple] = None
 
     def track(self, kf: MapKeyframe, image: np.ndarray, guesses: Sequence[Guess],
               brightness: np.ndarray, features: bool = True,
@@ -147,20 +148,20 @@ class FrameTracker:
         its bytes (a caller may reuse one array for the next frame)."""
         key = (image.shape, str(image.dtype), zlib.crc32(np.ascontiguousarray(image)))
         if self._frame is None or self._frame[0] != key:
-            self._frame = (key, self._retry.frame_features(image), {})
+            self._frame = (key, self._retry.frame_features(image), None, None)
         return self._frame[1]
 
     def _landmark_pose(self, image: np.ndarray, landmarks: LandmarkSnapshot
                        ) -> Optional[FeaturePose]:
         """The frame's PnP pose on ``landmarks`` (:meth:`LandmarkSnapshot.pose`),
         computed once per frame and snapshot."""
-        feats = self._frame_features(image)
-        done = self._frame[2]
-        if id(landmarks) not in done:
-            done[id(landmarks)] = (landmarks, landmarks.pose(
-                feats, self.config.feature_retry.features, self._retry.camera,
-                self.config.feature_retry))
-        return done[id(landmarks)][1]
+        feats = self._frame_features(image)     # a new frame resets the snapshot and pose
+        key, _, seen, pose = self._frame
+        if seen is not landmarks:
+            cfg = self.config.feature_retry
+            pose = landmarks.pose(feats, cfg.features, self._retry.camera, cfg)
+            self._frame = (key, feats, landmarks, pose)
+        return pose
 
     def retrack(self, kf: MapKeyframe, frames: Sequence[Tuple[int, np.ndarray, Optional[float]]],
                 motion: MotionModel, extra_guess: Optional[Callable[[int], np.ndarray]] = None
