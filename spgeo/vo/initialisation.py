@@ -35,6 +35,7 @@ from .config import OdometryConfig
 from .frame_tracker import FrameTracker, RetrackedFrame
 from .keyframe_policy import KeyframePolicy
 from .map import MapKeyframe
+from .result import add_seconds
 from .motion import MotionModel
 from .tracking import Keyframe, TrackResult
 
@@ -338,6 +339,7 @@ class Initialiser:
         self.failure: Optional[str] = None
         self.wait_note: Optional[str] = None
         self.solving: Optional[Solving] = None
+        self._tracks: Dict[int, tuple] = {}   # frames buffered in flight: (track, T_kf0_f)
 
     def _buffer_frame(self, idx: int, image: np.ndarray) -> None:
         """Buffer frame ``idx`` in frame order (a solved candidate comes back
@@ -358,21 +360,37 @@ class Initialiser:
         ``brightness``, the VO's current brightness estimate (the re-tracking's
         start).  Adds ``timings["init"]`` (the seconds this thread spent) when
         an SfM runs or is concluded.  While a solve is in flight elsewhere the
-        frame waits (buffered); the frame that finds it solved concludes it: a
-        ``"start"`` decision then names an earlier keyframe 1
-        (:attr:`InitDecision.keyframe1`)."""
+        frame waits (buffered with its tracking); the frame that finds it solved
+        concludes it: a ``"start"`` decision then names an earlier keyframe 1
+        (:attr:`InitDecision.keyframe1`), and a refused one has the frames
+        buffered meanwhile decided again, in order, before this one: the
+        attempts are those of a solve that landed at once, whenever it lands."""
         T_kf0_f = invert_pose(kf0.keyframe.T_world_kf) @ tr.T_world_frame
-        if self.solving is not None:
-            t = time.perf_counter()
-            sol = self.solver.init_result()
-            if sol is None:
-                self._buffer_frame(idx, image)
-                return InitDecision(WAIT, T_kf0_f)
-            dec = self._conclude(self.solving, sol)
-            timings["init"] = time.perf_counter() - t
-            if dec.action != START:
-                self._buffer_frame(idx, image)
+        if self.solving is None:
+            return self._decide(image, idx, kf0, tr, T_kf0_f, brightness, segment, timings)
+        t = time.perf_counter()
+        sol = self.solver.init_result()
+        if sol is None:
+            self._buffer_frame(idx, image)
+            self._tracks[idx] = (tr, T_kf0_f)
+            return InitDecision(WAIT, T_kf0_f)
+        # the frames buffered during the solve, and those before the candidate as sent
+        since, self.buffer = self.buffer, list(self.solving.job.buffer)
+        tracks, self._tracks = self._tracks, {}
+        dec = self._conclude(self.solving, sol, since)
+        add_seconds(timings, {"init": time.perf_counter() - t})
+        if dec.action == START:
             return dataclasses.replace(dec, T_kf0_frame=T_kf0_f)
+        for i, img in since:
+            self.step(img, i, kf0, tracks[i][0], brightness, segment, timings)
+        return self.step(image, idx, kf0, tr, brightness, segment, timings)
+
+    def _decide(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
+                T_kf0_f: np.ndarray, brightness: np.ndarray, segment: int,
+                timings: Dict[str, float]) -> InitDecision:
+        """:meth:`step` with no solve in flight: wait, or solve frame ``idx`` as
+        keyframe 1 (here, or sent to the solver: the frames after it are then
+        buffered apart from those before, which the job holds)."""
         parallax = (np.linalg.norm(T_kf0_f[:3, 3]) / kf0.keyframe.median_depth
                     if tr.ok else 0.0)
         gap = idx - kf0.frame
@@ -391,16 +409,20 @@ class Initialiser:
         solving = Solving(job, tr, T_kf0_f, float(parallax), bool(early))
         sol = job.run() if self.solver is None else self.solver.solve_init(job)
         if sol is None:
-            self.solving = solving
+            self.solving, self.buffer = solving, []
             self.wait_note = f"solving keyframes 0-1 (frame {idx}) beside the tracker"
             return InitDecision(WAIT, T_kf0_f)
         dec = self._conclude(solving, sol)
-        timings["init"] = time.perf_counter() - t
+        add_seconds(timings, {"init": time.perf_counter() - t})
         return dec
 
-    def _conclude(self, solving: "Solving", sol: InitSolution) -> InitDecision:
+    def _conclude(self, solving: "Solving", sol: InitSolution,
+                  since: Sequence[tuple] = ()) -> InitDecision:
         """The decision of a solved :class:`InitJob` (judged here; keyframe 0
-        rebuilt and the buffer re-tracked here unless the solve did it)."""
+        rebuilt and the buffer re-tracked here unless the solve did it); ``since``:
+        the frames buffered while it was solved beside the tracker (not thinned
+        with the frames before it: a late keyframe 1 catches them all up; a
+        refused solve leaves them to :meth:`step`)."""
         job, tr = solving.job, solving.track
         self.solving = None
         gap = job.idx - job.kf0_frame
@@ -426,7 +448,7 @@ class Initialiser:
             keyframe0, T_01, last = sol.keyframe0, sol.T_01, sol.T_world_last
             images = dict(job.buffer)
             retracked = [dataclasses.replace(r, image=images[r.frame]) for r in sol.retracked]
-        since = [(i, img) for i, img in self.buffer if i > job.idx]
+        since = list(since)
         self.buffer.clear()
         return InitDecision(START, solving.T_kf0_f, keyframe0,
                             job.kf0_keyframe.T_world_kf @ T_01, retracked, last,

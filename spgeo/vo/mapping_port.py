@@ -32,6 +32,7 @@ the map applies the update, waiting for it.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ from .initialisation import InitJob, InitSolution
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
 from .mapping_worker import MappingWorker
 from .motion import MotionChange, MotionModel
-from .result import add_seconds
+from .result import FrameLog, add_seconds
 from .smoother import adopt_selection, choose_support
 from .tracking import Keyframe
 
@@ -146,6 +147,7 @@ class MappingPort:
         self.config, self.lead, self.schedule = config, int(lead), schedule
         self.record = MappingRecord()
         self._sent: Dict[int, Keyframe] = {}
+        self._catching_up = False
 
     # ------------------------------------------------------------ protocol
     @property
@@ -195,8 +197,20 @@ class MappingPort:
         update (module docstring): on ``"fixed"`` always (it is waited for), on
         ``"ready"`` only when it is ready (the tracker never waits); the
         :class:`~spgeo.vo.keyframe_policy.KeyframePolicy` defers the keyframe
-        otherwise."""
-        return self.schedule != "ready" or self._ready()
+        otherwise; always while :meth:`catching_up`."""
+        return self.schedule != "ready" or self._catching_up or self._ready()
+
+    @contextlib.contextmanager
+    def catching_up(self):
+        """Within: the frames of a late keyframe 1 processed again (``Odometry``),
+        on either schedule a keyframe wanted while an update is pending waits for
+        it, as on ``"fixed"``: the frames caught up make the keyframes they would
+        have made had the keyframe-1 solve landed at once."""
+        self._catching_up = True
+        try:
+            yield
+        finally:
+            self._catching_up = False
 
     def defer_keyframe(self) -> None:
         """A keyframe decision deferred (:meth:`MappingRecord.defer_keyframe`)."""
@@ -382,16 +396,17 @@ def make_port(camera: PinholeCamera, config: OdometryConfig, wait: bool = False)
 
 
 def apply_pending_update(port: MappingPort, kmap: KeyframeMap, motion: MotionModel,
-                         frames: Sequence, timings: Optional[Dict[str, float]] = None) -> bool:
+                         frames: FrameLog, timings: Optional[Dict[str, float]] = None) -> bool:
     """A VO's one apply of ``port``'s pending update, waiting for it: the map's part and
-    the port's (:meth:`MappingPort.apply_pending`, ``len(frames)`` frames processed),
+    the port's (:meth:`MappingPort.apply_pending`, ``frames.steps`` frames processed:
+    :class:`~spgeo.vo.result.FrameLog`),
     then ``motion`` follows (:meth:`MotionModel.follow`); the seconds it cost this thread
     are added to ``timings``.  Returns whether an update was applied.
     :class:`spgeo.vo.Odometry` and its read side call it through a
     ``functools.partial`` of the odometry's parts (no reference back to the odometry)."""
     if not port.pending:
         return False
-    seconds, change = port.apply_pending(kmap, len(frames))
+    seconds, change = port.apply_pending(kmap, frames.steps)
     motion.follow(change)
     add_seconds({} if timings is None else timings, seconds)
     return True

@@ -129,18 +129,9 @@ class Odometry:
                                   bool(self.frontend.uses_depth),
                                   self._frames[-1].timestamp if self._frames else None)
             timings: Dict[str, float] = {}
-            if self._port.due(idx):
-                self._sync(timings)
-            self._port.note_frame()
-            if idx == 0:
-                res = self._start(frame, idx, np.eye(4), timings)
-            elif len(self._map.seg_kfs) < 2:
-                res = self._initialise(frame, idx, timings)
-            else:
-                res = self._track(frame, idx, timings)
+            res = self._process(frame, idx, timings)
             timings["total"] = time.perf_counter() - t0
             res.timings = timings
-            res.segment = self._map.segment
             self._frames.append(res)
             return res
 
@@ -156,6 +147,21 @@ class Odometry:
         self.close()
 
     # ------------------------------------------------------------ stages
+    def _process(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        """One processing step of frame ``idx`` (a frame caught up again too)."""
+        if self._port.due(self._frames.steps):
+            self._sync(timings)
+        self._port.note_frame()
+        if idx == 0:
+            res = self._start(frame, idx, np.eye(4), timings)
+        elif len(self._map.seg_kfs) < 2:
+            res = self._initialise(frame, idx, timings)
+        else:
+            res = self._track(frame, idx, timings)
+        res.segment = self._map.segment
+        self._frames.steps += 1
+        return res
+
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
         """Keyframe 0 of a map segment at ``T_world``."""
@@ -172,10 +178,9 @@ class Odometry:
         return frame_result(frame, idx, T_world, status, keyframe_index=k)
 
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
-        """A frame of a segment with only keyframe 0: tracked against it (without
-        features: its primitives have no depth yet), then the :class:`Initialiser`'s
-        decision applied; when none of the ``max_lost_frames`` or more frames since
-        keyframe 0 tracked against it (e.g. a foreign view) the segment starts again here."""
+        """A frame of a segment with only keyframe 0: tracked against it (no features: no
+        depth yet), the :class:`Initialiser`'s decision applied; the segment starts again
+        here when none of ``max_lost_frames`` or more frames since tracked (a foreign view)."""
         kf0 = self._map.kfs[self._map.seg_kfs[0]]
         with timed(timings, "track"):
             tr = self._tracked(kf0, frame, features=False)
@@ -186,8 +191,11 @@ class Odometry:
                                      self._map.segment, timings)
         if dec.action == START:
             res1 = self._start_map(frame, idx, kf0, dec, timings)
-            return res1 if dec.keyframe1 == idx else self._after_late_keyframe1(
-                frame, idx, dec, timings)
+            if dec.keyframe1 == idx:
+                return res1
+            self._catch_up(dec.since, timings)      # keyframe 1 is an earlier frame
+            return (self._initialise if len(self._map.seg_kfs) < 2 else self._track)(
+                frame, idx, timings)
         last_good = self._motion.last_good
         self._n_lost += int(dec.action == FAILED)
         never = self._n_lost >= idx - kf0.frame >= self.config.max_lost_frames  # none tracked
@@ -202,10 +210,9 @@ class Odometry:
 
     def _start_map(self, frame: Frame, idx: int, kf0: MapKeyframe, dec: InitDecision,
                    timings: Dict[str, float]) -> Optional[FrameResult]:
-        """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the
-        re-tracked frames their poses and statuses, and frame ``dec.keyframe1``
-        (this one, or an earlier one whose solve ran beside the tracker) becomes
-        keyframe 1; its result (None when the render gives no scale)."""
+        """A ``"start"`` decision: keyframe 0 takes the SfM's primitives, the re-tracked
+        frames their poses and statuses, and frame ``dec.keyframe1`` (this one, or an earlier
+        one solved beside the tracker) becomes keyframe 1; its result (None: no scale)."""
         j = dec.keyframe1
         frame1 = frame if j == idx else Frame(dec.image1, self.camera, self._frames[j].timestamp)
         self._map.replace_keyframe(kf0.index, dec.keyframe0)
@@ -220,17 +227,13 @@ class Odometry:
             self._frames[j].rewrite(res1.status, res1.T_world_cam, res1.track, res1.keyframe_index)
         return res1
 
-    def _after_late_keyframe1(self, frame: Frame, idx: int, dec: InitDecision,
-                              timings: Dict[str, float]) -> FrameResult:
-        """Keyframe 1 made of the earlier frame ``dec.keyframe1``: the frames after
-        it tracked again against it (``OK``, else left ``INIT``), then this frame."""
-        with timed(timings, "init"):
-            since = [r for r in self._tracker.retrack(
-                self._map.latest, [(i, image, self._frames[i].timestamp) for i, image in dec.since],
-                self._motion) if r.ok]
-        self._map.adopt_retracked(self._map.latest, since)
-        self._frames.rewrite_retracked(since, FrameStatus.OK)
-        return self._track(frame, idx, timings)
+    def _catch_up(self, since: list, timings: Dict[str, float]) -> None:
+        """The frames (``(number, image)``) buffered while keyframe 1 was solved, processed
+        again as if it had landed at once (keyframes made, the back end waited for)."""
+        with self._port.catching_up():
+            for i, image in since:
+                self._frames[i].take(self._process(
+                    Frame(image, self.camera, self._frames[i].timestamp), i, timings))
 
     def _tracked(self, kf: MapKeyframe, frame: Frame, features: bool = True) -> TrackResult:
         """``frame`` tracked against ``kf`` from the motion model's guesses and the map's
@@ -244,9 +247,7 @@ class Odometry:
         latest = ref = self._map.latest
         with timed(timings, "track"):
             tr = self._tracked(latest, frame)
-        if not tr.ok and self._port.pending:
-            # lost against the pending map: tracked again after the update (a wait of mapping's)
-            self._sync(timings)
+        if not tr.ok and self._sync(timings):   # lost against the pending map: again after it
             with timed(timings, "track"):
                 tr = self._tracked(latest, frame)
         if not tr.ok:
@@ -317,9 +318,9 @@ class Odometry:
         self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), keyframe, self._map.segment,
                                   prior_weights=weights))
         self._port.send(self._map.window_kfs(extra=1), self._map.take_candidates(),
-                        self._map.segment, len(self._frames))
+                        self._map.segment, self._frames.steps)
         self._motion.brightness = np.zeros(2)    # the next frames: relative to keyframe k
-        if self._port.due(len(self._frames)):
+        if self._port.due(self._frames.steps):
             self._sync(timings)
         return frame_result(frame, idx, self._map.kfs[k].keyframe.T_world_kf,
                             FrameStatus.KEYFRAME, keyframe_index=k, track=track)

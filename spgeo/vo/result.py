@@ -87,11 +87,27 @@ class FrameResult:
         self.status, self.T_world_cam = FrameStatus(status), np.array(T_world_cam, dtype=float)
         self.track, self.keyframe_index = track, keyframe_index
 
+    def take(self, other: "FrameResult") -> None:
+        """Rewritten in place as ``other``, the same frame processed again (the
+        frames a late keyframe 1 catches up); its timings stay."""
+        self.rewrite(other.status, other.T_world_cam, other.track, other.keyframe_index)
+        self.segment = other.segment
+
 
 class FrameLog(List[FrameResult]):
     """The :class:`FrameResult` of every frame of a run, in frame order (a list:
     :class:`spgeo.vo.Odometry` appends one per frame).  Its rewrites are the
-    initialisation's, once per frame (:meth:`spgeo.vo.Odometry.track`)."""
+    initialisation's (:meth:`spgeo.vo.Odometry.track`).
+
+    Attributes:
+        steps: frames processed so far, a frame processed again counted again (the
+            frames a late keyframe 1 catches up): the mapping port's clock.  Equals
+            ``len(self)`` on a run without a late keyframe 1.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps = 0
 
     def rewrite_retracked(self, retracked: Iterable, status: FrameStatus) -> None:
         """Frames tracked again (:class:`~spgeo.vo.frame_tracker.RetrackedFrame`)
