@@ -132,11 +132,6 @@ class Keyframe:
         return cls(primitives, pyr, T.copy(), tuple(image.shape[:2]), X,
                    float(np.median(X[:, 2])), selection)
 
-    def scaled(self, T_world_kf: np.ndarray, scale: float) -> "Keyframe":
-        """The keyframe at ``T_world_kf`` with every depth times ``scale`` (> 0)."""
-        p = self.primitives
-        return self.rebuilt(p.with_log_scales(p.log_scales + np.log(float(scale))), T_world_kf)
-
     def rebuilt(self, primitives: PrimitiveSet, T_world_kf: np.ndarray) -> "Keyframe":
         """The keyframe with new shapes / scales and pose: same image, and
         the same primitive pixels (``primitives.pixels`` and ``offsets`` equal

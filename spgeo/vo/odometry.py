@@ -14,6 +14,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..frame import Frame
+from ..primitives import PrimitiveSet
 from ..frontend import PrimitiveFrontEnd
 from ..geometry import invert_pose, nearest_rigid
 from ..images import featureless
@@ -30,7 +31,7 @@ from .motion import MotionModel
 from .processing import checked_frame, opencv_threads
 from .readout import OdometryReadout, read_side
 from .result import FrameLog, FrameResult, FrameStatus, frame_result, timed
-from .tracking import Keyframe, TrackResult
+from .tracking import TrackResult
 
 __all__ = ["Odometry"]
 
@@ -301,7 +302,7 @@ class Odometry:
 
     def _new_keyframe(self, frame: Frame, idx: int, T_world: np.ndarray,
                       timings: Dict[str, float], track: Optional[TrackResult],
-                      made: Optional[Tuple[Keyframe, np.ndarray]] = None) -> Optional[FrameResult]:
+                      prims: Optional[PrimitiveSet] = None) -> Optional[FrameResult]:
         """Make frame ``idx`` (at ``T_world``) a keyframe (:class:`KeyframeBuilder`;
         ``prims``: its primitives, already made) and send its job to the port, on
         the map updated first (the frame's pose moved with the keyframe it was
@@ -309,8 +310,8 @@ class Odometry:
         if self._sync(timings) and idx in self._map.anchors:
             T_world = nearest_rigid(self._map.frame_pose(*self._map.anchors[idx]))
         k = self._map.next_index
-        if made is None:
-            made = self._builder.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings)
+        made = self._builder.rendered(frame, idx, k, T_world, self._map.window_kfs(), timings,
+                                    prims=prims)
         if made is None:
             return None
         keyframe, weights = made
@@ -330,10 +331,9 @@ class Odometry:
         primitives made, update applied, tracked again from its pose moved with the
         update and decided again (:meth:`KeyframePolicy.crosses`).  Returns
         ``(track result, T_latest_frame, keyframe FrameResult or None)``."""
-        latest, med = self._map.latest, self._map.latest.keyframe.median_depth
-        with timed(timings, "frontend"):     # made on the pending map, while the back end solves
-            made = self._builder.rendered(frame, idx, self._map.next_index, tr.T_world_frame,
-                                          self._map.window_kfs(), timings)
+        latest = self._map.latest
+        with timed(timings, "frontend"):
+            prims = self._builder.primify(frame)
         self._sync(timings)
         T_ref_f = self._map.relative_pose(*self._map.anchors[idx])    # moved with the update
         with timed(timings, "track"):
@@ -347,6 +347,4 @@ class Odometry:
         if not self._policy.crosses(tr, T_ref_f, latest):
             return tr, T_ref_f, None
         T_world = nearest_rigid(latest.keyframe.T_world_kf @ T_ref_f)
-        if made is not None:        # moved with the update's similarity of the latest keyframe
-            made = (made[0].scaled(T_world, latest.keyframe.median_depth / med), made[1])
-        return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, made=made)
+        return tr, T_ref_f, self._new_keyframe(frame, idx, T_world, timings, tr, prims=prims)
