@@ -371,9 +371,7 @@ class Initialiser:
         t = time.perf_counter()
         sol = self.solver.init_result()
         if sol is None:
-            self._buffer_frame(idx, image)
-            self._tracks[idx] = (tr, T_kf0_f)
-            return InitDecision(WAIT, T_kf0_f)
+            return self._wait_for_solve(image, idx, tr, T_kf0_f)
         # the frames buffered during the solve, and those before the candidate as sent
         since, self.buffer = self.buffer, list(self.solving.job.buffer)
         tracks, self._tracks = self._tracks, {}
@@ -381,9 +379,20 @@ class Initialiser:
         add_seconds(timings, {"init": time.perf_counter() - t})
         if dec.action == START:
             return dataclasses.replace(dec, T_kf0_frame=T_kf0_f)
-        for i, img in since:
-            self.step(img, i, kf0, tracks[i][0], brightness, segment, timings)
+        for i, img in since:      # decided again; a solve sent meanwhile is polled from here on
+            tr_i, T_i = tracks[i]
+            if self.solving is None:
+                self._decide(img, i, kf0, tr_i, T_i, brightness, segment, timings)
+            else:
+                self._wait_for_solve(img, i, tr_i, T_i)
         return self.step(image, idx, kf0, tr, brightness, segment, timings)
+
+    def _wait_for_solve(self, image: np.ndarray, idx: int, tr: TrackResult,
+                        T_kf0_f: np.ndarray) -> InitDecision:
+        """Frame ``idx`` buffered with its tracking while a solve is in flight."""
+        self._buffer_frame(idx, image)
+        self._tracks[idx] = (tr, T_kf0_f)
+        return InitDecision(WAIT, T_kf0_f)
 
     def _decide(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
                 T_kf0_f: np.ndarray, brightness: np.ndarray, segment: int,
