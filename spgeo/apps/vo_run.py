@@ -127,8 +127,8 @@ class VORunConfig:
             None: outputs in the VO's unit.
         capture_ring: live input (:func:`run_live`, a camera): frames the
             capture thread holds while the VO is busy
-            (:class:`~spgeo.datasets.capture.CaptureRing`; thinned evenly when
-            it is full).  Default 8; docs/results.md, "Real time with a
+            (:class:`~spgeo.datasets.capture.CaptureRing`; the oldest is dropped
+            when it is full).  Default 8; docs/results.md, "Real time with a
             camera", says why.
         fusion: :class:`~spgeo.io.fusion.FusionConfig` of the TSDF fusion
             (``spgeo vo --mesh``, :meth:`VORun.fuse <spgeo.apps.vo_outcome.VORun>`):

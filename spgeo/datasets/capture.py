@@ -3,15 +3,10 @@
 A live camera gives a frame every period whether or not the consumer is ready.
 :class:`CaptureRing` reads the source (``cv2.VideoCapture.read``, decoding, the
 colour conversion: whatever iterating the source does) in its own thread, so that
-this work overlaps the consumer's, and holds at most ``capacity`` frames.  When a
-frame arrives while the ring is full, the waiting frames are *thinned*: the one whose
-removal leaves the smallest gap in arrival numbers is dropped, never the oldest waiting
-(the frame nearest to what the consumer saw last) nor the arriving one (the newest), so
-the waiting frames stay evenly spread over the consumer's stall and it steps through the
-stall in even steps instead of jumping it (issue 52: after a 1.5 s stall a tracker that
-jumped to the newest frames had lost the map's view; dropping the oldest, as before,
-gave the newest frames and one gap as long as the stall).  Every dropped frame is
-recorded (its name, timestamp and arrival number) and reported
+this work overlaps the consumer's, and holds the newest ``capacity`` frames: when a
+frame arrives while the ring is full, the *oldest* waiting frame is dropped (the
+consumer then sees the newest frames, with a gap its motion model bridges).  Every
+dropped frame is recorded (its name, timestamp and arrival number) and reported
 (:meth:`CaptureRing.report`, ``report.json``'s ``"capture"``): never silent.
 
 Frames a driver drops before the source gives them are not seen here; the source's
@@ -124,7 +119,7 @@ class CaptureRing:
             return None
 
     def _capture(self) -> None:
-        """The thread: the source's frames into the ring, thinning it when full."""
+        """The thread: the source's frames into the ring, dropping the oldest."""
         it = iter(self.source)
         try:
             for frame in it:
@@ -144,24 +139,12 @@ class CaptureRing:
     def _put(self, frame: Frame) -> None:
         with self._cond:
             if len(self._ring) >= self.capacity:
-                n, old = self._thinned()
+                n, old = self._ring.popleft()
                 self.dropped.append(DroppedFrame(str(old.name), float(old.timestamp), n))
             self._ring.append((self.arrived, frame))
             self.arrived += 1
             self.most_waiting = max(self.most_waiting, len(self._ring))
             self._cond.notify_all()
-
-    def _thinned(self) -> Tuple[int, Frame]:
-        """Remove the waiting frame to drop for the arriving one (module docstring;
-        of equal gaps the oldest candidate; the only one with ``capacity`` 1)."""
-        ring = self._ring
-        if len(ring) == 1:
-            return ring.popleft()
-        nums = [n for n, _ in ring] + [self.arrived]
-        drop = min(range(1, len(ring)), key=lambda i: nums[i + 1] - nums[i - 1])
-        item = ring[drop]
-        del ring[drop]
-        return item
 
     def close(self, timeout: float = 5.0) -> None:
         """Stop the capture thread (it finishes the frame it reads and closes the

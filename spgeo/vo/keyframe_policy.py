@@ -60,14 +60,12 @@ class KeyframePolicy:
         threshold is crossed (:meth:`crosses`).  A wanted keyframe is deferred
         (:data:`NO_KEYFRAME`, counted by the port) while an update is
         pending that the schedule does not let it wait for
-        (:meth:`MappingPort.update_available`), unless the frame leaves ``ref``'s
-        view (:meth:`leaves_view`: the next frames would lose it; issue 52); it
-        comes :data:`AFTER_UPDATE` when the pending update may move ``latest``,
-        else :data:`KEYFRAME`."""
+        (:meth:`MappingPort.update_available`); it comes :data:`AFTER_UPDATE`
+        when the pending update may move ``latest``, else :data:`KEYFRAME`."""
         if ref is latest and not self.crosses(tr, T_ref_f, latest):
             return NO_KEYFRAME
         port = self._port
-        if port.pending and not port.update_available() and not self.leaves_view(tr, T_ref_f):
+        if port.pending and not port.update_available():
             port.defer_keyframe()
             return NO_KEYFRAME
         return AFTER_UPDATE if ref is latest and port.pending else KEYFRAME
