@@ -194,6 +194,24 @@ def test_kitti_colour_camera_pose_and_no_poses(tmp_path, frames):
     assert KITTISequence(seq_dir).ground_truth() == [None] * 3
 
 
+def test_kitti_left_folder_and_unlabelled_calib_lines(tmp_path, frames):
+    """``image_l`` (the grey left camera, P0) with calib lines without ``Pk:`` (the
+    layout of this project's shared clip); an unknown ``image_dir`` is refused
+    naming the choices, a sequence without an image folder names those looked for."""
+    seq_dir = write_kitti(tmp_path, frames[:3], folder="image_l")
+    calib = seq_dir / "calib.txt"
+    calib.write_text("".join(line.split(":", 1)[1].lstrip() + "\n"
+                             for line in calib.read_text().splitlines() if line.startswith("P")))
+    seq = open_dataset("kitti", seq_dir)
+    assert seq.camera == CAM and "P0" in seq.intrinsics["detail"] and len(seq) == 3
+    assert np.allclose(seq[2].T_world_cam, frames[2].T_world_cam, atol=1e-9)
+    with pytest.raises(ValueError, match="image_r"):
+        KITTISequence(seq_dir, image_dir="left")
+    (seq_dir / "image_l").rename(seq_dir / "images")
+    with pytest.raises(FileNotFoundError, match="image_0, image_2, image_l"):
+        KITTISequence(seq_dir)
+
+
 def test_kitti_without_calib_names_the_file(tmp_path, frames):
     seq_dir = write_kitti(tmp_path, frames[:2])
     (seq_dir / "calib.txt").unlink()
@@ -223,6 +241,9 @@ def test_shared_kitti_clip_as_a_sequence(shared_data, tmp_path):
     assert seq.timestamps[1] == pytest.approx(0.1)
     f = seq[10]
     assert f.image.shape == (376, 1241, 3) and np.allclose(f.T_world_cam, gt[10])
+    as_is = open_dataset("kitti", clip)          # the clip's own layout: image_l, poses.txt
+    assert len(as_is) == 51 and as_is.camera == cam
+    assert np.allclose(as_is[10].image, f.image) and np.allclose(as_is.ground_truth()[50], gt[50])
 
 
 # ------------------------------------------------------------------ EuRoC

@@ -150,8 +150,9 @@ def test_bad_input_raises(frames):
     small = synthetic.default_camera(80, 60)
     with pytest.raises(ValueError):
         vo.track(Frame(np.zeros((60, 80, 3), np.float32), small, 0.0))
-    with pytest.raises(ValueError):
-        Odometry(CAM, OdometryConfig(), None)
+    with Odometry(CAM, OdometryConfig()) as default:    # spgeo vo's classical front-end
+        assert default.frontend.uses_depth is False
+        assert tuple(default.frontend.config.working_size) == default.camera.size
     with pytest.raises(ValueError):
         OdometryConfig(window=1)
     for bad in ({"mapping": MappingConfig(pixel_fraction=0.0)}, {"init": InitConfig(min_gap=0)},

@@ -249,3 +249,17 @@ def test_cli_report_has_effective_config(depth_run):
     # no --resolution: the config keeps None (the rule), the run reports the size used
     assert rep["config"]["resolution"] is None and "odometry" not in rep["run_config"]
     assert rep["run"]["resolution"] == [320, 240]
+
+
+def test_rerun_without_rerun_installed_is_a_bad_input_with_the_hint(seven_scenes, tmp_path,
+                                                                     monkeypatch, capsys):
+    """``--rerun`` where rerun is not importable: exit 2 and the install hint, not an
+    "unexpected ImportError" (issue 53)."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rerun", None)
+    code = main(["vo", "--dataset", "7scenes", str(seven_scenes), "--frames", "0:3",
+                 "--rerun", "save", str(tmp_path / "a.rrd"), "--no-progress",
+                 "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "pip install 'spgeo[viz]'" in err and "unexpected" not in err

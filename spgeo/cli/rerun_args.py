@@ -32,10 +32,16 @@ def add_rerun_argument(parser: argparse.ArgumentParser, what: str) -> None:
 
 def open_rerun(args: argparse.Namespace):
     """Context manager giving a :class:`spgeo.apps.rerun_logger.RerunLogger` for ``args.rerun``
-    (closed on exit), or None without the option."""
+    (closed on exit), or None without the option.  Without rerun installed:
+    :class:`~spgeo.validation.InputError` with the install hint (the CLI's exit 2)."""
+    from ..validation import InputError
+
     cfg = getattr(args, "rerun", None)
     if cfg is None:
         return contextlib.nullcontext(None)
     from ..apps.rerun_logger import RerunLogger
 
-    return RerunLogger(cfg)
+    try:
+        return RerunLogger(cfg)
+    except ImportError as exc:
+        raise InputError(f"--rerun: {exc}") from None

@@ -3,18 +3,22 @@
 Layout (Geiger et al., CVPR 2012)::
 
     sequences/XX/image_0/NNNNNN.png   grey left camera (image_1: grey right,
-                                      image_2 / image_3: colour left / right)
+                                      image_2 / image_3: colour left / right;
+                                      image_l / image_r: grey left / right, as
+                                      image_0 / image_1)
     sequences/XX/calib.txt            "P0: 12 numbers" ... "P3: ...": 3x4 row-major
                                       projection matrices of the rectified cameras
+                                      (lines without "Pk:" are P0, P1, ... in order)
     sequences/XX/times.txt            optional: one timestamp (seconds) per frame
     poses/XX.txt                      optional ground truth: one 3x4 row-major
                                       camera-to-world matrix of camera 0 per frame
 
 * The path given is the sequence folder ``sequences/XX``; the ground truth is
   ``../../poses/XX.txt`` (or ``poses.txt`` inside the sequence folder).
-* Image folder: ``image_dir`` (default ``image_0`` when present, else
-  ``image_2``); the camera is ``K`` of the matching ``Pk`` (``image_k``), no
-  distortion (the images are rectified).
+* Image folder: ``image_dir`` (default: the first of ``image_0``, ``image_2``,
+  ``image_l`` present); the camera is ``K`` of the matching ``Pk`` (``image_k``;
+  ``image_l`` / ``image_r``: ``P0`` / ``P1``), no distortion (the images are
+  rectified).
 * Frame number = ``NNNNNN``; timestamp = line ``NNNNNN`` of ``times.txt``, else
   the frame number divided by :data:`KITTI_FPS`.
 * Ground truth ``T_world_cam`` (camera-to-world, OpenCV axes: x right, y down,
@@ -40,7 +44,8 @@ from ..validation import InputError, check_input_file
 from .common import FileRecord, FrameSelection, FrameSequence, numbered_frames
 from .files import PathLike, nearest_rigid, parse_stamp, read_rgb
 
-__all__ = ["KITTIConfig", "KITTISequence", "read_kitti_calib", "read_kitti_poses", "KITTI_FPS"]
+__all__ = ["KITTIConfig", "KITTISequence", "read_kitti_calib", "read_kitti_poses", "KITTI_FPS",
+           "IMAGE_DIRS"]
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +54,12 @@ KITTI_FPS = 10.0
 
 _IMAGE_RE = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 
+#: image folder -> the index k of its projection matrix ``Pk`` in ``calib.txt``
+IMAGE_DIRS = {"image_0": 0, "image_1": 1, "image_2": 2, "image_3": 3, "image_l": 0,
+              "image_r": 1}
+#: the folders looked for, in order, without ``KITTIConfig.image_dir``
+DEFAULT_IMAGE_DIRS = ("image_0", "image_2", "image_l")
+
 
 @config_class
 @dataclass
@@ -56,8 +67,9 @@ class KITTIConfig:
     """Options of :class:`KITTISequence`.
 
     Attributes:
-        image_dir: ``"image_0"`` ... ``"image_3"``; default None: ``image_0`` when
-            present, else ``image_2``.
+        image_dir: ``"image_0"`` ... ``"image_3"``, ``"image_l"`` or ``"image_r"``
+            (:data:`IMAGE_DIRS`); default None: the first of ``image_0``,
+            ``image_2``, ``image_l`` present.
         load_pose: attach the ground truth when the pose file exists (default True).
         frames: selection by frame number ``NNNNNN`` (``"A:B[:S]"``, slice, range,
             list; default None = all).
@@ -132,19 +144,17 @@ class KITTISequence(FrameSequence):
             raise FileNotFoundError(
                 f"kitti: calibration file not found: {calib_path} (a KITTI odometry sequence "
                 "folder sequences/XX holds calib.txt and image_0/ or image_2/)")
-        image_dir = cfg.image_dir or ("image_0" if (root / "image_0").is_dir() else "image_2")
-        m = re.fullmatch(r"image_([0-3])", image_dir)
-        if m is None or not (root / image_dir).is_dir():
-            raise FileNotFoundError(f"kitti: image folder not found: {root / image_dir}")
-        P = read_kitti_calib(calib_path).get(f"P{m.group(1)}")
+        image_dir = self._image_dir(root, cfg.image_dir)
+        k = IMAGE_DIRS[image_dir]
+        P = read_kitti_calib(calib_path).get(f"P{k}")
         if P is None:
-            raise InputError(f"{calib_path} has no P{m.group(1)} for {image_dir}")
+            raise InputError(f"{calib_path} has no P{k} for {image_dir}")
         found, selected = numbered_frames(root / image_dir, _IMAGE_RE, "images", cfg.frames,
                                           lambda: f"no NNNNNN.png images in {root / image_dir}")
         h, w = read_rgb(found[selected[0]]).shape[:2]
         K = P[:, :3]
         self._raw_camera = PinholeCamera.from_K(K, w, h)
-        self._intrinsics_detail = f"{calib_path} P{m.group(1)}"
+        self._intrinsics_detail = f"{calib_path} P{k}"
         T_cam0_cam = np.eye(4)
         T_cam0_cam[:3, 3] = -np.linalg.solve(K, P[:, 3])
         times = self._times(root / "times.txt")
@@ -154,6 +164,20 @@ class KITTISequence(FrameSequence):
             t = float(times[n]) if times is not None and n < len(times) else n / KITTI_FPS
             T = poses[n] @ T_cam0_cam if poses is not None and n < len(poses) else None
             self._records.append(FileRecord(n, t, found[n], pose=T))
+
+    @staticmethod
+    def _image_dir(root: Path, name: Optional[str]) -> str:
+        """The image folder: ``name``, else the first of :data:`DEFAULT_IMAGE_DIRS`
+        present; ``ValueError`` for a name not in :data:`IMAGE_DIRS`,
+        ``FileNotFoundError`` naming the folders looked for otherwise."""
+        if name is not None and name not in IMAGE_DIRS:
+            raise ValueError(f"kitti: image_dir must be one of {sorted(IMAGE_DIRS)}, "
+                             f"got {name!r}")
+        for cand in (name,) if name is not None else DEFAULT_IMAGE_DIRS:
+            if (root / cand).is_dir():
+                return cand
+        looked = name if name is not None else ", ".join(DEFAULT_IMAGE_DIRS)
+        raise FileNotFoundError(f"kitti: no image folder ({looked}) in {root}")
 
     @staticmethod
     def _times(path: Path) -> Optional[np.ndarray]:

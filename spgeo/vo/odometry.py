@@ -15,7 +15,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..frame import Frame
 from ..primitives import PrimitiveSet
-from ..frontend import PrimitiveFrontEnd
+from ..frontend import PrimitiveFrontEnd, build_frontend
 from ..geometry import invert_pose, nearest_rigid
 from ..images import featureless
 from ..validation import check_camera
@@ -47,7 +47,8 @@ class Odometry:
             :meth:`track` resizes frames of the input size as ``spgeo vo`` does.
         config: :class:`OdometryConfig`.
         frontend: the :class:`PrimitiveFrontEnd` that primifies keyframes (its
-            working size: the processing size, or None for the image's).
+            working size: the processing size, or None for the image's); default
+            None: the classical front-end at the processing size (``spgeo vo``'s).
         store: where keyframes that left the window keep their image and
             primitives (:class:`~spgeo.vo.keyframe_store.KeyframeStore`;
             default None: a temporary folder, removed with the odometry).
@@ -69,13 +70,12 @@ class Odometry:
                  frontend: Optional[PrimitiveFrontEnd] = None,
                  store: Optional[KeyframeStore] = None,
                  wait_for_mapper: bool = False, port: Optional[MappingPort] = None) -> None:
-        if frontend is None:
-            raise ValueError("Odometry needs a front-end (spgeo.frontend.make_frontend)")
         if not isinstance(config, OdometryConfig):
             raise TypeError(f"Odometry: config must be an OdometryConfig, got "
                             f"{type(config).__name__}")
         self.input_camera = check_camera(camera, "Odometry: camera")
         self.camera = self.input_camera.resized(*config.processing_size_for(camera.size))
+        frontend = build_frontend("classical", self.camera.size) if frontend is None else frontend
         self.config, self.frontend = config, frontend
         self._frames = FrameLog()
         self._map = KeyframeMap(config.window, config.keyframe_levels, config.n_support, store)
