@@ -214,11 +214,13 @@ class Trajectory:
 
     def save(self, path: Union[str, Path], keyframes_only: bool = False,
              header: Optional[Sequence[str]] = None, status_file: bool = True) -> Path:
-        """Write the posed frames (or keyframes) as a TUM file and, with
+        """Write the posed frames (or keyframes) as a TUM file: the :attr:`tracked`
+        ones, so a ``LOST`` frame (which holds the last good pose) or a frame
+        without a pose has no line, as in ORB-SLAM's files (issue 53); and, with
         ``status_file``, every frame's status, keyframe flag, segment and
         :attr:`columns` into ``<stem>.status.txt`` beside it.  Returns ``path``."""
         path = Path(path)
-        mask = self.is_keyframe if keyframes_only else np.ones(len(self), dtype=bool)
+        mask = self.tracked & (self.is_keyframe if keyframes_only else True)
         write_tum(path, self.timestamps[mask], list(self.poses[mask]), header=header)
         if status_file:
             extra = {"keyframe": self.is_keyframe.astype(int).tolist(),

@@ -218,8 +218,9 @@ def test_evo_on_saved_files_reproduces_both_ates(library_run, tmp_path):
 
 
 def test_lost_frames_are_left_out_of_the_ground_truth(library_run, tmp_path, monkeypatch):
-    """A lost frame keeps the previous pose in trajectory.txt but is not in the ATE: it has
-    no groundtruth.txt line, so evo still reproduces the report."""
+    """A lost frame has no line in trajectory.txt (issue 53: posed frames only, as
+    ORB-SLAM writes them; before, it held the previous pose) nor in groundtruth.txt, so evo
+    reproduces the report; trajectory.status.txt still lists it as lost."""
     run = library_run
     res = run.result()
     status = list(res.statuses)
@@ -232,7 +233,9 @@ def test_lost_frames_are_left_out_of_the_ground_truth(library_run, tmp_path, mon
     paths = run.save(tmp_path / "o")
     gt = Trajectory.load(paths["groundtruth"])
     assert not np.isclose(gt.timestamps, res.timestamps[lost]).any() and len(gt) == N - 1
-    assert np.isclose(np.loadtxt(paths["trajectory"])[:, 0], res.timestamps[lost]).any()
+    assert not np.isclose(np.loadtxt(paths["trajectory"])[:, 0], res.timestamps[lost]).any()
+    back = Trajectory.load(paths["trajectory"])
+    assert len(back) == N and back.status[lost] == "lost" and np.isnan(back.poses[lost]).all()
     rep = json.loads(paths["report"].read_text())["ate"]["per-frame"]
     rmse, n = evo_ape_rmse(paths["groundtruth"], paths["trajectory"])
     assert n == rep["n_associated"] == N - 1

@@ -65,3 +65,28 @@ def test_trajectory_repr_is_one_bounded_line_with_the_key_numbers():
     for part in ("300 frames", "30 keyframes", "t 0.000-9.967", "lost=1", "ok=299",
                  "1 segment(s)", "path 2.990"):
         assert part in text, (part, text)
+
+
+def test_lost_frames_are_neither_saved_nor_scored(tmp_path):
+    """Issue 53: a lost frame holds the last good pose; it has no line in the TUM
+    file (its status stays in the status file) and ate_sim3 on the trajectory leaves it
+    out, unless told to count every finite pose."""
+    from spgeo.metrics.ate import ate_sim3
+
+    n = 12
+    stamps = np.arange(n) * 0.1
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n) * 0.2
+    gt[:, 1, 3] = np.sin(np.arange(n))
+    est = gt.copy()
+    status = ["ok"] * n
+    for i in (5, 6, 7):
+        est[i], status[i] = est[4], "lost"
+    traj = Trajectory(stamps, est, status)
+    path = traj.save(tmp_path / "t.txt")
+    assert len(np.loadtxt(path)) == n - 3
+    back = Trajectory.load(path)
+    assert [str(s) for s in back.status] == status and np.isnan(back.poses[5:8]).all()
+    ate = ate_sim3(traj, (stamps, gt))
+    assert ate.n_associated == n - 3 and ate.rmse < 1e-9
+    assert ate_sim3(traj, (stamps, gt), tracked_only=False).rmse > 0.05

@@ -46,8 +46,8 @@ _TUM = "TUM 'timestamp tx ty tz qx qy qz qw', camera-to-world T_world_cam"
 #: ``{pos}``: :attr:`VORun.position_units`, ``{time}``: the timestamps' unit, ``{name}``:
 #: the file's stem.  A file ``save`` writes must have its entry here.
 SAVED_FILES: Dict[str, Tuple[str, str]] = {
-    "trajectory": (f"every processed frame with a pose, {_TUM}, VO world (keyframe 0's "
-                   "camera); a lost frame holds the previous frame's pose (its status is in "
+    "trajectory": (f"every processed frame with a pose of its own, {_TUM}, VO world "
+                   "(keyframe 0's camera); a lost frame has no line (its status is in "
                    "trajectory.status.txt)", "positions in {pos}; timestamps in {time}"),
     "keyframes": (f"the keyframes' final poses, {_TUM}, VO world",
                   "positions in {pos}; timestamps in {time}"),

@@ -33,12 +33,12 @@ TrajectoryLike = Union[Tuple[Sequence[float], Sequence[np.ndarray]], Trajectory]
 
 def _as_trajectory(traj: TrajectoryLike, name: str) -> Trajectory:
     """``traj`` as a :class:`~spgeo.trajectory.Trajectory`: itself, an object's
-    ``timestamps`` and ``poses``, or a ``(timestamps, poses)`` pair; ``TypeError``
-    (naming ``name``) for anything else."""
+    ``timestamps``, ``poses`` and (when it has them) ``statuses``, or a
+    ``(timestamps, poses)`` pair; ``TypeError`` (naming ``name``) for anything else."""
     if isinstance(traj, Trajectory):
         return traj
-    if hasattr(traj, "timestamps") and hasattr(traj, "poses"):
-        return Trajectory(traj.timestamps, traj.poses)  # e.g. a result object
+    if hasattr(traj, "timestamps") and hasattr(traj, "poses"):   # e.g. a VO result
+        return Trajectory(traj.timestamps, traj.poses, getattr(traj, "statuses", None))
     try:
         stamps, poses = traj
     except (TypeError, ValueError):
@@ -144,7 +144,8 @@ def _finite_part(traj: Trajectory) -> Tuple[Trajectory, int]:
 
 def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.02,
              correct_scale: bool = True, label: str = "per-frame",
-             min_poses: int = 3, warn_dropped: bool = True) -> AteResult:
+             min_poses: int = 3, warn_dropped: bool = True,
+             tracked_only: bool = True) -> AteResult:
     """Sim(3)-aligned ATE of ``est`` against ``gt`` with evo (``evo_ape -as``).
 
     Args:
@@ -161,6 +162,10 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
         min_poses: fewest associated poses to evaluate (default 3).
         warn_dropped: log the warning about dropped ground-truth poses (default
             True; False when the caller already did for the same ground truth).
+        tracked_only: an estimated :class:`~spgeo.trajectory.Trajectory` counts
+            its :attr:`~spgeo.trajectory.Trajectory.tracked` frames only (default
+            True: a ``LOST`` frame holds the last good pose, not its own; False:
+            every finite pose).  ``(timestamps, poses)`` are all counted.
 
     To evaluate a subset (e.g. keyframes), pass only those poses: the alignment
     is then fitted on the subset too.  Raises ``ValueError`` when fewer than
@@ -170,7 +175,8 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
     from evo.core import metrics, sync
     from evo.core.geometry import GeometryException
 
-    e, n_e_drop = _finite_part(_as_trajectory(est, "est"))
+    e = _as_trajectory(est, "est")
+    e, n_e_drop = _finite_part(e.subset(e.tracked) if tracked_only else e)
     g, n_g_drop = _finite_part(_as_trajectory(gt, "gt"))
     if n_g_drop and warn_dropped:
         logger.warning("ATE (%s): %d of %d ground-truth poses are not finite (NaN / inf pose or "
