@@ -201,12 +201,9 @@ class VORun:
 
     @property
     def has_map(self) -> bool:
-        """Whether the poses were estimated against a map with depth: always with
-        a depth-using front-end (keyframe 0 carries the sensor depth); monocular,
-        when some map segment was initialised (a keyframe after frame 0: keyframe
-        1 of a segment)."""
-        if self.odometry.frontend.uses_depth:
-            return True
+        """Whether some map segment was initialised (a keyframe after frame 0:
+        keyframe 1 of a segment), with any front-end: a depth-using one whose
+        keyframe-1 solve never succeeded has no map either (issue 53)."""
         return any(s == "keyframe" for s in self.result().statuses[1:])
 
     @property
