@@ -354,3 +354,30 @@ def test_shared_7scenes_groundtruth_and_manifest(shared_data, tmp_path):
     entries = read_manifest(out)["files"]
     assert len(entries) == sum(1 for p in out.rglob("*") if p.is_file()) - 1
     assert "VO units" in {e["path"]: e for e in entries}["trajectory.txt"]["units"]
+
+
+def test_a_run_of_two_segments_is_scored_per_segment(library_run, monkeypatch, caplog):
+    """Issue 53: a run that re-initialised (here: the second half of the frames made
+    segment 1 at three times the scale) gets one Sim(3) ATE per segment in the report and
+    the summary, and a warning that the per-frame ATE aligns both with one Sim(3)."""
+    import logging
+
+    from spgeo.vo import OdometryResult
+
+    run = library_run
+    res = run.result()
+    half = len(res.timestamps) // 2
+    seg = np.where(np.arange(len(res.timestamps)) < half, 0, 1)
+    poses = res.poses.copy()
+    poses[half:, :3, 3] = 3.0 * poses[half:, :3, 3] + np.array([1.0, 0.0, 0.0])
+    hacked = OdometryResult(res.timestamps, poses, list(res.statuses), res.is_keyframe, seg)
+    monkeypatch.setattr(run, "result", lambda: hacked)
+    whole = run.ate()["per-frame"].rmse
+    with caplog.at_level(logging.WARNING):
+        rep = run.ate_report()
+    assert "aligns 2 map segments" in caplog.text
+    per = rep["per_segment"]
+    assert [p["segment"] for p in per] == [0, 1]
+    assert all(p["rmse_m"] < 0.2 * whole for p in per)
+    assert per[1]["scale"] == pytest.approx(per[0]["scale"] / 3.0, rel=0.1)   # its own scale
+    assert sum("segment 1:" in line for line in run.summary_lines()) == 1

@@ -22,7 +22,7 @@ import numpy as np
 from ..configs import config_to_dict
 from ..frame import Frame
 from ..io.outputs import FileInfo
-from ..metrics.ate import ate_per_frame_and_keyframes
+from ..metrics.ate import AteResult, ate_per_frame_and_keyframes, ate_sim3
 from ..trajectory import METRES, Trajectory
 from ..vo import Odometry, OdometryResult
 from ..vo.metric_scale import MetricScale, ScaledOdometry
@@ -286,6 +286,10 @@ class VORun:
             return None
         res = self.result()
         keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
+        n_seg = len(set(res.segment[keep].tolist()))
+        if n_seg > 1:
+            log.warning("the per-frame ATE aligns %d map segments with one Sim(3) although "
+                        "each has its own scale: see the per-segment ATE", n_seg)
         try:
             return ate_per_frame_and_keyframes(
                 (res.timestamps[keep], res.poses[keep]), gt, res.is_keyframe[keep],
@@ -293,6 +297,28 @@ class VORun:
         except ValueError as exc:
             log.warning("ATE not available: %s", exc)
             return None
+
+    def segment_ates(self) -> List[Tuple[int, Optional[AteResult]]]:
+        """Per map segment (a run that re-initialised has several, each in its own
+        scale), the Sim(3) ATE of its frames not ``lost``: ``(segment, AteResult
+        or None with fewer than 3 poses)``; empty for a run with one segment or
+        without ground truth (issue 53)."""
+        gt = self.ground_truth(exclude_lost=False)
+        res = self.result()
+        keep = np.array([s != "lost" for s in res.statuses], dtype=bool)
+        segments = sorted(set(res.segment[keep].tolist()))
+        if gt is None or len(segments) < 2:
+            return []
+        out: List[Tuple[int, Optional[AteResult]]] = []
+        for k in segments:
+            m = keep & (res.segment == k)
+            try:
+                out.append((int(k), ate_sim3((res.timestamps[m], res.poses[m]), gt,
+                                             self.config.ate_max_time_diff,
+                                             label=f"segment {k}", warn_dropped=False)))
+            except ValueError:
+                out.append((int(k), None))
+        return out
 
     def ate_report(self, ate: Optional[Dict[str, object]] = None) -> Optional[Dict[str, object]]:
         """JSON-friendly :meth:`ate`: per label the summary (``rmse_m``,
@@ -305,6 +331,8 @@ class VORun:
             return None
         out: Dict[str, object] = {lab: (None if ate.get(lab) is None else ate[lab].summary())
                                   for lab in ATE_LABELS}
+        out["per_segment"] = [{"segment": k, **({} if a is None else a.summary())}
+                              for k, a in self.segment_ates()]
         out["n_lost_excluded"] = int(sum(s == "lost" for s in self.result().statuses))
         out["n_skipped_excluded"] = len(self.skipped)
         out["alignment"] = "Sim(3) (Umeyama, evo_ape -as), translation RMSE"
@@ -336,6 +364,9 @@ class VORun:
                 lines.append(f"Sim(3) ATE {lab}: {a.rmse:.4f} m = "
                              f"{a.rmse_percent_of_length:.2f}% of {a.trajectory_length:.3f} m "
                              f"({a.n_associated} poses, scale {a.scale:.4g})")
+        for k, a in self.segment_ates():
+            lines.append(f"  segment {k}: " + ("fewer than 3 poses" if a is None else
+                         f"{a.rmse:.4f} m ({a.n_associated} poses, scale {a.scale:.4g})"))
         return lines
 
     def _metric_lines(self) -> List[str]:
