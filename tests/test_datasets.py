@@ -89,6 +89,19 @@ def test_select_frames_by_number():
         select_frames(numbers, "200:300")
 
 
+def test_a_selection_past_the_last_frame_is_said(caplog):
+    """Issue 53: ``--frames 250:400`` on a clip ending at 299 selects 50 frames, with a
+    warning; a selection within the clip says nothing."""
+    import logging
+
+    numbers = list(range(300))
+    with caplog.at_level(logging.WARNING):
+        assert len(select_frames(numbers, "0:300")) == 300
+        assert not caplog.records
+        assert len(select_frames(numbers, "250:400")) == 50
+    assert "past the last frame (299): 50 frames" in caplog.text
+
+
 # ---------------------------------------------------------------- bundled TUM
 def test_bundled_sample_files():
     root = bundled_tum_path()

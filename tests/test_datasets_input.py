@@ -212,6 +212,30 @@ def test_kitti_left_folder_and_unlabelled_calib_lines(tmp_path, frames):
         KITTISequence(seq_dir)
 
 
+def test_7scenes_frame_without_its_colour_image_is_skipped_and_said(tmp_path, frames, caplog):
+    """Issue 53: a 7-Scenes frame whose colour image is missing (its pose file is there)
+    is no longer silently absent: the reader warns and the VO run records it as skipped."""
+    from layouts import write_7scenes
+
+    from spgeo.apps.vo_run import VORunConfig, run_odometry
+    from spgeo.validation import FrameFileMissing
+    from spgeo.vo import OdometryConfig
+
+    K = np.diag([4.0, 4.0, 1.0]) @ CAM.K      # the 640x480 of a 7-Scenes folder
+    seq_dir = write_7scenes(tmp_path / "seq-01", frames[:8], K)
+    (seq_dir / "frame-000003.color.png").unlink()
+    with caplog.at_level(logging.WARNING):
+        seq = open_dataset("7scenes", seq_dir)
+    assert "no colour image (frame numbers [3])" in caplog.text
+    assert seq.frame_numbers == list(range(8))
+    with pytest.raises(FrameFileMissing, match="frame-000003.color.png"):
+        seq[3]
+    run = run_odometry(seq, VORunConfig(progress=False,
+                                        odometry=OdometryConfig(resolution=(W, H))))
+    run.odometry.close()
+    assert [s.index for s in run.skipped] == [3] and run.n_frames == 7
+
+
 def test_kitti_without_calib_names_the_file(tmp_path, frames):
     seq_dir = write_kitti(tmp_path, frames[:2])
     (seq_dir / "calib.txt").unlink()

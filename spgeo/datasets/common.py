@@ -14,6 +14,7 @@ The file readers (:mod:`spgeo.datasets.files`) and :func:`warp_image` /
 """
 from __future__ import annotations
 
+import logging
 import re
 from abc import abstractmethod
 from collections.abc import Sequence as _SequenceABC
@@ -30,6 +31,8 @@ from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json
 from ..validation import FrameFileMissing, FrameReadError, InputError
 from .calibration import CameraSpec, guess_camera, intrinsics_report
 from .warp import photometric_error, warp_image
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "CameraSource", "FileRecord",
@@ -130,6 +133,9 @@ def select_frames(numbers: Sequence[int], selection: FrameSelection) -> List[int
         keep = [i for i, n in enumerate(numbers)
                 if n >= base and (stop is None or n < int(stop)) and (n - base) % step == 0]
         desc = f"{'' if start is None else start}:{'' if stop is None else stop}:{step}"
+        if stop is not None and int(stop) > max(numbers) + 1 and keep:
+            log.warning("frame selection %s reaches past the last frame (%d): %d frames "
+                        "selected", desc, max(numbers), len(keep))
     else:
         wanted = [int(n) for n in selection]
         pos = {n: i for i, n in enumerate(numbers)}

@@ -24,15 +24,17 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..configs import config_class
 from ..frame import Frame
-from .common import FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames
-from .files import PathLike, read_depth_png, read_matrix_file, read_pose_file, read_rgb
+from .common import (FileRecord, FrameSelection, FrameSequence, check_camera, numbered_frames,
+                     select_frames)
+from .files import (PathLike, index_frame_files, read_depth_png, read_matrix_file,
+                    read_pose_file, read_rgb)
 
 __all__ = ["SevenScenesConfig", "SevenScenesSequence", "SEVEN_SCENES_CAMERA",
            "read_matrix_file"]
@@ -43,6 +45,7 @@ logger = logging.getLogger(__name__)
 SEVEN_SCENES_CAMERA = PinholeCamera(585.0, 585.0, 320.0, 240.0, 640, 480)
 
 _COLOR_RE = re.compile(r"^frame-(\d+)\.color\.(png|jpg|jpeg)$", re.IGNORECASE)
+_POSE_RE = re.compile(r"^frame-(\d+)\.pose\.txt$", re.IGNORECASE)
 
 
 def _frame_stem(color_path: Path) -> str:
@@ -90,7 +93,7 @@ class SevenScenesSequence(FrameSequence):
             hint = f" (pass one of its sequence folders: {subs})" if subs else ""
             return f"no frame-NNNNNN.color.png|jpg images in {root}{hint}"
 
-        found, selected = numbered_frames(root, _COLOR_RE, "colour images", cfg.frames, missing)
+        found, selected = self._frames(root, cfg.frames, missing)
 
         if cfg.intrinsics is not None:
             self._raw_camera = check_camera(cfg.intrinsics, "SevenScenesConfig.intrinsics")
@@ -102,9 +105,27 @@ class SevenScenesSequence(FrameSequence):
 
         self._records = []
         for n in selected:
-            stem = _frame_stem(found[n])
-            self._records.append(FileRecord(n, float(n), found[n], root / f"{stem}.depth.png",
+            color = found.get(n, root / f"frame-{n:06d}.color.png")     # missing: skipped
+            stem = _frame_stem(color)
+            self._records.append(FileRecord(n, float(n), color, root / f"{stem}.depth.png",
                                             pose_path=root / f"{stem}.pose.txt"))
+
+    @staticmethod
+    def _frames(root: Path, selection: FrameSelection, missing) -> Tuple[Dict[int, Path],
+                                                                          List[int]]:
+        """``(colour images by frame number, selected frame numbers)``: the frames
+        with a colour image or a pose file (issue 53: a frame whose colour image is
+        missing is selected, warned about, and fails to read: a skipped frame
+        with its reason, never silently absent)."""
+        found, _ = numbered_frames(root, _COLOR_RE, "colour images", None, missing)
+        numbers = sorted(set(found) | set(index_frame_files(root, _POSE_RE, "pose files")))
+        selected = [numbers[k] for k in select_frames(numbers, selection)]
+        gone = [n for n in selected if n not in found]
+        if gone:
+            logger.warning("%s: %d selected frames have a pose file but no colour image "
+                           "(frame numbers %s%s): they are skipped", root, len(gone),
+                           gone[:5], " ..." if len(gone) > 5 else "")
+        return found, selected
 
     def _pose(self, rec: FileRecord) -> Optional[np.ndarray]:
         return read_pose_file(rec.pose_path, "7-Scenes", lambda p: read_matrix_file(p, (4, 4)))
