@@ -27,7 +27,7 @@ __all__ = ["InputError", "MAX_IMAGE_SIDE", "FOV_RANGE_DEG", "FOCAL_RATIO_RANGE",
            "CAMERA_MATCH_TOLERANCE", "check_intrinsics", "swapped_size_hint", "check_camera",
            "check_same_camera", "check_real_array", "check_sparse_depth",
            "check_normals", "check_mask_stack", "check_input_file", "read_image_bytes",
-           "FrameReadError", "FrameFileMissing"]
+           "FrameReadError", "FrameFileMissing", "ImageSizeMismatch"]
 
 log = logging.getLogger(__name__)
 
@@ -208,6 +208,11 @@ class FrameReadError(InputError):
 class FrameFileMissing(FrameReadError, FileNotFoundError):
     """A :class:`FrameReadError` whose file is missing: also a ``FileNotFoundError``,
     as a missing file is everywhere else."""
+
+
+class ImageSizeMismatch(InputError):
+    """An image whose size is not its sequence's camera's (the first image's): a
+    batch runner refuses such input instead of skipping the frames (issue 53)."""
 
 
 def check_input_file(path, what: str = "input") -> str:

@@ -98,6 +98,19 @@ def test_folder_without_intrinsics_guesses(tmp_path, frames):
     assert seq.intrinsics["source"] == "file" and seq.camera == CAM
 
 
+def test_a_folder_of_two_image_sizes_is_refused_naming_them(tmp_path, frames, capsys):
+    """Issue 53: a folder whose images have two sizes is refused (exit 2, both sizes
+    named) instead of skipping the odd ones as "unreadable" and exiting 0."""
+    for i, f in enumerate(frames[:6]):
+        img = _bgr8(f) if i != 4 else cv2.resize(_bgr8(f), (W // 2, H // 2))
+        cv2.imwrite(str(tmp_path / f"{i:04d}.png"), img)
+    code = main(["vo", "--dataset", "folder", str(tmp_path), "--no-progress",
+                 "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "mixes image sizes" in err and "0004.png" in err
+    assert "(60, 80, 3)" in err and f"({H}, {W}, 3)" in err
+
+
 # ------------------------------------------------------------------ video
 def test_video_reads_back(video, frames):
     seq = VideoSequence(video)

@@ -381,3 +381,23 @@ def test_a_run_of_two_segments_is_scored_per_segment(library_run, monkeypatch, c
     assert all(p["rmse_m"] < 0.2 * whole for p in per)
     assert per[1]["scale"] == pytest.approx(per[0]["scale"] / 3.0, rel=0.1)   # its own scale
     assert sum("segment 1:" in line for line in run.summary_lines()) == 1
+
+
+def test_a_depth_run_whose_frames_were_all_lost_has_no_map(library_run, monkeypatch):
+    """Issue 53: a depth run is ``ok`` when some frame tracked against its keyframe 0 (or a
+    segment initialised), ``no_map`` when every frame after the first was lost (before:
+    ``ok`` for any depth run)."""
+    from spgeo.vo import OdometryResult
+
+    run = library_run
+    res = run.result()
+
+    def with_statuses(statuses):
+        hacked = OdometryResult(res.timestamps, res.poses, statuses, res.is_keyframe,
+                                res.segment)
+        monkeypatch.setattr(run, "result", lambda: hacked)
+        return run.status
+
+    n = len(res.timestamps)
+    assert with_statuses(["keyframe"] + ["lost"] * (n - 1)) == "no_map"
+    assert with_statuses(["keyframe", "init"] + ["lost"] * (n - 2)) == "ok"

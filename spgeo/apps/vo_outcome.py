@@ -202,9 +202,13 @@ class VORun:
     @property
     def has_map(self) -> bool:
         """Whether some map segment was initialised (a keyframe after frame 0:
-        keyframe 1 of a segment), with any front-end: a depth-using one whose
-        keyframe-1 solve never succeeded has no map either (issue 53)."""
-        return any(s == "keyframe" for s in self.result().statuses[1:])
+        keyframe 1 of a segment), or, with a depth-using front-end (keyframe 0
+        carries the sensor depth), some frame after frame 0 was tracked against
+        keyframe 0 (``init``): a depth run whose frames were all lost has no map
+        (issue 53; before, any depth run had one)."""
+        after = self.result().statuses[1:]
+        return any(s == "keyframe" for s in after) or (
+            bool(self.odometry.frontend.uses_depth) and any(s == "init" for s in after))
 
     @property
     def status(self) -> str:

@@ -20,7 +20,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..geometry import nearest_rigid as _nearest_rigid
 from ..images import load_image, read_raw_image
-from ..validation import InputError, check_input_file
+from ..validation import ImageSizeMismatch, InputError, check_input_file
 
 __all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
            "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
@@ -93,8 +93,8 @@ def read_rgb(path: PathLike, camera: Optional[PinholeCamera] = None) -> np.ndarr
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=2)
     if camera is not None and image.shape[:2] != camera.shape:
-        raise InputError(f"image {os.fspath(path)} has shape {image.shape}, expected "
-                         f"({camera.height}, {camera.width}, 3) for {camera!r}")
+        raise ImageSizeMismatch(f"image {os.fspath(path)} has shape {image.shape}, expected "
+                                f"({camera.height}, {camera.width}, 3) for {camera!r}")
     return np.ascontiguousarray(image, dtype=np.float32)
 
 

@@ -176,7 +176,9 @@ def ate_sim3(est: TrajectoryLike, gt: TrajectoryLike, max_time_diff: float = 0.0
     from evo.core.geometry import GeometryException
 
     e = _as_trajectory(est, "est")
-    e, n_e_drop = _finite_part(e.subset(e.tracked) if tracked_only else e)
+    if tracked_only:        # by status: a non-finite pose is counted as dropped below
+        e = e.subset(np.array([s.has_pose for s in e.status], dtype=bool))
+    e, n_e_drop = _finite_part(e)
     g, n_g_drop = _finite_part(_as_trajectory(gt, "gt"))
     if n_g_drop and warn_dropped:
         logger.warning("ATE (%s): %d of %d ground-truth poses are not finite (NaN / inf pose or "

@@ -177,9 +177,9 @@ def test_vo_ctrl_c_writes_the_frames_so_far_marked_interrupted(inputs, tmp_path,
     assert _vo(inputs, out) == 130
     rep = json.loads((out / "report.json").read_text())
     assert rep["run"]["status"] == "interrupted" and rep["run"]["n_frames"] == 2
-    rows = [ln for ln in (out / "trajectory.txt").read_text().splitlines()
+    rows = [ln for ln in (out / "trajectory.status.txt").read_text().splitlines()
             if ln and not ln.startswith("#")]
-    assert [float(r.split()[0]) for r in rows] == [0.0, 1.0]
+    assert [float(r.split()[0]) for r in rows] == [0.0, 1.0]   # trajectory.txt: posed only
     assert read_manifest(out)["status"] == "interrupted"
 
 
