@@ -111,9 +111,10 @@ def test_save_writes_parseable_files(run, tmp_path):
     traj = read_tum(paths["trajectory"])
     kfs = read_tum(paths["keyframes"])
     res = vo.result()
-    assert len(traj.timestamps) == N_FRAMES
+    posed = np.array([s != "lost" for s in res.statuses])    # lost frames: no line (issue 53)
+    assert len(traj.timestamps) == int(posed.sum()) < N_FRAMES
     assert len(kfs.timestamps) == int(res.is_keyframe.sum())
-    np.testing.assert_allclose(traj.poses[-1], res.poses[-1], atol=1e-6)
+    np.testing.assert_allclose(traj.poses[-1], res.poses[posed][-1], atol=1e-6)
     _, status = read_status(paths["status"])
     assert status == res.statuses
     rep = json.loads(paths["report"].read_text())
