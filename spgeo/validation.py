@@ -181,7 +181,7 @@ def check_mask_stack(masks, shape: Tuple[int, int], what: str = "masks") -> np.n
 # ------------------------------------------------------------------ files
 class FrameReadError(InputError):
     """A frame of a sequence whose file(s) could not be read (missing, unreadable,
-    truncated, undecodable, wrong size): raised by
+    truncated, undecodable; a wrong size is an ImageSizeMismatch): raised by
     :class:`spgeo.datasets.common.FrameSequence` in place of the reader's
     :class:`InputError` / ``OSError`` (kept as ``__cause__``), so that a batch
     runner can skip the frame (:mod:`spgeo.apps.vo_run`) and still let every
@@ -211,8 +211,10 @@ class FrameFileMissing(FrameReadError, FileNotFoundError):
 
 
 class ImageSizeMismatch(InputError):
-    """An image whose size is not its sequence's camera's (the first image's): a
-    batch runner refuses such input instead of skipping the frames (issue 53)."""
+    """An image whose size is not its sequence's camera's (the first image's):
+    raised by :class:`spgeo.datasets.common.FrameSequence` as it is, not as a
+    :class:`FrameReadError`, so a batch runner refuses the input instead of
+    skipping the frames (issue 53)."""
 
 
 def check_input_file(path, what: str = "input") -> str:

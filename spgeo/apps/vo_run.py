@@ -57,7 +57,7 @@ from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
 from ..io.fusion import FusionConfig
 from ..vo.metric_scale import MetricScale, estimate_metric_scale
-from ..validation import FrameReadError, ImageSizeMismatch, InputError
+from ..validation import FrameReadError
 from .memory import RssCheckpoints
 from .vo_outcome import SkippedFrame, VORun
 
@@ -320,13 +320,9 @@ class _Loop:
         return r
 
     def skip(self, exc: FrameReadError) -> None:
-        """Record an unreadable frame (or, with ``config.strict``, raise ``exc``); a
-        frame of another size than the first is refused (``InputError`` naming both)."""
+        """Record an unreadable frame (or, with ``config.strict``, raise ``exc``)."""
         if self.config.strict:
             raise exc
-        if isinstance(exc.__cause__, ImageSizeMismatch):
-            raise InputError(f"{exc}: the input mixes image sizes; give frames of one size "
-                             "(resize them, or split the folder)") from None
         log.warning("skipping frame %d: %s", exc.index, exc)
         self.skipped.append(SkippedFrame(exc.index, exc.timestamp, exc.path, exc.reason))
         self.counts["skipped"] += 1

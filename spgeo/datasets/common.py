@@ -28,7 +28,7 @@ from ..camera import PinholeCamera
 from ..frame import Frame
 from .files import (PathLike, index_frame_files, nearest_rigid, read_camera_json,
                     read_depth_png, read_rgb)
-from ..validation import FrameFileMissing, FrameReadError, InputError
+from ..validation import FrameFileMissing, FrameReadError, ImageSizeMismatch, InputError
 from .calibration import CameraSpec, guess_camera, intrinsics_report
 from .warp import photometric_error, warp_image
 
@@ -368,10 +368,17 @@ class FrameSequence(CameraSource, _SequenceABC):
         :class:`~spgeo.validation.InputError` or ``OSError``) raises
         :class:`~spgeo.validation.FrameReadError` naming the position, the
         frame's image file and the reader's message (for a missing file
-        :class:`~spgeo.validation.FrameFileMissing`, also a ``FileNotFoundError``)."""
+        :class:`~spgeo.validation.FrameFileMissing`, also a ``FileNotFoundError``);
+        an image of another size than the sequence's camera raises
+        :class:`~spgeo.validation.ImageSizeMismatch` (not a frame to skip: the
+        input mixes sizes)."""
         record = self._records[i]
         try:
             return self._load(i, record)
+        except ImageSizeMismatch as exc:
+            raise ImageSizeMismatch(f"frame {i}: {exc}: the input mixes image sizes; give "
+                                    "frames of one size (resize them, or split the folder)"
+                                    ) from None
         except (InputError, OSError) as exc:
             cls = FrameFileMissing if isinstance(exc, FileNotFoundError) else FrameReadError
             raise cls(i, str(record.color_path), str(exc), record.timestamp) from exc
