@@ -342,15 +342,9 @@ class Initialiser:
         self._tracks: Dict[int, tuple] = {}   # frames buffered in flight: (track, T_kf0_f)
 
     def _buffer_frame(self, idx: int, image: np.ndarray) -> None:
-        """Buffer frame ``idx`` in frame order (a solved candidate comes back
-        after the frames tracked during its solve)."""
-        at = len(self.buffer)
-        while at > 0 and self.buffer[at - 1][0] > idx:
-            at -= 1
-        if at == len(self.buffer):
-            append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
-        else:
-            self.buffer.insert(at, (idx, np.asarray(image)))
+        """Buffer frame ``idx``, after every buffered frame (frames come in order:
+        a refused candidate is buffered again before the frames decided after it)."""
+        append_bounded(self.buffer, (idx, np.asarray(image)), 2 * self.config.init.max_gap)
 
     def step(self, image: np.ndarray, idx: int, kf0: MapKeyframe, tr: TrackResult,
              brightness: np.ndarray, segment: int,
