@@ -93,7 +93,7 @@ class SevenScenesSequence(FrameSequence):
             hint = f" (pass one of its sequence folders: {subs})" if subs else ""
             return f"no frame-NNNNNN.color.png|jpg images in {root}{hint}"
 
-        found, selected = self._frames(root, cfg.frames, missing)
+        found, poses, selected = self._frames(root, cfg.frames, missing)
 
         if cfg.intrinsics is not None:
             self._raw_camera = check_camera(cfg.intrinsics, "SevenScenesConfig.intrinsics")
@@ -105,27 +105,29 @@ class SevenScenesSequence(FrameSequence):
 
         self._records = []
         for n in selected:
-            color = found.get(n, root / f"frame-{n:06d}.color.png")     # missing: skipped
-            stem = _frame_stem(color)
+            # a missing colour image is named after its pose file (it is skipped)
+            stem = _frame_stem(found[n]) if n in found else poses[n].name[:-len(".pose.txt")]
+            color = found.get(n, root / f"{stem}.color.png")
             self._records.append(FileRecord(n, float(n), color, root / f"{stem}.depth.png",
                                             pose_path=root / f"{stem}.pose.txt"))
 
     @staticmethod
-    def _frames(root: Path, selection: FrameSelection, missing) -> Tuple[Dict[int, Path],
-                                                                          List[int]]:
-        """``(colour images by frame number, selected frame numbers)``: the frames
-        with a colour image or a pose file (issue 53: a frame whose colour image is
-        missing is selected, warned about, and fails to read: a skipped frame
-        with its reason, never silently absent)."""
+    def _frames(root: Path, selection: FrameSelection, missing
+                ) -> Tuple[Dict[int, Path], Dict[int, Path], List[int]]:
+        """``(colour images, pose files, by frame number; selected frame numbers)``:
+        the frames with a colour image or a pose file (issue 53: a frame whose colour
+        image is missing is selected, warned about, and fails to read: a skipped
+        frame with its reason, never silently absent)."""
         found, _ = numbered_frames(root, _COLOR_RE, "colour images", None, missing)
-        numbers = sorted(set(found) | set(index_frame_files(root, _POSE_RE, "pose files")))
+        poses = index_frame_files(root, _POSE_RE, "pose files")
+        numbers = sorted(set(found) | set(poses))
         selected = [numbers[k] for k in select_frames(numbers, selection)]
         gone = [n for n in selected if n not in found]
         if gone:
             logger.warning("%s: %d selected frames have a pose file but no colour image "
                            "(frame numbers %s%s): they are skipped", root, len(gone),
                            gone[:5], " ..." if len(gone) > 5 else "")
-        return found, selected
+        return found, poses, selected
 
     def _pose(self, rec: FileRecord) -> Optional[np.ndarray]:
         return read_pose_file(rec.pose_path, "7-Scenes", lambda p: read_matrix_file(p, (4, 4)))
