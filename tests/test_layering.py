@@ -31,7 +31,8 @@ and ``from ...apps import x`` in ``evaluation/completion/`` is ``spgeo.apps``.
   (decorated with numba's ``njit`` / ``jit`` / ...) may be longer when its docstring has a
   line starting ``Longer than 60 lines because`` that gives the reason.
 * Sizes: no module of ``spgeo/``, ``factors/`` or ``evaluation/`` has more than 600 lines,
-  ``spgeo/vo/odometry.py`` (the per-frame state machine) at most 350.
+  ``spgeo/vo/odometry.py`` (the per-frame state machine) at most 375 (350 until issue 53
+  added the entry into a saved map).
 * One mapping port: the odometry (``spgeo/vo/odometry.py`` and its read side
   ``spgeo/vo/readout.py``) names the mapping mode at most twice in code (an attribute
   ``mode`` / ``in_worker`` / ``schedule`` (of ``OdometryConfig.mapping``), or the strings
@@ -636,7 +637,7 @@ def test_functions_at_most_60_lines_of_code():
 
 
 MAX_MODULE_LINES = 600
-MAX_ODOMETRY_LINES = 350
+MAX_ODOMETRY_LINES = 375
 ODOMETRY_MODULES = ("spgeo/vo/odometry.py", "spgeo/vo/readout.py")
 MODE_ATTRIBUTES = {"mode", "in_worker", "schedule"}
 MODE_STRINGS = {"live", "inline"}

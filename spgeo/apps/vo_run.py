@@ -55,6 +55,7 @@ from ..frontend import (FRONTENDS, MONOCULAR_FRONTENDS, MetricDepthEstimator,
                         PrimitiveFrontEnd, build_frontend, check_model_options)
 from ..vo import Odometry, OdometryConfig
 from ..vo.processing import resize_for_vo
+from ..vo.saved_map import SavedMap
 from ..io.fusion import FusionConfig
 from ..vo.metric_scale import MetricScale, estimate_metric_scale
 from ..validation import FrameReadError
@@ -189,7 +190,8 @@ def make_vo_frontend(config: VORunConfig = VORunConfig(),
 def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
                  n_frames: Optional[int] = None,
-                 on_frame: Optional[FrameHook] = None) -> VORun:
+                 on_frame: Optional[FrameHook] = None,
+                 saved_map: Optional[SavedMap] = None) -> VORun:
     """Run the VO over ``frames`` (see the module docstring).
 
     Args:
@@ -209,13 +211,16 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
             when known (never given to the VO), ``frame_result`` the
             :class:`~spgeo.vo.result.FrameResult`, ``odometry`` the
             :class:`~spgeo.vo.Odometry` (e.g. :class:`spgeo.apps.rerun_logger.RerunLogger`).
+        saved_map: a :class:`~spgeo.vo.saved_map.SavedMap` the run relocalises into and
+            continues in (``spgeo vo --load-map``; default None: a map of its own).
 
     Ctrl-C (``KeyboardInterrupt``) after the first frame ends the run early: the
     frames processed so far are returned with ``VORun.interrupted`` set.
 
     Raises:
         ValueError: ``config.depth_model`` with a front-end other than
-            ``onnx-depth`` (before any frame), no frame (or every frame
+            ``onnx-depth`` (before any frame), a ``saved_map`` saved at another
+            processing camera, primitive model or units, no frame (or every frame
             skipped), frames of different camera sizes, timestamps not
             strictly increasing, a depth-using front-end and a frame without
             depth, or an image the VO rejects.
@@ -224,7 +229,7 @@ def run_odometry(frames: Iterable[Frame], config: VORunConfig = VORunConfig(),
     """
     check_model_options(config.frontend, config.normal_model, config.depth_model)
     with blas_threads(config.blas_threads):
-        return _run_odometry(frames, config, frontend, n_frames, on_frame)
+        return _run_odometry(frames, config, frontend, n_frames, on_frame, saved_map)
 
 
 def blas_threads(n: Optional[int]):
@@ -288,6 +293,7 @@ class _Loop:
     counts: Counter = field(default_factory=Counter)
     skipped: List[SkippedFrame] = field(default_factory=list)
     metric_model: Optional[MetricDepthEstimator] = None
+    saved_map: Optional[SavedMap] = None
 
     def _open(self, camera: PinholeCamera) -> None:
         """The processing size, front-end and :class:`Odometry` from the first frame's camera."""
@@ -298,7 +304,7 @@ class _Loop:
             log.warning("resolution %dx%d changes the aspect ratio of the %dx%d input "
                         "(fx and fy scale differently)", size[0], size[1],
                         camera.width, camera.height)
-        self.vo = Odometry(camera, self.config.odometry, fe)
+        self.vo = Odometry(camera, self.config.odometry, fe, saved_map=self.saved_map)
         self.cam_in, self.cam = camera, self.vo.camera
 
     def step(self, i: int, f: Frame):
@@ -330,12 +336,14 @@ class _Loop:
 
 def _run_odometry(frames: Iterable[Frame], config: VORunConfig,
                   frontend: Optional[PrimitiveFrontEnd], n_frames: Optional[int],
-                  on_frame: Optional[FrameHook] = None) -> VORun:
+                  on_frame: Optional[FrameHook] = None,
+                  saved_map: Optional[SavedMap] = None) -> VORun:
     if n_frames is None and hasattr(frames, "__len__"):
         n_frames = len(frames)  # type: ignore[arg-type]
     from tqdm import tqdm
 
-    loop = _Loop(config, frontend, on_frame, metric_model=load_metric_model(config.metric_scale))
+    loop = _Loop(config, frontend, on_frame, metric_model=load_metric_model(config.metric_scale),
+                 saved_map=saved_map)
     interrupted = False
     t0 = time.perf_counter()
     bar = tqdm(total=n_frames, disable=not config.progress, desc="vo", unit="frame",
@@ -428,7 +436,8 @@ def run_metric_scale(odometry: Odometry, model: MetricDepthEstimator,
 def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
                 config: VORunConfig = VORunConfig(),
                 frontend: Optional[PrimitiveFrontEnd] = None,
-                on_frame: Optional[FrameHook] = None, **reader_options) -> VORun:
+                on_frame: Optional[FrameHook] = None, saved_map: Optional[SavedMap] = None,
+                **reader_options) -> VORun:
     """Open a data set with :func:`spgeo.datasets.open_dataset` and run the VO.
 
     Args:
@@ -437,7 +446,7 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
             ``"video"``, ``"camera"``).
         path: the sequence folder, video file or camera index.
         frames: ``"A:B[:S]"`` selection by frame number (default None: all).
-        config, frontend, on_frame: as for :func:`run_odometry`.
+        config, frontend, on_frame, saved_map: as for :func:`run_odometry`.
         reader_options: further reader-config fields (e.g. ``calibration="fr1"``)
             or ``given_camera`` (:func:`~spgeo.datasets.open_dataset`).
 
@@ -470,16 +479,18 @@ def run_dataset(kind: str, path: Union[str, Path], frames: Optional[str] = None,
              "live" if n is None else n, seq.camera,
              config.odometry.processing_size_for(seq.camera.size))
     if kind == "camera":
-        run = run_live(seq, config, frontend, on_frame=on_frame)
+        run = run_live(seq, config, frontend, on_frame=on_frame, saved_map=saved_map)
     else:
-        run = run_odometry(seq, config, frontend, n_frames=n, on_frame=on_frame)
+        run = run_odometry(seq, config, frontend, n_frames=n, on_frame=on_frame,
+                           saved_map=saved_map)
     run.intrinsics = seq.intrinsics
     return run
 
 
 def run_live(source: Iterable[Frame], config: VORunConfig = VORunConfig(),
              frontend: Optional[PrimitiveFrontEnd] = None,
-             on_frame: Optional[FrameHook] = None) -> VORun:
+             on_frame: Optional[FrameHook] = None,
+             saved_map: Optional[SavedMap] = None) -> VORun:
     """The VO on a live source (a camera, or a simulated one): its frames read
     by a capture thread into a :class:`~spgeo.datasets.capture.CaptureRing` of
     ``config.capture_ring`` frames, and :func:`run_odometry` with
@@ -493,7 +504,7 @@ def run_live(source: Iterable[Frame], config: VORunConfig = VORunConfig(),
         config.odometry, mapping=dataclasses.replace(config.odometry.mapping, schedule="ready")))
     ring = CaptureRing(source, config.capture_ring)
     try:
-        run = run_odometry(ring, config, frontend, on_frame=on_frame)
+        run = run_odometry(ring, config, frontend, on_frame=on_frame, saved_map=saved_map)
     finally:
         ring.close()
     run.capture = ring.report()

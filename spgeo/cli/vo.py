@@ -8,7 +8,7 @@
              [--config FILE] [--set FIELD=VALUE ...] --out DIR
              [--rerun spawn | save FILE.rrd | connect [ADDR]]
              [--mesh] [--export-colmap DIR] [--export-nerfstudio DIR] [--all-frames]
-             [--metric-scale NAME|PATH]
+             [--metric-scale NAME|PATH] [--save-map DIR] [--load-map DIR]
 
 ``--config`` / ``--set`` reach the ``VORunConfig`` fields and, for any other
 name, the ``OdometryConfig`` fields (``window=7`` is ``odometry.window=7``);
@@ -29,7 +29,11 @@ frame not lost) as a COLMAP model / a nerfstudio ``transforms.json`` data set.
 ``--metric-scale`` estimates one output scale from a metric-depth network
 (``VORunConfig.metric_scale``, :mod:`spgeo.vo.metric_scale`) and writes every
 output in metres; a missing or non-metric model is an input error (exit code 2)
-before the first frame.
+before the first frame.  ``--save-map DIR`` writes the run's map (keyframes,
+scales, landmarks: :mod:`spgeo.vo.saved_map`) after the run; ``--load-map DIR``
+relocalises the first frames into a saved map and continues in its frame and
+units (:mod:`spgeo.vo.map_entry`); a folder that is not a saved map, or one
+saved at another processing camera, is an input error (exit code 2).
 """
 from __future__ import annotations
 
@@ -132,11 +136,12 @@ def _run(args: argparse.Namespace) -> int:
     given = _given_camera(args)
     staged = StagedFolder(args.out, "--out", "spgeo vo")   # checked before the run
     _check_exports(args)
+    saved = _saved_map(args)
     if args.all_frames and kind.lower() == "camera":
         raise InputError("--all-frames cannot re-read a live camera")
     with open_rerun(args) as viewer:
         run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer,
-                          given_camera=given)
+                          given_camera=given, saved_map=saved)
         if viewer is not None:
             viewer.finish(run.odometry)
         fused = _fuse(run, viewer) if args.mesh else None
@@ -160,7 +165,22 @@ def _run(args: argparse.Namespace) -> int:
               "the poses are provisional", file=sys.stderr)
         return EXIT_FLAGGED
     _export(args, run, given)
+    if args.save_map:
+        kept = run.odometry.saved_map().save(args.save_map)
+        print(f"wrote the map ({run.odometry.n_keyframes} keyframes) to {kept}")
     return 0
+
+
+def _saved_map(args: argparse.Namespace):
+    """The map of ``--load-map`` (None without), after checking that ``--save-map``
+    can be written (:class:`InputError`, exit code 2, before the run)."""
+    from ..vo.saved_map import SavedMap
+
+    if args.save_map:
+        SavedMap.check_target(args.save_map)
+        if Path(args.save_map).resolve() == Path(args.out).resolve():
+            raise InputError("--save-map needs a folder other than --out")
+    return None if args.load_map is None else SavedMap.load(args.load_map)
 
 
 def _check_exports(args: argparse.Namespace) -> None:
@@ -223,6 +243,32 @@ def _export(args: argparse.Namespace, run, given) -> None:
               f"{args.export_nerfstudio}/images)")
 
 
+def _add_output_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of what a run writes beside OUT: exports, mesh, its map."""
+    p.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="also write a COLMAP model of the keyframes: DIR/images/*.png (processing "
+                        "resolution), DIR/sparse/0/{cameras,images,points3D}.bin")
+    p.add_argument("--export-nerfstudio", default=None, metavar="DIR",
+                   help="also write a nerfstudio data set of the keyframes: DIR/transforms.json "
+                        "(PINHOLE intrinsics, camera-to-world transform_matrix in nerfstudio's "
+                        "OpenGL camera axes) and DIR/images/*.png (processing resolution)")
+    p.add_argument("--all-frames", action="store_true",
+                   help="--export-colmap / --export-nerfstudio: every frame not lost, not only "
+                        "the keyframes")
+    p.add_argument("--mesh", action="store_true",
+                   help="fuse the keyframes' depth maps at their final poses (TSDF) into "
+                        "OUT/mesh.ply and OUT/cloud.ply (VO world and units; metres with "
+                        "--metric-scale)")
+    p.add_argument("--save-map", default=None, metavar="DIR",
+                   help="write the run's map after the run: DIR/map.json, the keyframes' "
+                        "images and scaled primitives, the landmarks (a later run continues "
+                        "in it with --load-map)")
+    p.add_argument("--load-map", default=None, metavar="DIR",
+                   help="relocalise into a map written by --save-map and continue in its "
+                        "frame and units (same input camera and resolution); if no frame is "
+                        "placed within max_lost_frames, a map of the run's own starts")
+
+
 def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     """Register ``spgeo vo`` on an argparse sub-parser collection."""
     p = subparsers.add_parser(
@@ -262,20 +308,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_rerun_argument(p, "the frames, keyframe clouds and trajectories live")
-    p.add_argument("--export-colmap", default=None, metavar="DIR",
-                   help="also write a COLMAP model of the keyframes: DIR/images/*.png (processing "
-                        "resolution), DIR/sparse/0/{cameras,images,points3D}.bin")
-    p.add_argument("--export-nerfstudio", default=None, metavar="DIR",
-                   help="also write a nerfstudio data set of the keyframes: DIR/transforms.json "
-                        "(PINHOLE intrinsics, camera-to-world transform_matrix in nerfstudio's "
-                        "OpenGL camera axes) and DIR/images/*.png (processing resolution)")
-    p.add_argument("--all-frames", action="store_true",
-                   help="--export-colmap / --export-nerfstudio: every frame not lost, not only "
-                        "the keyframes")
-    p.add_argument("--mesh", action="store_true",
-                   help="fuse the keyframes' depth maps at their final poses (TSDF) into "
-                        "OUT/mesh.ply and OUT/cloud.ply (VO world and units; metres with "
-                        "--metric-scale)")
+    _add_output_arguments(p)
     add_config_arguments(p, "VORunConfig / OdometryConfig", _default_run_config)
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more logging (-v, -vv; also accepted before 'vo')")

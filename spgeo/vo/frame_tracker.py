@@ -109,7 +109,7 @@ class FrameTracker:
             def feature_guess() -> Optional[np.ndarray]:
                 k = kf.keyframe
                 p = self._retry.pose(kf.index, kf.image, k.primitives, k.T_world_kf, image,
-                                     self._frame_features(image))
+                                     self.frame_features(image))
                 pnps.extend([p] if p is not None else [])
                 return None if p is None else p.T_world_frame
             tries.append(feature_guess)
@@ -142,10 +142,11 @@ class FrameTracker:
         return dataclasses.replace(tr, T_world_frame=best.T_world_frame.copy(), status="ok",
                                    reason=None, feature_checked=True, feature_pose=True)
 
-    def _frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
-        """The frame's features (:meth:`FeatureRetry.frame_features`), computed once
-        per frame: the last frame's are kept, keyed by its shape and the CRC-32 of
-        its bytes (a caller may reuse one array for the next frame)."""
+    def frame_features(self, image: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+        """The frame's features ``(pixels (M, 2), descriptors)``
+        (:meth:`FeatureRetry.frame_features`), computed once per frame: the last
+        frame's are kept, keyed by its shape and the CRC-32 of its bytes (a caller
+        may reuse one array for the next frame)."""
         key = (image.shape, str(image.dtype), zlib.crc32(np.ascontiguousarray(image)))
         if self._frame is None or self._frame[0] != key:
             self._frame = (key, self._retry.frame_features(image), None, None)
@@ -155,7 +156,7 @@ class FrameTracker:
                        ) -> Optional[FeaturePose]:
         """The frame's PnP pose on ``landmarks`` (:meth:`LandmarkSnapshot.pose`),
         computed once per frame and snapshot."""
-        feats = self._frame_features(image)     # a new frame resets the snapshot and pose
+        feats = self.frame_features(image)     # a new frame resets the snapshot and pose
         key, _, seen, pose = self._frame
         if seen is not landmarks:
             cfg = self.config.feature_retry

@@ -40,7 +40,7 @@ class MapKeyframe:
     """
 
     index: int          # keyframe number
-    frame: int          # frame number
+    frame: int          # frame number (-1: a saved map's keyframe, no frame of this run)
     image: Optional[np.ndarray]
     keyframe: Optional[Keyframe]
     segment: int = 0
@@ -144,6 +144,8 @@ class KeyframeMap:
         order: keyframe indices in creation order (``0 .. n - 1``).
         live: the keyframes not retired, in creation order.
         seg_kfs: the current segment's keyframes (those the window may reach).
+        scaled_segments: the segments whose keyframe 0 came with its scale (a
+            keyframe of a saved map the run entered): tracked against at once.
         segment: the current map segment's number (0, 1, ...).
         store: the keyframe store.
         anchors: frame number -> ``(k, T_kf_frame, median depth of k then)`` of a
@@ -163,6 +165,7 @@ class KeyframeMap:
         self.order: List[int] = []
         self.live: List[int] = []
         self.seg_kfs: List[int] = []
+        self.scaled_segments: set = set()
         self.segment = 0
         self.store = store if store is not None else KeyframeStore()
         self.anchors: Dict[int, Anchor] = {}
@@ -181,16 +184,26 @@ class KeyframeMap:
         """The current segment's newest keyframe."""
         return self.kfs[self.seg_kfs[-1]]
 
-    def add(self, kf: MapKeyframe, new_segment: bool = False) -> None:
+    @property
+    def tracking(self) -> bool:
+        """Frames of the current segment are tracked against its map: it has
+        keyframe 1, or its keyframe 0 came with its scale (:attr:`seg_scaled`)."""
+        return len(self.seg_kfs) >= 2 or (self.segment in self.scaled_segments
+                                          and len(self.seg_kfs) == 1)
+
+    def add(self, kf: MapKeyframe, new_segment: bool = False, scaled: bool = False) -> None:
         """Append keyframe ``kf`` (index :attr:`next_index`) to the map and to the
-        current segment (``new_segment``: as the segment's keyframe 0); its frame
-        is no longer anchored (a keyframe's pose is its own)."""
+        current segment (``new_segment``: as the segment's keyframe 0, ``scaled``:
+        one that comes with its scale, :attr:`scaled_segments`); its frame is no longer
+        anchored (a keyframe's pose is its own)."""
         self.kfs[kf.index] = kf
         self.order.append(kf.index)
         self.live.append(kf.index)
         self.anchors.pop(kf.frame, None)
         if new_segment:
             self.seg_kfs = [kf.index]
+            if scaled:
+                self.scaled_segments.add(kf.segment)
         else:
             self.seg_kfs.append(kf.index)
 
@@ -233,13 +246,14 @@ class KeyframeMap:
     def keyframes_with_depth(self, uses_depth: bool) -> List[int]:
         """Indices of the keyframes whose primitives carry depth: all with a
         depth-using front-end (``uses_depth``); monocular, those of segments
-        with at least two keyframes."""
+        with at least two keyframes or a keyframe 0 that came with its scale."""
         if uses_depth:
             return list(self.order)
         per_segment: Dict[int, int] = {}
         for k in self.order:
             per_segment[self.kfs[k].segment] = per_segment.get(self.kfs[k].segment, 0) + 1
-        return [k for k in self.order if per_segment[self.kfs[k].segment] >= 2]
+        return [k for k in self.order if per_segment[self.kfs[k].segment] >= 2
+                or self.kfs[k].segment in self.scaled_segments]
 
     # ------------------------------------------------------------ frames
     def add_candidate(self, cand: SupportCandidate) -> None:

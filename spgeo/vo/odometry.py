@@ -26,11 +26,13 @@ from .keyframe_builder import KeyframeBuilder
 from .keyframe_policy import AFTER_UPDATE, KEYFRAME, KeyframePolicy
 from .keyframe_store import KeyframeStore
 from .map import KeyframeMap, MapKeyframe, SupportCandidate
+from .map_entry import MapEntry
 from .mapping_port import MappingPort, apply_pending_update, make_port
 from .motion import MotionModel
 from .processing import checked_frame, opencv_threads
-from .readout import OdometryReadout, read_side
+from .readout import OdometryReadout, ReadSide
 from .result import FrameLog, FrameResult, FrameStatus, frame_result, timed
+from .saved_map import SavedMap
 from .tracking import TrackResult
 
 __all__ = ["Odometry"]
@@ -38,7 +40,7 @@ __all__ = ["Odometry"]
 log = logging.getLogger(__name__)
 
 
-class Odometry:
+class Odometry(ReadSide):
     """Streaming monocular VO (module docstring).
 
     Args:
@@ -56,6 +58,10 @@ class Odometry:
             (lead 0): the numbers of ``"inline"`` mapping, through the worker (tests).
         port: the :class:`~spgeo.vo.mapping_port.MappingPort` (default None: the
             one of ``config.mapping.mode``, :func:`~spgeo.vo.mapping_port.make_port`).
+        saved_map: a :class:`~spgeo.vo.saved_map.SavedMap` to continue in: the first
+            frames are relocalised into it (:mod:`spgeo.vo.map_entry`); raises
+            :class:`~spgeo.validation.InputError` when it does not fit (camera,
+            primitive model, units).
 
     Attributes:
         readout: the :class:`~spgeo.vo.readout.OdometryReadout`, whose members
@@ -69,7 +75,8 @@ class Odometry:
     def __init__(self, camera: PinholeCamera, config: OdometryConfig = OdometryConfig(),
                  frontend: Optional[PrimitiveFrontEnd] = None,
                  store: Optional[KeyframeStore] = None,
-                 wait_for_mapper: bool = False, port: Optional[MappingPort] = None) -> None:
+                 wait_for_mapper: bool = False, port: Optional[MappingPort] = None,
+                 saved_map: Optional[SavedMap] = None) -> None:
         if not isinstance(config, OdometryConfig):
             raise TypeError(f"Odometry: config must be an OdometryConfig, got "
                             f"{type(config).__name__}")
@@ -93,15 +100,9 @@ class Odometry:
         self.readout = OdometryReadout(self.camera, config, frontend, self._frames, self._map,
                                        self._port, self._initialiser, self._builder,
                                        self._sync, type(self).__name__)
-
-    # ------------------------------------------------------------ the read side
-    __repr__, result, report, save, frames, units = map(read_side, (
-        "__repr__", "result", "report", "save", "frames", "units"))
-    keyframes, keyframe, n_keyframes, keyframe_image, iter_keyframes = map(read_side, (
-        "keyframes", "keyframe", "n_keyframes", "keyframe_image", "iter_keyframes"))
-    window_keyframes, keyframes_with_depth, initialised, init_failure = map(read_side, (
-        "window_keyframes", "keyframes_with_depth", "initialised", "init_failure"))
-    smoother, smoother_estimate = map(read_side, ("smoother", "smoother_estimate"))
+        if saved_map is not None:
+            saved_map.check_fits(self.camera, config.primitive_model, self.units, "saved map")
+        self._entry = None if saved_map is None else MapEntry(saved_map, self._tracker, config)
 
     # ------------------------------------------------------------ public API
     def track(self, frame: Frame) -> FrameResult:
@@ -152,9 +153,11 @@ class Odometry:
         if self._port.due(self._frames.steps):
             self._sync(timings)
         self._port.note_frame()
-        if idx == 0:
+        if self._entry is not None:
+            res = self._enter(frame, idx, timings)
+        elif idx == 0:
             res = self._start(frame, idx, np.eye(4), timings)
-        elif len(self._map.seg_kfs) < 2:
+        elif not self._map.tracking:
             res = self._initialise(frame, idx, timings)
         else:
             res = self._track(frame, idx, timings)
@@ -177,6 +180,26 @@ class Odometry:
         status = FrameStatus.KEYFRAME if idx == 0 else FrameStatus.REINIT
         return frame_result(frame, idx, T_world, status, keyframe_index=k)
 
+    def _enter(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
+        """A frame of a run entering a saved map (:class:`MapEntry`): ``LOST`` until
+        placed, then ``RELOCALISED`` with the saved keyframe as keyframe 0 of the
+        segment (its scales: tracked at once); given up, a map of the run's own."""
+        with timed(timings, "track"):
+            got = self._entry.step(frame.image, self._map.next_index, self._map.segment)
+        if got is None and not self._entry.given_up:
+            return frame_result(frame, idx, np.eye(4), FrameStatus.LOST)
+        self._entry = None
+        if got is None:
+            return self._start(frame, idx, np.eye(4), timings)
+        kf, tr, _ = got
+        self._map.add(kf, new_segment=True, scaled=True)
+        self._map.landmarks = got[2]
+        self._motion.reset(tr.T_world_frame, float(frame.timestamp))
+        self._motion.accept(tr, float(frame.timestamp))     # its brightness, no velocity
+        self._map.anchor(idx, kf.index, invert_pose(kf.T_world_kf) @ tr.T_world_frame,
+                         kf.median_depth)
+        return frame_result(frame, idx, tr.T_world_frame, FrameStatus.RELOCALISED, track=tr)
+
     def _initialise(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a segment with only keyframe 0: tracked against it (no features: no
         depth yet), the :class:`Initialiser`'s decision applied; the segment starts again
@@ -194,7 +217,7 @@ class Odometry:
             if dec.keyframe1 == idx:
                 return res1
             self._catch_up(dec.since, timings)      # keyframe 1 is an earlier frame
-            return (self._initialise if len(self._map.seg_kfs) < 2 else self._track)(
+            return (self._track if self._map.tracking else self._initialise)(
                 frame, idx, timings)
         last_good = self._motion.last_good
         self._n_lost += int(dec.action == FAILED)

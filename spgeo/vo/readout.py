@@ -26,9 +26,10 @@ from .keyframe_builder import KeyframeBuilder
 from .map import KeyframeMap
 from .mapping_port import MappingPort
 from .result import FrameResult, OdometryResult, frame_records, save_run, timing_statistics
+from .saved_map import SavedMap
 from .tracking import Keyframe
 
-__all__ = ["OdometryReadout", "read_side"]
+__all__ = ["OdometryReadout", "ReadSide", "read_side"]
 
 
 class OdometryReadout:
@@ -144,10 +145,11 @@ class OdometryReadout:
 
     @property
     def initialised(self) -> bool:
-        """Whether the current map segment has its keyframe pair (keyframes 0
-        and 1): until then no frame is tracked against a map and, with a
-        monocular front-end, keyframe 0 has no depth."""
-        return len(self._map.seg_kfs) >= 2
+        """Whether frames of the current map segment are tracked against its map:
+        it has its keyframe pair (keyframes 0 and 1), or its keyframe 0 came with
+        its scale (a saved map's keyframe).  Until then no frame is tracked against
+        a map and, with a monocular front-end, keyframe 0 has no depth."""
+        return self._map.tracking
 
     @property
     def init_failure(self) -> Optional[str]:
@@ -193,6 +195,19 @@ class OdometryReadout:
             "frames": frame_records(self._frames),
         }
 
+    def saved_map(self) -> SavedMap:
+        """The map to keep (:class:`~spgeo.vo.saved_map.SavedMap`; ``spgeo vo
+        --save-map``): the keyframes that carry depth (:meth:`keyframes_with_depth`)
+        at their current state, in creation order, and the current segment's
+        landmarks, after the pending update.  Save it with :meth:`SavedMap.save`."""
+        self._sync()
+        kfs = self._map.kfs
+        keep = self.keyframes_with_depth()
+        return SavedMap.of(self.camera, self.units, self.config.primitive_model,
+                           ((k, kfs[k].frame, kfs[k].segment, image, kf)
+                            for k, image, kf in self._map.iter_keyframes(keep)),
+                           self._map.landmarks)
+
     def save(self, directory: Union[str, Path], clouds: bool = True,
              extra_report: Optional[dict] = None,
              trajectory: Optional[OdometryResult] = None) -> Dict[str, object]:
@@ -223,3 +238,18 @@ def read_side(name: str):
     def forward(self, *args, **kwargs):
         return getattr(self.readout, name)(*args, **kwargs)
     return forward
+
+
+class ReadSide:
+    """The read side of :class:`spgeo.vo.Odometry`: members that forward to its
+    ``readout`` (:func:`read_side`)."""
+
+    readout: OdometryReadout
+    __repr__, result, report, save, frames, units = map(read_side, (
+        "__repr__", "result", "report", "save", "frames", "units"))
+    keyframes, keyframe, n_keyframes, keyframe_image, iter_keyframes = map(read_side, (
+        "keyframes", "keyframe", "n_keyframes", "keyframe_image", "iter_keyframes"))
+    window_keyframes, keyframes_with_depth, initialised, init_failure = map(read_side, (
+        "window_keyframes", "keyframes_with_depth", "initialised", "init_failure"))
+    smoother, smoother_estimate, saved_map = map(read_side, (
+        "smoother", "smoother_estimate", "saved_map"))

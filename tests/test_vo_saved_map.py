@@ -1,0 +1,152 @@
+"""A VO map saved and loaded (issue 53): the format round trip
+(:class:`spgeo.vo.saved_map.SavedMap`), a run on a synthetic room split in two that
+continues in the saved map's frame and scale (:mod:`spgeo.vo.map_entry`), the give-up
+into a map of the run's own, and the bad inputs (``spgeo vo --load-map`` /
+``--save-map``, exit code 2 naming the folder)."""
+import json
+
+import numpy as np
+import pytest
+
+from spgeo import synthetic
+from spgeo.frame import Frame
+from spgeo.trajectory import METRES, VO_UNITS, FrameStatus
+from spgeo.validation import InputError
+from spgeo.vo import KeyframeDecisionConfig, MappingConfig, Odometry, OdometryConfig
+from spgeo.vo.saved_map import SavedMap
+
+CAM = synthetic.default_camera(160, 120)
+CFG = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
+                     mapping=MappingConfig(mode="inline"))
+N_SAVED, N_LOADED = 30, 14
+
+
+def _odometry(saved=None, config=CFG):
+    from spgeo.frontend import FrontEndConfig, make_frontend
+
+    return Odometry(CAM, config, make_frontend("classical", FrontEndConfig(working_size=(160, 120))),
+                    saved_map=saved)
+
+
+def _run(vo, images, first):
+    for i, im in enumerate(images):
+        vo.track(Frame(im, CAM, float(first + i)))
+    res = vo.result()
+    vo.close()
+    return res
+
+
+@pytest.fixture(scope="module")
+def split_run(tmp_path_factory):
+    """The synthetic room (every third pose, 160x120): frames 0-29 run and their
+    map saved, then frames 30-43 run in the loaded map."""
+    poses = synthetic.make_trajectory(3 * (N_SAVED + N_LOADED), 0)[::3]
+    room = synthetic.SyntheticScene.generate(0)
+    images = [room.render(CAM, T).rgb for T in poses]
+    vo1 = _odometry()
+    res1 = _run(vo1, images[:N_SAVED], 0)
+    folder = tmp_path_factory.mktemp("saved") / "map"
+    saved = vo1.saved_map()
+    saved.save(folder)
+    loaded = SavedMap.load(folder)
+    res2 = _run(_odometry(loaded), images[N_SAVED:], N_SAVED)
+    return poses, res1, res2, saved, loaded, folder
+
+
+def _sim3(est, gt):
+    from spgeo.similarity import umeyama
+
+    return umeyama(est[:, :3, 3], gt[:, :3, 3])
+
+
+@pytest.mark.slow
+def test_a_saved_map_reads_back_equal(split_run):
+    """Every keyframe's pose, image and scaled primitives, and the landmarks, read
+    back as saved (log-depth stored as float32)."""
+    _, _, _, saved, loaded, folder = split_run
+    head = json.loads((folder / "map.json").read_text())
+    assert head["format"] == "spgeo-vo-map" and head["version"] == 1
+    assert len(loaded.keyframes) == len(saved.keyframes) >= 3
+    for a, b in zip(saved.keyframes, loaded.keyframes):
+        assert (a.index, a.frame, a.segment) == (b.index, b.frame, b.segment)
+        np.testing.assert_allclose(a.T_world_kf, b.T_world_kf, atol=1e-12)
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.primitives.log_scales, b.primitives.log_scales)
+        np.testing.assert_allclose(a.primitives.depth_map(), b.primitives.depth_map(),
+                                   rtol=1e-5, equal_nan=True)
+    assert loaded.landmarks is not None and len(loaded.landmarks) > 50
+    np.testing.assert_array_equal(saved.landmarks.descriptors, loaded.landmarks.descriptors)
+    np.testing.assert_allclose(saved.landmarks.points, loaded.landmarks.points)
+    assert loaded.camera.to_dict() == saved.camera.to_dict() and loaded.units == VO_UNITS
+
+
+@pytest.mark.slow
+def test_a_loaded_run_continues_in_the_saved_frame_and_scale(split_run):
+    """The loaded run's first frame is relocalised into the saved map, none is lost,
+    one segment, and its poses, mapped to the ground truth by the Sim(3) of the saved
+    run, lie within 1.5 % of the scene depth (about 2.8) of the truth over its first
+    ten frames: the same frame and scale, not a new map."""
+    poses, res1, res2, _, _, _ = split_run
+    assert res2.statuses[0] is FrameStatus.RELOCALISED
+    assert FrameStatus.LOST not in res2.statuses and set(res2.segments.tolist()) == {0}
+    S = _sim3(res1.poses, poses[:N_SAVED])
+    moved = (S[:3, :3] @ res2.poses[:10, :3, 3].T).T + S[:3, 3]
+    err = np.linalg.norm(moved - poses[N_SAVED:N_SAVED + 10, :3, 3], axis=1)
+    assert err.max() < 0.015 * 2.8, err
+
+
+@pytest.mark.slow
+def test_a_map_of_another_scene_is_given_up_for_a_map_of_its_own(split_run):
+    """Frames of another room are never placed in the saved map: after
+    ``max_lost_frames`` lost frames the run starts its own map (a warning), not a
+    map at a wrong pose."""
+    _, _, _, _, loaded, _ = split_run
+    other = synthetic.SyntheticScene.generate(7)
+    poses = synthetic.make_trajectory(30, 0)[::3]
+    cfg = OdometryConfig(keyframe=CFG.keyframe, mapping=CFG.mapping, max_lost_frames=3)
+    res = _run(_odometry(loaded, cfg), [other.render(CAM, T).rgb for T in poses], 0)
+    assert res.statuses[:2] == [FrameStatus.LOST] * 2
+    assert res.statuses[2] in (FrameStatus.KEYFRAME, FrameStatus.REINIT)
+    assert FrameStatus.RELOCALISED not in res.statuses
+
+
+def test_a_folder_that_is_not_a_saved_map_is_refused_naming_it(tmp_path):
+    with pytest.raises(InputError, match="no map.json"):
+        SavedMap.load(tmp_path)
+    (tmp_path / "map.json").write_text(json.dumps({"format": "spgeo-vo-map", "version": 9}))
+    with pytest.raises(InputError, match="version 9"):
+        SavedMap.load(tmp_path)
+    (tmp_path / "map.json").write_text(json.dumps({"format": "spgeo-vo-map", "version": 1,
+                                                   "camera": CAM.to_dict(), "units": VO_UNITS,
+                                                   "primitive_model": "integrated",
+                                                   "keyframes": [{"index": 0, "frame": 0,
+                                                                  "segment": 0,
+                                                                  "T_world_kf": np.eye(4).tolist(),
+                                                                  "image": "k.npy",
+                                                                  "primitives": "k.npz"}]}))
+    with pytest.raises(InputError, match="cannot read keyframe 0"):
+        SavedMap.load(tmp_path)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match="other than a saved map"):
+        SavedMap.check_target(other)
+
+
+def test_a_map_saved_at_another_camera_is_refused():
+    saved = SavedMap(synthetic.default_camera(320, 240), VO_UNITS, "integrated", [])
+    with pytest.raises(InputError, match="processing camera"):
+        _odometry(saved)
+    saved = SavedMap(CAM, METRES, "integrated", [])
+    with pytest.raises(InputError, match="units"):
+        _odometry(saved)
+
+
+def test_cli_load_map_of_a_plain_folder_is_exit_2(tmp_path, capsys):
+    from spgeo.cli import main
+
+    (tmp_path / "imgs").mkdir()
+    rc = main(["vo", "--dataset", "folder", str(tmp_path / "imgs"), "--out",
+               str(tmp_path / "out"), "--load-map", str(tmp_path / "imgs")])
+    assert rc == 2
+    assert "not a saved spgeo map" in capsys.readouterr().err
