@@ -1,7 +1,9 @@
 """Config dataclasses set from text: ``FIELD=VALUE`` overrides (nested fields
 with dots: ``tracker.relative_cost_tol=1e-4``) and TOML (or YAML, when PyYAML is
 installed) files, applied to frozen or plain dataclass instances with
-:func:`dataclasses.replace`; written back as TOML (:func:`config_to_toml`); and
+:func:`dataclasses.replace`; written back as TOML with each field's meaning
+from its class's docstring as a comment (:func:`config_to_toml`,
+:mod:`spgeo.config_docs`); and
 :func:`config_class`, the decorator of the config dataclasses (field types checked at
 construction, a ``repr`` of the fields that differ from the defaults).  The library
 home of the command line's ``--set`` / ``--config`` / ``--dump-config``
@@ -19,11 +21,14 @@ import functools
 import json
 import logging
 import numbers
+import textwrap
 import typing
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
 import numpy as np
+
+from .config_docs import field_meanings, short_meaning
 
 __all__ = ["ConfigError", "ConfigTypeError", "UnknownFieldError", "check_field_types",
            "parse_value", "parse_assignments", "nest", "flatten", "apply_overrides",
@@ -350,10 +355,22 @@ def _toml_value(value: Any) -> str:
     raise TypeError(f"no TOML form for {value!r}")
 
 
+def _meaning_lines(meanings: Mapping[str, str], name: str) -> List[str]:
+    """The meaning of field ``name`` (:func:`~spgeo.config_docs.short_meaning`)
+    as TOML comment lines of at most 88 characters; none when undocumented."""
+    if name not in meanings:
+        return []
+    return [f"# {line}" for line in textwrap.wrap(short_meaning(meanings[name]), 86,
+                                                  break_long_words=False,
+                                                  break_on_hyphens=False)]
+
+
 def _toml_lines(config: Any, table: str) -> List[str]:
-    """``config``'s fields as TOML: its values, then a ``[table.sub]`` per nested config."""
+    """``config``'s fields as TOML, each below its meaning: its values, then a
+    ``[table.sub]`` per nested config."""
     lines: List[str] = []
     nested = []
+    meanings = field_meanings(type(config))
     for f in dataclasses.fields(config):
         if not f.init:
             continue
@@ -361,13 +378,14 @@ def _toml_lines(config: Any, table: str) -> List[str]:
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             nested.append((f.name, value))
             continue
+        lines += _meaning_lines(meanings, f.name)
         try:
             lines.append(f"{f.name} = {_toml_value(value)}")
         except TypeError:
             lines.append(f"# {f.name} = {value!r}  (TOML cannot write it: leave the line out)")
     for name, sub in nested:
         path = f"{table}.{name}" if table else name
-        lines += ["", f"[{path}]"] + _toml_lines(sub, path)
+        lines += [""] + _meaning_lines(meanings, name) + [f"[{path}]"] + _toml_lines(sub, path)
     return lines
 
 
@@ -375,8 +393,11 @@ def config_to_toml(config: Any, title: str = "") -> str:
     """The dataclass instance ``config`` as a TOML document that
     :func:`resolve_config` (and ``--config``) reads back to an equal config:
     fields with a value TOML cannot hold (None) are written as comments, so
-    reading the file keeps their defaults.  ``title``: a first comment line."""
-    head = [f"# {line}" for line in title.splitlines()]
+    reading the file keeps their defaults.  Above each field (and nested
+    table) a comment says what it means: the first clause of its entry in its
+    class's docstring ``Attributes:`` (:mod:`spgeo.config_docs`).  ``title``:
+    first comment lines."""
+    head = [f"# {line}" for line in title.splitlines()] + ([""] if title else [])
     return "\n".join(head + _toml_lines(config, "")) + "\n"
 
 

@@ -1,7 +1,8 @@
 """Inputs of issue 25: video files (``cv2.VideoWriter`` MJPG/.avi written from
 synthetic frames), KITTI odometry and EuRoC MAV folders written in their layouts,
 the shared KITTI clip laid out as a KITTI sequence, and calibration when there is
-none (``--intrinsics`` / ``--fov`` / a guess, flagged in ``report.json``)."""
+none (``--intrinsics`` / ``--fov`` / a guess, flagged in ``report.json``) or when
+another tool wrote it (``--calibration``: COLMAP, ORB-SLAM, Kalibr; issue 53)."""
 import json
 import logging
 import math
@@ -433,3 +434,283 @@ def test_vo_on_a_camera_stops_on_ctrl_c_with_everything_written(video, tmp_path,
     assert n + report["capture"]["dropped"] == report["capture"]["arrived"] == 11
     assert report["intrinsics"]["source"] == "given"
     assert len((out / "trajectory.txt").read_text().strip().splitlines()) >= n
+
+
+# ------------------------------------------------------------------ calibration files
+COLMAP_CASES = {   # model: (params in COLMAP's pixels, fx, fy, OpenCV distortion)
+    "SIMPLE_PINHOLE": ([100.0, 80.0, 60.0], 100.0, 100.0, None),
+    "PINHOLE": ([100.0, 101.0, 80.0, 60.0], 100.0, 101.0, None),
+    "SIMPLE_RADIAL": ([100.0, 80.0, 60.0, -0.1], 100.0, 100.0, (-0.1, 0.0, 0.0, 0.0)),
+    "RADIAL": ([100.0, 80.0, 60.0, -0.1, 0.02], 100.0, 100.0, (-0.1, 0.02, 0.0, 0.0)),
+    "OPENCV": ([100.0, 101.0, 80.0, 60.0, -0.1, 0.02, 0.001, -0.002], 100.0, 101.0,
+               (-0.1, 0.02, 0.001, -0.002)),
+    "FULL_OPENCV": ([100.0, 101.0, 80.0, 60.0, -0.1, 0.02, 0.001, -0.002, 0.003, 0.01, 0.002,
+                     0.001], 100.0, 101.0,
+                    (-0.1, 0.02, 0.001, -0.002, 0.003, 0.01, 0.002, 0.001)),
+}
+
+
+def write_colmap_cameras(path, *cameras):
+    """``cameras.txt`` of ``(id, model, params)`` tuples, at the W x H size."""
+    lines = ["# Camera list with one line of data per camera:",
+             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
+    lines += [f"{i} {model} {W} {H} " + " ".join(map(repr, params))
+              for i, model, params in cameras]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("model", sorted(COLMAP_CASES))
+def test_colmap_cameras_txt_of_each_model(tmp_path, model):
+    """Each COLMAP model reads to its OpenCV camera, the principal point shifted by
+    -0.5 (COLMAP: the top-left pixel's centre at (0.5, 0.5)); pycolmap's own
+    projection of the model agrees with spgeo's camera plus OpenCV's distortion."""
+    from spgeo.datasets import read_calibration
+
+    params, fx, fy, dist = COLMAP_CASES[model]
+    cal = read_calibration(write_colmap_cameras(tmp_path / "cameras.txt", (7, model, params)))
+    cam = cal.camera()
+    cx, cy = (params[2], params[3]) if model in ("PINHOLE", "OPENCV", "FULL_OPENCV") else \
+        (params[1], params[2])
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == (fx, fy, cx - 0.5, cy - 0.5)
+    assert cam.size == (W, H) and cam.distortion == (None if dist is None else pytest.approx(dist))
+    assert cal.describe() == f"--calibration {tmp_path / 'cameras.txt'}: COLMAP {model} camera 7"
+    pycolmap = pytest.importorskip("pycolmap")
+    pts = np.array([[0.1, 0.2, 1.0], [-0.3, 0.1, 2.0], [0.4, -0.3, 1.5]])
+    ours, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K,
+                                np.zeros(4) if cam.distortion is None else
+                                np.asarray(cam.distortion))
+    theirs = pycolmap.Camera(model=model, width=W, height=H, params=params).img_from_cam(pts)
+    assert np.allclose(ours.reshape(-1, 2) + 0.5, theirs, atol=1e-6)
+
+
+def test_colmap_export_reads_back_equal(tmp_path):
+    """A camera written by spgeo's COLMAP export (+0.5) reads back equal."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from spgeo.camera import PinholeCamera
+    from spgeo.datasets import read_calibration
+    from spgeo.twoview.backends import colmap_camera
+
+    cam = PinholeCamera(100.5, 101.25, 79.25, 59.75, W, H)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera(colmap_camera(cam))
+    rec.write_text(str(tmp_path))
+    assert read_calibration(tmp_path / "cameras.txt").camera() == cam
+
+
+def test_colmap_several_cameras(tmp_path):
+    """Identical cameras count as one; different ones need FILE:ID, else the
+    error lists the IDs."""
+    from spgeo.datasets import read_calibration
+
+    same = write_colmap_cameras(tmp_path / "same.txt", (1, "PINHOLE", [100, 100, 80, 60]),
+                                (2, "PINHOLE", [100, 100, 80, 60]))
+    assert read_calibration(same).camera().fx == 100
+    two = write_colmap_cameras(tmp_path / "two.txt", (1, "PINHOLE", [100, 100, 80, 60]),
+                               (2, "SIMPLE_PINHOLE", [120, 80, 60]))
+    with pytest.raises(InputError, match=r"2 different cameras \(1, 2\).*two.txt:ID"):
+        read_calibration(two)
+    assert read_calibration(f"{two}:2").camera().fx == 120
+    with pytest.raises(InputError, match="no camera '3'; its cameras: 1, 2"):
+        read_calibration(f"{two}:3")
+
+
+ORB_OLD = """%YAML:1.0
+# ORB-SLAM2 TUM1.yaml
+Camera.fx: 517.306408
+Camera.fy: 516.469215
+Camera.cx: 318.643040
+Camera.cy: 255.313989
+
+Camera.k1: 0.262383
+Camera.k2: -0.953104
+Camera.p1: -0.005358
+Camera.p2: 0.002628
+Camera.k3: 1.163314
+
+Camera.fps: 30.0
+Camera.RGB: 1
+ORBextractor.nFeatures: 1000
+"""
+
+ORB_V1 = """%YAML:1.0
+File.version: "1.0"
+Camera.type: "PinHole"
+Camera1.fx: 458.654
+Camera1.fy: 457.296
+Camera1.cx: 367.215
+Camera1.cy: 248.375
+Camera1.k1: -0.28340811
+Camera1.k2: 0.07395907
+Camera1.p1: 0.00019359
+Camera1.p2: 1.76187114e-05
+Camera.width: 752
+Camera.height: 480
+Camera.fps: 20
+"""
+
+KALIBR = """cam0:
+  cam_overlaps: [1]
+  camera_model: pinhole
+  distortion_coeffs: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+  distortion_model: radtan
+  intrinsics: [458.654, 457.296, 367.215, 248.375]
+  resolution: [752, 480]
+  rostopic: /cam0/image_raw
+cam1:
+  T_cn_cnm1:
+  - [0.999997, 0.002312, 0.000376, -0.110074]
+  - [-0.002315, 0.999898, 0.014089, 0.000399]
+  - [-0.000344, -0.014090, 0.999901, -0.000853]
+  - [0.0, 0.0, 0.0, 1.0]
+  cam_overlaps: [0]
+  camera_model: pinhole
+  distortion_coeffs: [-0.28368365, 0.07451284, -0.00010473, -3.5559e-05]
+  distortion_model: radtan
+  intrinsics: [457.587, 456.134, 379.999, 255.238]
+  resolution: [752, 480]
+  rostopic: /cam1/image_raw
+"""
+
+
+def test_orbslam_settings_old_and_v1(tmp_path):
+    """ORB-SLAM2's ``Camera.*`` (no size: the images') and ORB-SLAM3 1.0's
+    ``Camera1.*`` with ``Camera.width`` / ``height``, taken as they are."""
+    from spgeo.datasets import read_calibration
+
+    (tmp_path / "old.yaml").write_text(ORB_OLD)
+    old = read_calibration(tmp_path / "old.yaml")
+    cam = old.camera(640, 480)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.size) == (517.306408, 516.469215, 318.64304,
+                                                         255.313989, (640, 480))
+    assert cam.distortion == pytest.approx((0.262383, -0.953104, -0.005358, 0.002628, 1.163314))
+    with pytest.raises(InputError, match="gives no image size"):
+        old.camera()
+    (tmp_path / "v1.yaml").write_text(ORB_V1)
+    cam = read_calibration(tmp_path / "v1.yaml").camera()
+    assert (cam.fx, cam.cy, cam.size) == (458.654, 248.375, (752, 480))
+    assert cam.distortion == pytest.approx((-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05))
+    (tmp_path / "fish.yaml").write_text(ORB_V1.replace('"PinHole"', '"KannalaBrandt8"'))
+    with pytest.raises(InputError, match="KannalaBrandt8.*supported: PinHole, Rectified"):
+        read_calibration(tmp_path / "fish.yaml")
+
+
+def test_kalibr_camchain_and_euroc_sensor_yaml(tmp_path, frames):
+    """A Kalibr camchain's cameras (cam0 / cam1 picked by ID), and EuRoC's
+    one-camera sensor.yaml read as the EuRoC reader reads it."""
+    from spgeo.datasets import read_calibration
+
+    path = tmp_path / "camchain.yaml"
+    path.write_text(KALIBR)
+    with pytest.raises(InputError, match=r"2 different cameras \(cam0, cam1\)"):
+        read_calibration(path)
+    cam = read_calibration(f"{path}:cam1").camera()
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.size) == (457.587, 456.134, 379.999, 255.238,
+                                                         (752, 480))
+    assert cam.distortion == pytest.approx((-0.28368365, 0.07451284, -0.00010473, -3.5559e-05))
+    assert "Kalibr pinhole-radtan camera cam0" in read_calibration(f"{path}:cam0").describe()
+    root = write_euroc(tmp_path / "seq", frames[:1])
+    sensor = read_calibration(root / "mav0" / "cam0" / "sensor.yaml").camera()
+    assert sensor == EuRoCSequence(root, undistort=False).raw_camera
+
+
+@pytest.mark.parametrize("text, named", [
+    ("1 OPENCV_FISHEYE 160 120 100 100 80 60 0 0 0 0\n", "OPENCV_FISHEYE is not read; "
+     "supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV"),
+    ("1 OPENCV 160 120 100 100 80 60\n", "OPENCV camera has 8 parameters, got 4"),
+    (KALIBR.replace("radtan", "equidistant"), "equidistant is not read; supported: radtan"),
+    (KALIBR.replace("pinhole", "omni"), "camera_model omni is not read; supported: pinhole"),
+    ("fx: 100\nfy: 100\n", "not a calibration file spgeo reads .COLMAP cameras.txt, "
+     "ORB-SLAM settings YAML or Kalibr camchain YAML"),
+])
+def test_unsupported_calibration_refused_naming_it(tmp_path, text, named):
+    from spgeo.datasets import read_calibration
+
+    (tmp_path / "cal.txt").write_text(text)
+    with pytest.raises(InputError, match=named) as err:
+        read_calibration(tmp_path / "cal.txt")
+    assert str(tmp_path / "cal.txt") in str(err.value)
+
+
+def _distorted_folder(tmp_path, frames, n=3):
+    for i, f in enumerate(frames[:n]):
+        cv2.imwrite(str(tmp_path / f"{i:04d}.png"), _bgr8(f))
+    params = [CAM.fx, CAM.fy, CAM.cx + 0.5, CAM.cy + 0.5, -0.2, 0.05, 0.001, 0.0]
+    return write_colmap_cameras(tmp_path.parent / "cameras.txt", (1, "OPENCV", params))
+
+
+def test_calibration_file_camera_undistorts_a_folder(tmp_path, frames):
+    """A folder given a distorted calibration file: the stored camera keeps the
+    distortion, the frames are undistorted (their camera has none), and
+    ``intrinsics`` names the file and model; a file of another size is refused
+    naming both sizes."""
+    (tmp_path / "f").mkdir()
+    cameras = _distorted_folder(tmp_path / "f", frames)
+    seq = open_dataset("folder", tmp_path / "f", given_camera=CameraSpec.from_options(
+        calibration=cameras))
+    assert seq.raw_camera.distortion == pytest.approx((-0.2, 0.05, 0.001, 0.0))
+    assert seq.camera == CAM and seq.camera.distortion is None
+    raw = cv2.cvtColor(cv2.imread(str(tmp_path / "f" / "0001.png")), cv2.COLOR_BGR2RGB) / 255.0
+    image = seq[1].image
+    assert np.abs(image - raw).mean() > 0.01
+    assert np.allclose(image, np.clip(seq.raw_camera.undistort_image(raw.astype(np.float32)),
+                                      0, 1), atol=1e-5)
+    intr = seq.intrinsics
+    assert intr["source"] == "given" and intr["detail"] == (
+        f"--calibration {cameras}: COLMAP OPENCV camera 1")
+    assert intr["cx"] == CAM.cx and intr["distortion"] == pytest.approx([-0.2, 0.05, 0.001, 0.0])
+    small = write_colmap_cameras(tmp_path / "small.txt", (1, "PINHOLE", [50, 50, 40, 30]))
+    small.write_text(small.read_text().replace(f" {W} {H} ", f" {W // 2} {H // 2} "))
+    with pytest.raises(InputError, match=f"is for {W // 2}x{H // 2} images, the images are "
+                                         f"{W}x{H}") as err:
+        open_dataset("folder", tmp_path / "f", given_camera=CameraSpec.from_options(
+            calibration=small))
+    assert str(small) in str(err.value)
+
+
+def test_calibration_file_undistorts_a_reader_without_an_undistort_option(shared_data):
+    """ICL-NUIM's reader has no ``undistort`` option: a distorted calibration
+    file still undistorts its frames (never a distorted camera left in them)."""
+    from spgeo.datasets import Calibration
+
+    cal = Calibration(481.2, 480.0, 319.5, 239.5, (-0.1, 0.0, 0.0, 0.0), (640, 480),
+                      shared_data / "x.txt", "COLMAP", "SIMPLE_RADIAL", "1")
+    seq = open_dataset("icl", shared_data / "icl_nuim_lr_5", frames="1:2")
+    plain = seq[0]
+    seq.set_camera(CameraSpec(calibration=cal), cal.describe())
+    frame = seq[0]
+    assert frame.camera.distortion is None and seq.raw_camera.distortion is not None
+    assert np.abs(frame.image - plain.image).mean() > 0.005
+    assert not np.allclose(frame.depth, plain.depth, equal_nan=True)     # depth alike
+
+
+@pytest.mark.slow
+def test_vo_with_calibration_file(tmp_path, frames):
+    """``spgeo vo --calibration FILE``: report.json's intrinsics say "given" with the
+    file, the model and its distortion."""
+    (tmp_path / "f").mkdir()
+    cameras = _distorted_folder(tmp_path / "f", frames, n=4)
+    out = tmp_path / "out"
+    rc = main(["vo", "--dataset", "folder", str(tmp_path / "f"), "--calibration", str(cameras),
+               "--resolution", f"{W}x{H}", "--no-progress", "--out", str(out)])
+    assert rc in (0, 3)
+    intr = json.loads((out / "report.json").read_text())["intrinsics"]
+    assert intr["source"] == "given" and "COLMAP OPENCV" in intr["detail"]
+    assert (intr["fx"], intr["cx"], intr["width"]) == (CAM.fx, CAM.cx, W)
+    assert intr["distortion"] == pytest.approx([-0.2, 0.05, 0.001, 0.0])
+
+
+@pytest.mark.parametrize("extra, said", [
+    (["--fov", "60"], "--fov and --calibration given"),
+    (["--resolution", f"{W}x{H}"], f"is for {W}x{H // 2} images, the images are {W}x{H}"),
+])
+def test_vo_calibration_file_refused_before_the_run(tmp_path, frames, capsys, extra, said):
+    """Exit 2 naming the problem: --calibration with --fov, a file of another size."""
+    (tmp_path / "f").mkdir()
+    cameras = _distorted_folder(tmp_path / "f", frames, n=2)
+    if "--fov" not in extra:
+        cameras.write_text(cameras.read_text().replace(f" {W} {H} ", f" {W} {H // 2} "))
+    rc = main(["vo", "--dataset", "folder", str(tmp_path / "f"), "--calibration", str(cameras),
+               "--no-progress", "--out", str(tmp_path / "o")] + extra)
+    err = capsys.readouterr().err
+    assert rc == 2 and said in err and not (tmp_path / "o").exists()

@@ -25,7 +25,8 @@ class _DumpConfig(argparse.Action):
         text = config_to_toml(config, title=(
             f"{type(config).__name__} defaults of `{self.command}`; edit, then read with "
             f"`{self.command} --config FILE`\nor, in Python, "
-            f"spgeo.configs.resolve_config({type(config).__name__}(), FILE)"))
+            f"spgeo.configs.resolve_config({type(config).__name__}(), FILE).\nAbove each "
+            "field, what it means (the first clause of its class's docstring entry)."))
         if values == "-":
             sys.stdout.write(text)
         else:

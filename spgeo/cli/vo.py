@@ -1,7 +1,8 @@
 """``spgeo vo``: argument wiring for :func:`spgeo.apps.vo_run.run_dataset`.
 
     spgeo vo --dataset {tum,7scenes,icl,folder,kitti,euroc,video,camera} PATH
-             [--frames A:B[:STEP]] [--intrinsics fx,fy,cx,cy | --fov DEGREES]
+             [--frames A:B[:STEP]]
+             [--intrinsics fx,fy,cx,cy | --fov DEGREES | --calibration FILE[:ID]]
              [--resolution WxH] [--strict]
              [--frontend classical|manhattan|depth|onnx|onnx-depth]
              [--sam-family NAME] [--normal-model NAME|PATH] [--depth-model NAME|PATH]
@@ -17,8 +18,10 @@ explicit options (``--resolution``, ``--strict``, ``--frontend``, ...) override
 processing size keeps the input's aspect ratio at about 320x240 pixels
 (:func:`spgeo.vo.processing.processing_size`).  A frame whose file cannot be read
 is skipped (status ``skipped``, listed in report.json) unless ``--strict``,
-which stops with exit code 2 naming the file.  ``--intrinsics`` / ``--fov``
-replace the input's camera (:class:`spgeo.datasets.CameraSpec`); without them an
+which stops with exit code 2 naming the file.  ``--intrinsics`` / ``--fov`` /
+``--calibration`` (a COLMAP, ORB-SLAM or Kalibr file,
+:mod:`spgeo.datasets.calibration_files`) replace the input's camera
+(:class:`spgeo.datasets.CameraSpec`); without them an
 input with no calibration (a video, a camera, a folder without intrinsics) gets
 guessed intrinsics, with a warning; ``report.json``'s ``intrinsics`` says which.
 ``--mesh`` fuses the keyframes'
@@ -61,7 +64,8 @@ timestamps such as 7-Scenes), OUT/keyframes.txt, OUT/trajectory.status.txt,
 OUT/report.json (with the per-frame and keyframe-only Sim(3) ATE under "ate"
 when the data set has ground truth, the OdometryConfig under "config" and the
 rest of the run config under "run_config", the input camera under
-"intrinsics" with "source": "file", "given" (--intrinsics / --fov) or
+"intrinsics" with "source": "file", "given" (--intrinsics / --fov /
+--calibration) or
 "guessed" (no calibration: EXIF focal length, else a default field of view;
 also a warning on stderr)) and keyframe point clouds in OUT/clouds/; with --mesh,
 the fused OUT/mesh.ply and OUT/cloud.ply (TSDF of the keyframes' depth maps;
@@ -114,14 +118,18 @@ def _run_config(args: argparse.Namespace):
 
 
 def _given_camera(args: argparse.Namespace):
-    """The :class:`~spgeo.datasets.CameraSpec` of ``--intrinsics`` / ``--fov``
-    (None without either); :class:`InputError` naming a bad value."""
+    """The :class:`~spgeo.datasets.CameraSpec` of ``--intrinsics`` / ``--fov`` /
+    ``--calibration`` (None without any; the calibration file read now);
+    :class:`InputError` naming a bad value, or more than one given."""
     from ..datasets import CameraSpec
 
-    if args.intrinsics is not None and args.fov is not None:
-        raise InputError("give --intrinsics or --fov, not both")
+    given = [o for o, v in (("--intrinsics", args.intrinsics), ("--fov", args.fov),
+                            ("--calibration", args.calibration)) if v is not None]
+    if len(given) > 1:
+        raise InputError(f"give one of --intrinsics, --fov and --calibration, not both "
+                         f"({' and '.join(given)} given)")
     values = None if args.intrinsics is None else parse_intrinsics(args.intrinsics)
-    return CameraSpec.from_options(values, args.fov)
+    return CameraSpec.from_options(values, args.fov, args.calibration)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -222,7 +230,8 @@ def _fuse(run, viewer):
 def _export(args: argparse.Namespace, run, given) -> None:
     """The COLMAP and nerfstudio exports asked for (keyframes, or every frame not
     lost with ``--all-frames``: the frames are read again, the run keeps only
-    the keyframes' images, with the camera ``given`` by --intrinsics / --fov)."""
+    the keyframes' images, with the camera ``given`` by --intrinsics / --fov /
+    --calibration)."""
     kind, path = args.dataset
 
     def frames():
@@ -269,6 +278,24 @@ def _add_output_arguments(p: argparse.ArgumentParser) -> None:
                         "placed within max_lost_frames, a map of the run's own starts")
 
 
+def _add_camera_arguments(p: argparse.ArgumentParser) -> None:
+    """``--intrinsics`` / ``--fov`` / ``--calibration``: the input's camera
+    (:func:`_given_camera`)."""
+    p.add_argument("--intrinsics", default=None, metavar="fx,fy,cx,cy",
+                   help="camera intrinsics in pixels of the input images (replace the "
+                        "data set's calibration; no distortion)")
+    p.add_argument("--fov", default=None, metavar="DEGREES",
+                   help=f"horizontal field of view in ({FOV_RANGE_DEG[0]:g}, {FOV_RANGE_DEG[1]:g}) "
+                        "degrees, principal point at the centre (instead of --intrinsics)")
+    p.add_argument("--calibration", default=None, metavar="FILE[:ID]",
+                   help="camera calibration of the input images (instead of --intrinsics) "
+                        "from a COLMAP cameras.txt (PINHOLE, SIMPLE_PINHOLE, OPENCV, "
+                        "FULL_OPENCV, SIMPLE_RADIAL, RADIAL), an ORB-SLAM2/3 settings YAML or "
+                        "a Kalibr camchain YAML: its distortion is removed from the images, "
+                        "its image size must be theirs; FILE:ID picks one camera of a file "
+                        "holding several")
+
+
 def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     """Register ``spgeo vo`` on an argparse sub-parser collection."""
     p = subparsers.add_parser(
@@ -280,12 +307,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", default=None, metavar="A:B[:STEP]",
                    help="frame numbers A <= n < B, every STEP-th (default: all; a camera "
                         "stops at B)")
-    p.add_argument("--intrinsics", default=None, metavar="fx,fy,cx,cy",
-                   help="camera intrinsics in pixels of the input images (replace the "
-                        "data set's calibration; no distortion)")
-    p.add_argument("--fov", default=None, metavar="DEGREES",
-                   help=f"horizontal field of view in ({FOV_RANGE_DEG[0]:g}, {FOV_RANGE_DEG[1]:g}) "
-                        "degrees, principal point at the centre (instead of --intrinsics)")
+    _add_camera_arguments(p)
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "

@@ -19,7 +19,8 @@
 
 :func:`open_dataset` is the factory the CLI uses (the kinds in quotes above); :func:`parse_frame_range`
 parses ``--frames A:B[:S]`` (selection by frame number ``A <= n < B``, step S).
-Calibration when there is none (:mod:`spgeo.datasets.calibration`):
+Calibration when there is none (:mod:`spgeo.datasets.calibration`; another
+tool's calibration file, :func:`read_calibration`):
 ``open_dataset(..., given_camera=CameraSpec(...))`` replaces any reader's camera,
 and the readers without a calibration file guess one (a warning); every reader's
 ``intrinsics`` says which (``source`` ``"file"`` | ``"given"`` | ``"guessed"``).
@@ -33,6 +34,7 @@ from typing import Optional, Union
 
 from .calibration import (DEFAULT_HFOV_DEG, CameraSpec, camera_from_fov, guess_camera,
                           intrinsics_report)
+from .calibration_files import Calibration, read_calibration
 from .common import (CameraSource, FrameSelection, FrameSequence, parse_frame_range,
                      select_frames)
 from .euroc import EuRoCConfig, EuRoCSequence
@@ -56,7 +58,7 @@ __all__ = [
     "ScanNetConfig", "ScanNetScene", "VOIDDataset", "VOIDSample", "KITTIConfig",
     "KITTISequence", "EuRoCConfig", "EuRoCSequence", "VideoConfig", "VideoSequence",
     "CameraStream", "CameraSource", "CameraSpec", "camera_from_fov", "guess_camera",
-    "intrinsics_report", "DEFAULT_HFOV_DEG",
+    "intrinsics_report", "DEFAULT_HFOV_DEG", "Calibration", "read_calibration",
     "DATASET_KINDS", "open_dataset", "bundled_tum_path", "load_bundled_tum",
 ]
 
@@ -96,9 +98,11 @@ def open_dataset(kind: str, path: Union[str, Path], given_camera: Optional[Camer
     without length).  Keyword arguments are the fields of the reader's config
     (e.g. ``frames="0:100:2"``, ``load_depth=False``, ``undistort=False``) or
     ``config=`` a config object.  ``given_camera`` (``--intrinsics`` /
-    ``--fov``) replaces the reader's camera, built at the stored image size
-    without distortion; the reader's ``intrinsics["source"]`` is then
-    ``"given"``.  Raises ``ValueError`` for an unknown kind and ``TypeError``
+    ``--fov`` / ``--calibration``) replaces the reader's camera, built at the
+    stored image size (without distortion, but a calibration file's, which
+    the reader then undistorts; a file for another size is an
+    :class:`~spgeo.validation.InputError` naming both); the reader's
+    ``intrinsics["source"]`` is then ``"given"``.  Raises ``ValueError`` for an unknown kind and ``TypeError``
     for an option the reader does not have.
     """
     key = _ALIASES.get(str(kind).strip().lower())

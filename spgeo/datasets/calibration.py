@@ -2,10 +2,13 @@
 horizontal field of view, or a guess.
 
 * :class:`CameraSpec`: intrinsics the user gives (``fx, fy, cx, cy`` in pixels,
-  or a horizontal field of view in degrees) without the image size; its
+  a horizontal field of view in degrees, or a calibration file of another tool,
+  :mod:`spgeo.datasets.calibration_files`) without the image size; its
   :meth:`CameraSpec.camera` builds the :class:`~spgeo.camera.PinholeCamera`
-  once a reader knows the size.  Given intrinsics describe the stored images
-  as an undistorted pinhole camera (a reader's distortion is dropped).
+  once a reader knows the size.  Intrinsics or a field of view describe the
+  stored images as an undistorted pinhole camera (a reader's distortion is
+  dropped); a calibration file keeps its distortion (the reader undistorts)
+  and must be of the images' size.
 * :func:`camera_from_fov`: fx = fy from a horizontal field of view, principal
   point at the image centre.
 * :func:`guess_camera`: the 35 mm-equivalent focal length of the image's EXIF
@@ -28,6 +31,7 @@ from typing import Optional, Sequence, Tuple, Union
 
 from ..camera import PinholeCamera
 from ..validation import FOV_RANGE_DEG, InputError
+from .calibration_files import Calibration, read_calibration
 
 __all__ = ["CameraSpec", "DEFAULT_HFOV_DEG", "FULL_FRAME_DIAGONAL_MM",
            "camera_from_fov", "camera_from_focal_35mm", "exif_focal_35mm", "guess_camera",
@@ -128,8 +132,8 @@ def guess_camera(width: int, height: int, image_path: Union[str, Path, None] = N
     The EXIF 35 mm-equivalent focal length of ``image_path`` when present
     (:func:`camera_from_focal_35mm`), else :data:`DEFAULT_HFOV_DEG`
     (:func:`camera_from_fov`).  Logs a warning ``intrinsics guessed: ...``
-    naming ``what``, the method and the camera (give ``--intrinsics`` or
-    ``--fov`` to replace it).  Returns ``(camera, method)``.
+    naming ``what``, the method and the camera (give ``--intrinsics``,
+    ``--fov`` or ``--calibration`` to replace it).  Returns ``(camera, method)``.
     """
     focal = exif_focal_35mm(image_path)
     camera = None
@@ -143,7 +147,8 @@ def guess_camera(width: int, height: int, image_path: Union[str, Path, None] = N
         camera = camera_from_fov(width, height, DEFAULT_HFOV_DEG)
         method = f"default horizontal field of view {DEFAULT_HFOV_DEG:g} degrees"
     logger.warning("intrinsics guessed: %s has no calibration; %s gives fx=%.1f fy=%.1f "
-                   "cx=%.1f cy=%.1f (pass --intrinsics fx,fy,cx,cy or --fov DEGREES)",
+                   "cx=%.1f cy=%.1f (pass --intrinsics fx,fy,cx,cy, --fov DEGREES or "
+                   "--calibration FILE)",
                    what, method, camera.fx, camera.fy, camera.cx, camera.cy)
     return camera, method
 
@@ -156,6 +161,9 @@ class CameraSpec:
         intrinsics: ``(fx, fy, cx, cy)`` in pixels of the stored images, or None.
         fov_deg: horizontal field of view in degrees (strictly inside
             :data:`~spgeo.validation.FOV_RANGE_DEG`), or None.
+        calibration: a camera read from a calibration file
+            (:func:`~spgeo.datasets.calibration_files.read_calibration`: its
+            distortion kept, its image size checked against the images'), or None.
 
     Exactly one must be set; construction raises
     :class:`~spgeo.validation.InputError` naming the bad value otherwise.
@@ -163,13 +171,15 @@ class CameraSpec:
 
     intrinsics: Optional[Tuple[float, float, float, float]] = None
     fov_deg: Optional[float] = None
+    calibration: Optional[Calibration] = None
 
     def __post_init__(self) -> None:
-        if (self.intrinsics is None) == (self.fov_deg is None):
-            raise InputError("give either --intrinsics fx,fy,cx,cy or --fov DEGREES, not both")
+        if sum(v is not None for v in (self.intrinsics, self.fov_deg, self.calibration)) != 1:
+            raise InputError("give one of --intrinsics fx,fy,cx,cy, --fov DEGREES and "
+                             "--calibration FILE, not both")
         if self.fov_deg is not None:
             object.__setattr__(self, "fov_deg", check_fov(self.fov_deg))
-        else:
+        elif self.intrinsics is not None:
             vals = tuple(self.intrinsics)
             if len(vals) != 4:
                 raise InputError(f"--intrinsics must be fx,fy,cx,cy, got {self.intrinsics!r}")
@@ -177,21 +187,33 @@ class CameraSpec:
 
     @classmethod
     def from_options(cls, intrinsics: Optional[Sequence[float]] = None,
-                     fov_deg: Optional[float] = None) -> Optional["CameraSpec"]:
-        """A spec from optional ``--intrinsics`` / ``--fov`` values; None when both are None."""
-        if intrinsics is None and fov_deg is None:
+                     fov_deg: Optional[float] = None,
+                     calibration: Union[None, str, Path] = None) -> Optional["CameraSpec"]:
+        """A spec from optional ``--intrinsics`` / ``--fov`` / ``--calibration
+        FILE[:ID]`` values (the file read by
+        :func:`~spgeo.datasets.calibration_files.read_calibration`); None when
+        all are None."""
+        if intrinsics is None and fov_deg is None and calibration is None:
             return None
-        return cls(None if intrinsics is None else tuple(intrinsics), fov_deg)
+        return cls(None if intrinsics is None else tuple(intrinsics), fov_deg,
+                   None if calibration is None else read_calibration(calibration))
 
     def camera(self, width: int, height: int) -> PinholeCamera:
-        """The camera of a ``width`` x ``height`` image (no distortion)."""
+        """The camera of a ``width`` x ``height`` image (no distortion, but a
+        calibration file's; :class:`~spgeo.validation.InputError` naming the file
+        and both sizes when the file is for another size)."""
+        if self.calibration is not None:
+            return self.calibration.camera(width, height)
         if self.fov_deg is not None:
             return camera_from_fov(width, height, self.fov_deg)
         fx, fy, cx, cy = self.intrinsics
         return PinholeCamera(fx, fy, cx, cy, int(width), int(height))
 
     def describe(self) -> str:
-        """``--fov 60`` or ``--intrinsics fx,fy,cx,cy`` as given."""
+        """``--fov 60``, ``--intrinsics fx,fy,cx,cy`` as given, or ``--calibration
+        FILE[:ID] (TOOL MODEL)``."""
+        if self.calibration is not None:
+            return self.calibration.describe()
         if self.fov_deg is not None:
             return f"--fov {self.fov_deg:g}"
         return "--intrinsics " + ",".join(f"{v:g}" for v in self.intrinsics)

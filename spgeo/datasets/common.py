@@ -227,7 +227,9 @@ class CameraSource:
         """Replace the reader's camera by one the user gives (source ``"given"``):
         a :class:`PinholeCamera` of the stored image size or a
         :class:`~spgeo.datasets.calibration.CameraSpec` (built at that size; no
-        distortion).  Raises :class:`~spgeo.validation.InputError` for another size."""
+        distortion but a calibration file's, which the images then lose when
+        the reader undistorts).  Raises :class:`~spgeo.validation.InputError`
+        for another size."""
         width, height = self._raw_camera.size
         if isinstance(camera, CameraSpec):
             detail = detail or camera.describe()
@@ -342,7 +344,8 @@ class FrameSequence(CameraSource, _SequenceABC):
         :meth:`_check_config`; then ``self.config``, ``self.root`` (``path``;
         ``FileNotFoundError`` "``<what>`` not found: ``<path>``" unless it is a
         folder), the name (the folder name) and undistortion
-        (``config.undistort``; off for configs without that field) are set.
+        (``config.undistort``; on for configs without that field: their files
+        carry no distortion, a given calibration file may) are set.
         """
         cfg = config_from_kwargs(config_cls, config, kwargs, type(self).__name__)
         self._check_config(cfg)
@@ -352,7 +355,7 @@ class FrameSequence(CameraSource, _SequenceABC):
             raise FileNotFoundError(f"{what} not found: {root}")
         self.root = root
         self._name = root.resolve().name
-        self._undistort = bool(getattr(cfg, "undistort", False))
+        self._undistort = bool(getattr(cfg, "undistort", True))
         return cfg
 
     def _check_config(self, config: Any) -> None:

@@ -37,7 +37,8 @@ from ..frame import Frame
 from ..geometry import pose_from_tum
 from ..validation import InputError, check_input_file
 from .common import FileRecord, FrameSelection, FrameSequence, select_frames
-from .files import PathLike, check_increasing, check_selection_files, nearest_rigid, read_rgb
+from .files import (PathLike, check_increasing, check_selection_files, nearest_rigid, read_rgb,
+                    yaml_number_list)
 from .tum import associate
 
 __all__ = ["EuRoCConfig", "EuRoCSequence", "read_euroc_sensor", "read_euroc_csv"]
@@ -94,18 +95,6 @@ def read_euroc_csv(path: PathLike, n_min: int) -> Tuple[np.ndarray, List[List[st
     return np.asarray(stamps, dtype=np.float64), rows
 
 
-def _yaml_list(text: str, key: str, path: Path, size: int) -> np.ndarray:
-    """The numbers of ``key: [a, b, ...]`` (possibly over several lines) in ``text``."""
-    m = re.search(rf"^\s*{key}\s*:\s*\[([^\]]*)\]", text, re.MULTILINE)
-    try:
-        vals = np.array([float(v) for v in m.group(1).replace(",", " ").split()]) if m else None
-    except ValueError:
-        vals = None
-    if vals is None or vals.size != size or not np.all(np.isfinite(vals)):
-        raise InputError(f"{path}: '{key}' must be a list of {size} numbers")
-    return vals
-
-
 def read_euroc_sensor(path: PathLike) -> Tuple[PinholeCamera, np.ndarray]:
     """``sensor.yaml`` of a camera -> ``(camera with its radial-tangential
     distortion, T_BS: 4x4 camera-to-body)``.  Only the pinhole model with
@@ -118,15 +107,15 @@ def read_euroc_sensor(path: PathLike) -> Tuple[PinholeCamera, np.ndarray]:
     if model and model.group(1) not in ("radial-tangential", "radtan", "none"):
         raise InputError(f"{path}: distortion_model {model.group(1)!r} is not supported "
                          "(radial-tangential only)")
-    fu, fv, cu, cv = _yaml_list(text, "intrinsics", path, 4)
-    w, h = (int(v) for v in _yaml_list(text, "resolution", path, 2))
+    fu, fv, cu, cv = yaml_number_list(text, "intrinsics", path, 4)
+    w, h = (int(v) for v in yaml_number_list(text, "resolution", path, 2))
     dist = None
     if model is None or model.group(1) != "none":
-        dist = tuple(_yaml_list(text, "distortion_coefficients", path, 4))
+        dist = tuple(yaml_number_list(text, "distortion_coefficients", path, 4))
     tbs = re.search(r"^\s*T_BS\s*:(.*?)\bdata\s*:\s*\[([^\]]*)\]", text, re.MULTILINE | re.DOTALL)
     if tbs is None:
         raise InputError(f"{path}: no T_BS data")
-    T_BS = _yaml_list("data: [" + tbs.group(2) + "]", "data", path, 16).reshape(4, 4)
+    T_BS = yaml_number_list("data: [" + tbs.group(2) + "]", "data", path, 16).reshape(4, 4)
     try:
         camera = PinholeCamera(fu, fv, cu, cv, w, h, dist)
     except ValueError as exc:

@@ -24,7 +24,7 @@ from ..validation import ImageSizeMismatch, InputError, check_input_file
 
 __all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
            "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
-           "parse_stamp", "check_increasing"]
+           "parse_stamp", "check_increasing", "yaml_number_list"]
 
 logger = logging.getLogger(__name__)
 
@@ -185,3 +185,18 @@ def check_selection_files(paths: Sequence[Path], what: str) -> None:
             raise InputError(f"{what} path listed is a folder, not a file: {p}")
         if not p.is_file():
             raise FileNotFoundError(f"{what} file listed but missing: {p}")
+
+
+def yaml_number_list(text: str, key: str, path: Path, size: int) -> np.ndarray:
+    """The ``size`` numbers of the first line ``key: [a, b, ...]`` (the list possibly
+    over several lines) of the YAML ``text`` read from ``path``;
+    :class:`~spgeo.validation.InputError` naming the file and key when there is no
+    such list of ``size`` finite numbers."""
+    m = re.search(rf"^\s*{key}\s*:\s*\[([^\]]*)\]", text, re.MULTILINE)
+    try:
+        vals = np.array([float(v) for v in m.group(1).replace(",", " ").split()]) if m else None
+    except ValueError:
+        vals = None
+    if vals is None or vals.size != size or not np.all(np.isfinite(vals)):
+        raise InputError(f"{path}: '{key}' must be a list of {size} numbers")
+    return vals

@@ -18,6 +18,8 @@ Layout::
   world frame whose y axis is the file's y negated).  Relative poses are then
   ``S T_rel S`` (checked by photometric warps in ``tests/test_datasets.py``).
 * **Depth** in these PNGs is z-depth along the optical axis (not ray length).
+* The images have no distortion; a given camera with distortion
+  (``--calibration``) is undistorted, images and depth alike.
 """
 from __future__ import annotations
 
@@ -152,10 +154,11 @@ class ICLSequence(FrameSequence):
                                             None if T is None else icl_pose_to_opencv(T)))
 
     def _load(self, index: int, rec: FileRecord) -> Frame:
-        image = read_rgb(rec.color_path, self._raw_camera)
+        image = self._finish_image(read_rgb(rec.color_path, self._raw_camera))
         depth = None
         if self.config.load_depth:
-            depth = read_depth_png(rec.depth_path, self.config.depth_scale, self._raw_camera)
+            depth = self._finish_depth(read_depth_png(rec.depth_path, self.config.depth_scale,
+                                                      self._raw_camera))
         meta = {"dataset": "icl", "sequence": self._name, "index": index,
                 "frame_number": rec.number, "rgb_path": str(rec.color_path),
                 "depth_path": str(rec.depth_path) if depth is not None else None,

@@ -74,7 +74,8 @@ class KITTIConfig:
         frames: selection by frame number ``NNNNNN`` (``"A:B[:S]"``, slice, range,
             list; default None = all).
         load_depth: accepted for the runner's sake; KITTI odometry has no depth.
-        undistort: accepted for symmetry; the images are rectified.
+        undistort: undistort when a given camera (``--calibration``) carries
+            distortion (default True; KITTI's own images are rectified).
     """
 
     image_dir: Optional[str] = None
