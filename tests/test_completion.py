@@ -2,6 +2,8 @@
 the VOID protocol (on a synthetic set in the VOID layout) and `spgeo complete`."""
 from __future__ import annotations
 
+import logging
+
 import cv2
 import numpy as np
 import pytest
@@ -210,6 +212,35 @@ def test_complete_depth_honours_its_points_up_to_the_residual_clip():
     for bad in (-0.1, float("nan")):
         with pytest.raises(ValueError, match="residual_clip"):
             CompletionConfig(residual_clip=bad)
+
+
+def test_dense_sparse_input_is_subsampled_and_said(caplog):
+    """Issue 53: dense depth passed as sparse (every pixel) is subsampled to
+    max_sparse_points, deterministically, with a warning naming both counts, and the
+    result says so; a genuinely sparse input is untouched."""
+    cam, prims, depth = _two_plane_set()
+    image = np.zeros((48, 64, 3), np.float32)
+    cfg = CompletionConfig(max_sparse_points=200, **PAPER)
+    with caplog.at_level(logging.WARNING, logger="spgeo.completion.complete"):
+        res = complete_depth(image, depth, cam, prims, cfg)
+    assert "3072 valid points (100% of the pixels: dense depth?); 200 of them kept" in caplog.text
+    assert (res.n_sparse, res.n_sparse_given, res.sparse_subsampled) == (200, 3072, True)
+    assert "from 200 points (subsampled from 3072)" in res.summary()
+    assert res.n_points.sum() == 200
+    np.testing.assert_allclose(res.depth, depth, rtol=1e-4)     # exact primitives
+    again = complete_depth(image, depth, cam, prims, cfg)
+    np.testing.assert_array_equal(again.depth, res.depth)
+    caplog.clear()
+    sparse = np.zeros_like(depth)
+    sparse[::8, ::8] = depth[::8, ::8]                          # 48 points: untouched
+    with caplog.at_level(logging.WARNING, logger="spgeo.completion.complete"):
+        res = complete_depth(image, sparse, cam, prims, CompletionConfig(max_sparse_points=48,
+                                                                         **PAPER))
+    assert (res.n_sparse, res.n_sparse_given, res.sparse_subsampled) == (48, 48, False)
+    assert "subsampled" not in res.summary() and "dense depth" not in caplog.text
+    assert CompletionConfig().max_sparse_points == 25000
+    with pytest.raises(ValueError, match="max_sparse_points"):
+        CompletionConfig(max_sparse_points=0)
 
 
 def test_low_coverage_falls_back_to_linear_interpolation():
@@ -471,3 +502,22 @@ def test_cli_complete_end_to_end(tmp_path, capsys):
                  "--out", str(tmp_path / "x.png")]) == 2
     assert main(["complete", "--rgb", str(rgb), "--sparse", str(tmp_path / "missing.png"),
                  "--intrinsics", intr, "--out", str(tmp_path / "x.png")]) == 2
+
+
+def test_cli_complete_dense_sparse_input_is_subsampled(tmp_path, capsys, caplog):
+    """Issue 53: dense depth given as --sparse is subsampled with a logged warning, and
+    the printed summary says how many points were given and kept."""
+    from spgeo.cli import main
+
+    view, cam, rgb, _ = write_completion_inputs(tmp_path)
+    dense = tmp_path / "dense.npy"
+    np.save(dense, view.depth)
+    n_valid = int(np.count_nonzero(np.nan_to_num(view.depth) > 0))
+    rc = main(["complete", "--rgb", str(rgb), "--sparse", str(dense), "--intrinsics",
+               f"{cam.fx},{cam.fy},{cam.cx},{cam.cy}", "--out", str(tmp_path / "d.png"),
+               "--set", "max_sparse_points=300"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert f"from 300 points (subsampled from {n_valid})" in out
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any(f"{n_valid} valid points" in m and "300 of them kept" in m for m in warned)

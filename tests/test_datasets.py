@@ -18,10 +18,12 @@ from spgeo.datasets import (ICL_CAMERA, FolderSequence, ICLSequence, SevenScenes
                             TUMSequence, associate, bundled_tum_path, interpolate_poses,
                             load_bundled_tum, open_dataset, parse_frame_range, photometric_error,
                             read_tum_groundtruth, select_frames, tum_camera, warp_image)
+from spgeo.datasets.files import stamp_from_name, stamped_files
 from spgeo.datasets.icl import icl_pose_to_opencv, read_icl_poses
 from spgeo.datasets.tum import detect_tum_calibration
 from spgeo.frame import Frame
 from spgeo.geometry import pose_from_tum, relative_pose, rotation_angle_deg
+from spgeo.validation import InputError
 
 
 # --------------------------------------------------------------------- helpers
@@ -288,11 +290,62 @@ def test_tum_missing_listed_file(tmp_path):
         seq[1]
 
 
-def test_tum_missing_rgb_txt(tmp_path):
+def test_tum_missing_rgb_txt_and_rgb_folder(tmp_path):
     root = _copy_tum(tmp_path)
     (root / "rgb.txt").unlink()
+    shutil.rmtree(root / "rgb")
     with pytest.raises(FileNotFoundError, match="rgb.txt"):
         TUMSequence(root)
+
+
+def _same_frames(got, want):
+    for a, b in zip(got, want):
+        assert (a.name, a.timestamp, a.meta["depth_timestamp"]) == \
+            (b.name, b.timestamp, b.meta["depth_timestamp"])
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.depth, b.depth)      # NaN where invalid, both
+        np.testing.assert_array_equal(a.T_world_cam, b.T_world_cam)
+
+
+def test_tum_without_rgb_txt_times_frames_by_their_file_names(tmp_path, caplog):
+    """Issue 53: a TUM folder without rgb.txt / depth.txt lists rgb/ and depth/ and takes
+    each stamp from the file name: the same frames, stamps, images, depth association
+    and ground-truth poses as with the list files; non-image files are ignored."""
+    root = _copy_tum(tmp_path, n=5)
+    listed = TUMSequence(root)
+    want = listed[:]
+    assert sum(f.depth is not None for f in want) == 5
+    (root / "rgb.txt").unlink()
+    (root / "depth.txt").unlink()
+    (root / "rgb" / "README").write_text("not an image")
+    with caplog.at_level(logging.INFO, logger="spgeo.datasets.tum"):
+        seq = TUMSequence(root)
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "no rgb.txt: the 5 images of rgb/ are timed by their file names" in said
+    assert "no depth.txt: the 5 images of depth/" in said
+    np.testing.assert_array_equal(seq.timestamps, listed.timestamps)
+    assert seq.timestamps[0] == 1305031453.359684
+    _same_frames(seq[:], want)
+    # rgb.txt back, depth/ listed: the same association
+    (root / "rgb.txt").write_text("".join(f"{f.timestamp:.6f} rgb/{f.name}.png\n" for f in want))
+    _same_frames(TUMSequence(root)[:], want)
+    # a name that is not a timestamp is named
+    shutil.copy(root / "depth" / f"{want[0].meta['depth_path'].split('/')[-1]}",
+                root / "depth" / "frame7.png")
+    with pytest.raises(InputError, match=r"depth/frame7\.png: its name is not a timestamp"):
+        TUMSequence(root)
+    assert len(TUMSequence(root, load_depth=False)) == 5    # depth/ not read
+
+
+def test_stamped_file_names():
+    assert stamp_from_name("1305031102.175304") == 1305031102.175304
+    assert stamp_from_name("1403636579763555584") == 1403636579763555584 * 1e-9
+    for not_a_time in ("000123", "12345678901234567", "img1", "1e9", "-1.5", "1.5.0", ""):
+        assert stamp_from_name(not_a_time) is None, not_a_time
+    paths, times = stamped_files([Path("b/2.5.png"), Path("b/1.25.png")], "rgb")
+    assert paths == [Path("b/1.25.png"), Path("b/2.5.png")] and list(times) == [1.25, 2.5]
+    with pytest.raises(InputError, match=r"1\.5\.png and .*1\.50\.png"):
+        stamped_files([Path("1.5.png"), Path("1.50.png")], "rgb")
 
 
 def test_tum_corrupt_image(tmp_path):
@@ -530,3 +583,55 @@ def test_folder_errors(tmp_path):
     seq = FolderSequence(root)
     with pytest.raises(ValueError, match="img2.png"):
         seq[1]
+
+
+def test_folder_of_timestamp_names_is_in_time_order(tmp_path, caplog):
+    """Issue 53: when every image name is a time (TUM's seconds, EuRoC's 19-digit
+    nanoseconds) the frames are in time order and timed by their names, so that
+    trajectory.txt matches the data set's ground truth; otherwise nothing changes."""
+    rng = np.random.default_rng(4)
+    root = tmp_path / "secs"
+    root.mkdir()
+    # natural name order would put .2 (2) before .175304 (175304)
+    stems = ["1305031102.2", "1305031102.175304", "1305031103.0"]
+    for stem in stems:
+        cv2.imwrite(str(root / f"{stem}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    (root / "intrinsics.txt").write_text("30 31 15.5 11.5\n")
+    with caplog.at_level(logging.INFO, logger="spgeo.datasets.folder"):
+        seq = FolderSequence(root)
+    assert "the 3 image names are timestamps" in caplog.text
+    np.testing.assert_array_equal(seq.timestamps, [1305031102.175304, 1305031102.2, 1305031103.0])
+    assert [f.name for f in seq[:]] == [stems[1], stems[0], stems[2]]
+    assert [f.timestamp for f in seq[:]] == list(seq.timestamps)
+    assert FolderSequence(root, frames="1:").timestamps[0] == 1305031102.2
+    ns = tmp_path / "ns"
+    ns.mkdir()
+    for stem in ["1403636579813555456", "1403636579763555584"]:
+        cv2.imwrite(str(ns / f"{stem}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    np.testing.assert_array_equal(FolderSequence(ns).timestamps,      # as EuRoC's reader
+                                  [1403636579763555584 * 1e-9, 1403636579813555456 * 1e-9])
+    # one name that is not a time, or frame-number names: positions as before
+    cv2.imwrite(str(root / "extra.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    assert list(FolderSequence(root).timestamps) == [0.0, 1.0, 2.0, 3.0]
+    nums = tmp_path / "nums"
+    nums.mkdir()
+    for stem in ["000010", "000011"]:
+        cv2.imwrite(str(nums / f"{stem}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    assert list(FolderSequence(nums).timestamps) == [0.0, 1.0]
+
+
+def test_folder_depth_scale(tmp_path):
+    """Issue 53: depth PNGs read back as raw / depth_scale (TUM's 5000, the default 1000
+    = millimetres); a scale that is not a finite number > 0 is refused naming it."""
+    rng = np.random.default_rng(2)
+    root, _, depth_raw, _ = _write_folder(tmp_path, rng)
+    d_mm = FolderSequence(root)[0].depth
+    d_tum = FolderSequence(root, depth_scale=5000)[0].depth
+    np.testing.assert_allclose(d_mm[1:], depth_raw[1:] / 1000.0, rtol=1e-6)
+    np.testing.assert_allclose(d_tum[1:], depth_raw[1:] / 5000.0, rtol=1e-6)
+    assert np.isnan(d_tum[0, 0])
+    for bad in (0, -5000, float("nan"), float("inf")):
+        with pytest.raises(InputError, match=f"depth scale must be a finite number > 0.*{bad}"):
+            FolderSequence(root, depth_scale=bad)
+    with pytest.raises(InputError, match="got 0"):
+        TUMSequence(bundled_tum_path(), depth_scale=0)

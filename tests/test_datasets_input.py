@@ -17,6 +17,7 @@ from spgeo.datasets import (DEFAULT_HFOV_DEG, CameraSpec, EuRoCSequence, FolderS
                             KITTISequence, VideoSequence, camera_from_fov, guess_camera,
                             open_dataset)
 from spgeo.geometry import invert_pose, rot_to_quat, so3_exp
+from spgeo.tum_files import read_tum_arrays
 from spgeo.validation import FOV_RANGE_DEG, InputError, check_intrinsics
 
 W, H = 160, 120
@@ -714,3 +715,29 @@ def test_vo_calibration_file_refused_before_the_run(tmp_path, frames, capsys, ex
                "--no-progress", "--out", str(tmp_path / "o")] + extra)
     err = capsys.readouterr().err
     assert rc == 2 and said in err and not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_vo_on_a_folder_of_timestamp_names_with_a_depth_scale(tmp_path, frames):
+    """Issue 53: a folder of EuRoC-style nanosecond names and TUM-scale depth PNGs
+    (``--depth-scale 5000``): trajectory.txt carries the names' times and, with the
+    depth front-end, metric positions (the ground truth's path length)."""
+    folder = tmp_path / "cam0"
+    (folder / "depth").mkdir(parents=True)
+    t0 = 1403636579763555584
+    names = [str(t0 + i * 50_000_000) for i in range(8)]
+    for name, f in zip(names, frames):
+        assert cv2.imwrite(str(folder / f"{name}.png"), _bgr8(f))
+        raw = np.clip(np.round(np.nan_to_num(f.depth) * 5000), 0, 65535).astype(np.uint16)
+        assert cv2.imwrite(str(folder / "depth" / f"{name}.png"), raw)
+    (folder / "intrinsics.txt").write_text(f"{CAM.fx} {CAM.fy} {CAM.cx} {CAM.cy}\n")
+    out = tmp_path / "out"
+    assert main(["vo", "--dataset", "folder", str(folder), "--frontend", "depth",
+                 "--depth-scale", "5000", "--no-progress", "--out", str(out)]) == 0
+    stamps, poses = read_tum_arrays(out / "trajectory.txt")
+    assert len(stamps) == 8
+    np.testing.assert_allclose(stamps, [int(n) * 1e-9 for n in names], rtol=0, atol=1e-6)
+    gt = [f.T_world_cam for f in frames[:8]]
+    ratio = (np.linalg.norm(poses[-1][:3, 3] - poses[0][:3, 3])
+             / np.linalg.norm(gt[-1][:3, 3] - gt[0][:3, 3]))
+    assert 0.9 < ratio < 1.1, ratio

@@ -3,6 +3,7 @@
     spgeo vo --dataset {tum,7scenes,icl,folder,kitti,euroc,video,camera} PATH
              [--frames A:B[:STEP]]
              [--intrinsics fx,fy,cx,cy | --fov DEGREES | --calibration FILE[:ID]]
+             [--depth-scale UNITS_PER_METRE]
              [--resolution WxH] [--strict]
              [--frontend classical|manhattan|depth|onnx|onnx-depth]
              [--sam-family NAME] [--normal-model NAME|PATH] [--depth-model NAME|PATH]
@@ -24,6 +25,10 @@ which stops with exit code 2 naming the file.  ``--intrinsics`` / ``--fov`` /
 (:class:`spgeo.datasets.CameraSpec`); without them an
 input with no calibration (a video, a camera, a folder without intrinsics) gets
 guessed intrinsics, with a warning; ``report.json``'s ``intrinsics`` says which.
+``--depth-scale`` sets the raw depth-PNG units per metre of the readers of depth
+PNGs (tum, 7scenes, icl, folder; their ``depth_scale``), e.g. 5000 for TUM's
+PNGs in a plain folder; a non-positive or non-finite value, or a kind without
+depth PNGs, is an input error (exit code 2).
 ``--mesh`` fuses the keyframes'
 depth maps (:func:`spgeo.io.fusion.fuse_odometry`) into OUT/mesh.ply and
 OUT/cloud.ply (and the rerun recording's ``world/mesh``); ``--export-colmap`` /
@@ -82,6 +87,11 @@ OUT/trajectory.status.txt, no pose, not in the ATE, listed under "skipped" in
 OUT/report.json; --strict stops instead (exit code 2)."""
 
 
+_DEPTH_SCALE = ("raw depth-PNG units per metre (tum, 7scenes, icl, folder; default the "
+                "reader's: 5000 for TUM and ICL, 1000 = millimetres otherwise), e.g. 5000 for "
+                "TUM depth PNGs in a plain folder")
+
+
 def _default_run_config():
     from ..apps.vo_run import VORunConfig
 
@@ -132,6 +142,21 @@ def _given_camera(args: argparse.Namespace):
     return CameraSpec.from_options(values, args.fov, args.calibration)
 
 
+def _reader_options(args: argparse.Namespace, kind: str) -> dict:
+    """The reader options of ``--depth-scale`` (``depth_scale``, checked:
+    :func:`spgeo.datasets.check_depth_scale`); :class:`InputError` for a kind whose
+    reader reads no depth PNG."""
+    if args.depth_scale is None:
+        return {}
+    from ..datasets import check_depth_scale, reader_options
+
+    if "depth_scale" not in reader_options(kind):
+        takes = [k for k in DATASET_KINDS if "depth_scale" in reader_options(k)]
+        raise InputError(f"--depth-scale: the {kind!r} reader reads no depth PNG (kinds "
+                         f"with a depth scale: {', '.join(takes)})")
+    return {"depth_scale": check_depth_scale(args.depth_scale)}
+
+
 def _run(args: argparse.Namespace) -> int:
     from ..apps.vo_run import run_dataset
     from ..io.outputs import StagedFolder
@@ -142,6 +167,7 @@ def _run(args: argparse.Namespace) -> int:
                          f"got {kind!r}")
     cfg = _run_config(args)
     given = _given_camera(args)
+    options = _reader_options(args, kind.lower())
     staged = StagedFolder(args.out, "--out", "spgeo vo")   # checked before the run
     _check_exports(args)
     saved = _saved_map(args)
@@ -149,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError("--all-frames cannot re-read a live camera")
     with open_rerun(args) as viewer:
         run = run_dataset(kind.lower(), path, frames=args.frames, config=cfg, on_frame=viewer,
-                          given_camera=given, saved_map=saved)
+                          given_camera=given, saved_map=saved, **options)
         if viewer is not None:
             viewer.finish(run.odometry)
         fused = _fuse(run, viewer) if args.mesh else None
@@ -308,6 +334,7 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                    help="frame numbers A <= n < B, every STEP-th (default: all; a camera "
                         "stops at B)")
     _add_camera_arguments(p)
+    p.add_argument("--depth-scale", default=None, metavar="UNITS_PER_METRE", help=_DEPTH_SCALE)
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "

@@ -70,6 +70,9 @@ RGB-D ablation.  The default front-end is ``make_frontend("classical")``
 learned one ``"onnx"`` (models via ``spgeo models``).
 
 Sparse depth maps are (H, W) metres with 0 or NaN = missing (VOID uses 0).
+More valid points than ``CompletionConfig.max_sparse_points`` (dense depth
+passed as sparse; the time grows with the number of points) are subsampled
+to that many with a warning (``CompletionResult.sparse_subsampled``).
 """
 from __future__ import annotations
 
@@ -118,7 +121,10 @@ class CompletionResult:
         n_points: (N_kept,) sparse points supporting each kept primitive.
         kept: (N_kept,) indices of the kept primitives in the front-end's set.
         n_primitives: primitives the front-end produced.
-        n_sparse: valid sparse points given.
+        n_sparse: valid sparse points used (after subsampling).
+        n_sparse_given: valid sparse points given; more than
+            ``config.max_sparse_points`` (dense depth given as sparse) were
+            subsampled to that many (``sparse_subsampled``, a logged warning).
         coverage: fraction of image pixels covered by kept primitives (at the
             primitives' resolution; reported even when ``fallback`` ignored them).
         method: ``"median"`` or ``"joint"``.
@@ -156,6 +162,12 @@ class CompletionResult:
     solver: Dict[str, float] = field(default_factory=dict)
     modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
     choice: Optional[HeldoutChoice] = None
+    n_sparse_given: int = 0
+
+    @property
+    def sparse_subsampled(self) -> bool:
+        """True when more points were given than used (``max_sparse_points``)."""
+        return self.n_sparse_given > self.n_sparse
 
     def __repr__(self) -> str:
         """One line: :meth:`summary` and the depth map's size and range (metres)."""
@@ -167,11 +179,14 @@ class CompletionResult:
         """One line for logs."""
         tag = " [uses depth: oracle/RGB-D]" if self.uses_depth else ""
         fb = " FALLBACK(linear)" if self.fallback else ""
+        given = (f" (subsampled from {self.n_sparse_given})" if self.sparse_subsampled
+                 else "")
         if self.choice is not None:
             fb += " chosen " + ",".join(f"{k}:{v}" for k, v in
                                         self.choice.region_counts().items())
         return (f"completion[{self.method}, {self.frontend}{tag}]{fb}: {len(self.kept)}/"
-                f"{self.n_primitives} primitives with support from {self.n_sparse} points, "
+                f"{self.n_primitives} primitives with support from {self.n_sparse} points"
+                f"{given}, "
                 f"coverage {self.coverage:.2f}, {1e3 * self.timings.get('total', 0):.0f} ms")
 
 
@@ -326,7 +341,7 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         FileNotFoundError: a depth model that is not there.
     """
     t0 = time.perf_counter()
-    image, sparse, uv, sd = _checked_inputs(image, sparse_depth, camera, config)
+    image, sparse, uv, sd, n_given = _checked_inputs(image, sparse_depth, camera, config)
     model = _depth_model(depth_model if depth_model is not None else config.depth_model, config)
     prims, fe_name, uses_depth = _primitives(image, camera, frontend, frontend_depth, config)
     t_fe = time.perf_counter()
@@ -346,7 +361,7 @@ def complete_depth(image: np.ndarray, sparse_depth: np.ndarray, camera: PinholeC
         uses_depth=uses_depth, fallback=done.fallback,
         timings={"frontend": t_fe - t0, **done.timings, "choose": time.perf_counter() - t_fi,
                  "total": time.perf_counter() - t0},
-        solver=fit.solver, modes=fit.modes, choice=choice)
+        solver=fit.solver, modes=fit.modes, choice=choice, n_sparse_given=n_given)
     log.info("%s", res.summary())
     return res
 
@@ -468,17 +483,37 @@ def candidate_fits(image: np.ndarray, prims: PrimitiveSet, camera: PinholeCamera
 
 def _checked_inputs(image, sparse_depth, camera, config):
     """:func:`complete_depth`'s input checks (its *Raises*); returns ``(image,
-    sparse depth map, (P, 2) pixel coordinates of the P sparse points, their depths)``."""
+    sparse depth map, (P, 2) pixel coordinates of the P sparse points, their depths,
+    the number of points given)``: more than ``config.max_sparse_points`` are
+    subsampled to that many (:func:`_subsampled`)."""
     check_camera(camera, "complete_depth: camera")
     if not isinstance(config, CompletionConfig):
         raise TypeError(f"config must be a CompletionConfig, got {type(config).__name__}")
     image = camera.check_image(image)
     to_float_image(image)  # validates dtype, NaN / inf and range
     sparse = check_sparse_depth(sparse_depth, "complete_depth: sparse depth", camera.shape)
+    n_given = int(np.count_nonzero(sparse > 0))
+    sparse = _subsampled(sparse, n_given, config.max_sparse_points)
     sv, su = np.nonzero(sparse > 0)
     sd = sparse[sv, su]
     uv = np.stack([su, sv], 1).astype(np.float64)
-    return image, sparse, uv, sd
+    return image, sparse, uv, sd, n_given
+
+
+def _subsampled(sparse: np.ndarray, n_given: int, max_points: int) -> np.ndarray:
+    """``sparse`` itself, or with more than ``max_points`` valid points (dense depth
+    given as sparse: the cost grows with the points, ``CompletionConfig.max_sparse_points``)
+    ``max_points`` of them drawn uniformly with a fixed seed
+    (:func:`~spgeo.completion.sparse_points.uniform_sparse_depth`), with a warning."""
+    if n_given <= max_points:
+        return sparse
+    from .sparse_points import uniform_sparse_depth
+
+    log.warning("completion: the sparse depth has %d valid points (%.0f%% of the pixels: "
+                "dense depth?); %d of them kept, drawn uniformly with a fixed seed "
+                "(CompletionConfig.max_sparse_points; the time grows with the points)",
+                n_given, 100.0 * n_given / sparse.size, max_points)
+    return uniform_sparse_depth(sparse, max_points, rel_noise=0.0, seed=0)
 
 
 @dataclass

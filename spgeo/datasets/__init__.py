@@ -29,14 +29,15 @@ The 9-frame TUM fr1/desk sample ships with the package: :func:`bundled_tum_path`
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional, Tuple, Union
 
 from .calibration import (DEFAULT_HFOV_DEG, CameraSpec, camera_from_fov, guess_camera,
                           intrinsics_report)
 from .calibration_files import Calibration, read_calibration
-from .common import (CameraSource, FrameSelection, FrameSequence, parse_frame_range,
-                     select_frames)
+from .common import (CameraSource, FrameSelection, FrameSequence, check_depth_scale,
+                     parse_frame_range, select_frames)
 from .euroc import EuRoCConfig, EuRoCSequence
 from .folder import FolderConfig, FolderSequence
 from .icl import ICL_CAMERA, ICLConfig, ICLSequence, icl_pose_to_opencv
@@ -59,7 +60,8 @@ __all__ = [
     "KITTISequence", "EuRoCConfig", "EuRoCSequence", "VideoConfig", "VideoSequence",
     "CameraStream", "CameraSource", "CameraSpec", "camera_from_fov", "guess_camera",
     "intrinsics_report", "DEFAULT_HFOV_DEG", "Calibration", "read_calibration",
-    "DATASET_KINDS", "open_dataset", "bundled_tum_path", "load_bundled_tum",
+    "DATASET_KINDS", "DATASET_CONFIGS", "open_dataset", "bundled_tum_path", "load_bundled_tum",
+    "check_depth_scale", "reader_options",
 ]
 
 #: Reader class of each data-set kind accepted by :func:`open_dataset`.
@@ -72,6 +74,19 @@ DATASET_KINDS = {
     "euroc": EuRoCSequence,
     "video": VideoSequence,
     "camera": CameraStream,
+}
+
+#: Config class of each kind's reader: its fields are the options :func:`open_dataset`
+#: passes on (:func:`reader_options`).
+DATASET_CONFIGS = {
+    "tum": TUMConfig,
+    "7scenes": SevenScenesConfig,
+    "icl": ICLConfig,
+    "folder": FolderConfig,
+    "kitti": KITTIConfig,
+    "euroc": EuRoCConfig,
+    "video": VideoConfig,
+    "camera": VideoConfig,
 }
 
 #: Kinds whose reader takes a given camera at construction (``camera=``), so that
@@ -105,15 +120,28 @@ def open_dataset(kind: str, path: Union[str, Path], given_camera: Optional[Camer
     ``intrinsics["source"]`` is then ``"given"``.  Raises ``ValueError`` for an unknown kind and ``TypeError``
     for an option the reader does not have.
     """
-    key = _ALIASES.get(str(kind).strip().lower())
-    if key is None:
-        raise ValueError(f"unknown data-set kind {kind!r}; expected one of {sorted(DATASET_KINDS)}")
+    key = _kind(kind)
     if given_camera is not None and key in _CAMERA_AT_OPEN:
         return DATASET_KINDS[key](path, camera=given_camera, **kwargs)
     seq = DATASET_KINDS[key](path, **kwargs)
     if given_camera is not None:
         seq.set_camera(given_camera)
     return seq
+
+
+def reader_options(kind: str) -> Tuple[str, ...]:
+    """Names of the options (config fields) the reader of ``kind`` takes, e.g. whether
+    it has a ``depth_scale``; ``ValueError`` for an unknown kind."""
+    return tuple(f.name for f in dataclasses.fields(DATASET_CONFIGS[_kind(kind)]))
+
+
+def _kind(kind: str) -> str:
+    """The key of :data:`DATASET_KINDS` that ``kind`` (or an alias) names;
+    ``ValueError`` for an unknown kind."""
+    key = _ALIASES.get(str(kind).strip().lower())
+    if key is None:
+        raise ValueError(f"unknown data-set kind {kind!r}; expected one of {sorted(DATASET_KINDS)}")
+    return key
 
 
 def bundled_tum_path() -> Path:

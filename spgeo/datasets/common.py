@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "FrameSelection", "parse_frame_range", "select_frames", "FrameSequence", "CameraSource", "FileRecord",
-    "numbered_frames", "check_camera", "config_from_kwargs", "PathLike", "read_rgb",
+    "numbered_frames", "check_camera", "check_depth_scale", "config_from_kwargs", "PathLike", "read_rgb",
     "read_depth_png", "read_camera_json", "nearest_rigid", "warp_image", "photometric_error",
 ]
 
@@ -359,7 +359,12 @@ class FrameSequence(CameraSource, _SequenceABC):
         return cfg
 
     def _check_config(self, config: Any) -> None:
-        """Raise ``ValueError`` for invalid option values (default: none checked)."""
+        """Raise ``ValueError`` for invalid option values; here the one every reader
+        of depth PNGs shares: ``depth_scale`` (raw units per metre), where the
+        config has it, must be a finite number > 0
+        (:class:`~spgeo.validation.InputError` naming the value)."""
+        if getattr(config, "depth_scale", None) is not None:
+            check_depth_scale(config.depth_scale)
 
     def _pose(self, record: FileRecord) -> Optional[np.ndarray]:
         """Camera-to-world pose of a record: a copy of ``record.pose``, None where
@@ -399,6 +404,20 @@ class FrameSequence(CameraSource, _SequenceABC):
             return depth
         return cv2.remap(depth, maps[0], maps[1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+
+
+def check_depth_scale(scale: Any) -> float:
+    """``scale`` (raw depth-PNG units per metre: 5000 for TUM, 1000 for 16-bit PNGs in
+    millimetres) as a float; :class:`~spgeo.validation.InputError` naming the value
+    unless it is a finite number > 0."""
+    try:
+        value = float(scale)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if isinstance(scale, bool) or not (np.isfinite(value) and value > 0):
+        raise InputError(f"depth scale must be a finite number > 0 (raw depth units per "
+                         f"metre, e.g. 5000 for TUM, 1000 for millimetres), got {scale!r}")
+    return value
 
 
 def config_from_kwargs(config_cls, config, kwargs: Dict[str, Any], reader: str):

@@ -1,5 +1,6 @@
 """Files of the data sets: colour images, uint16 depth PNGs, camera JSON,
-whitespace matrices, 4x4 pose files, timestamps, numbered frame files.
+whitespace matrices, 4x4 pose files, timestamps (in text files, or as file names:
+:func:`stamp_from_name`), numbered frame files.
 
 Every reader raises ``FileNotFoundError`` / :class:`~spgeo.validation.InputError`
 (a ``ValueError``) with a message naming the file (and line, for text files);
@@ -13,7 +14,7 @@ import logging
 import os
 import re
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -24,11 +25,15 @@ from ..validation import ImageSizeMismatch, InputError, check_input_file
 
 __all__ = ["PathLike", "read_rgb", "read_depth_png", "read_camera_json", "read_matrix_file",
            "nearest_rigid", "read_pose_file", "check_selection_files", "index_frame_files",
-           "parse_stamp", "check_increasing", "yaml_number_list"]
+           "parse_stamp", "check_increasing", "yaml_number_list", "stamp_from_name",
+           "stamped_files", "NANOSECOND_NAME_DIGITS", "IMAGE_EXTENSIONS"]
 
 logger = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
+
+#: file extensions (lower case) of the image files a reader lists from a folder
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 
 def read_matrix_file(path: PathLike, shape) -> np.ndarray:
@@ -70,6 +75,56 @@ def parse_stamp(tok: str, path: Path, lineno: int) -> float:
     if not np.isfinite(t):
         raise InputError(f"{path}:{lineno}: timestamp {tok!r} is not finite")
     return t
+
+
+#: an integer file name of at least this many digits is a time in nanoseconds (EuRoC's and
+#: ROS's ``1403636579763555584.png``: Unix time in ns has 19 digits since 2001, 18 since
+#: 1973); a shorter integer (``000123.png``) is a frame number, not a time
+NANOSECOND_NAME_DIGITS = 18
+_SECONDS_NAME = re.compile(r"\d+\.\d+")
+_NANOSECONDS_NAME = re.compile(r"\d{%d,}" % NANOSECOND_NAME_DIGITS)
+
+
+def stamp_from_name(stem: str) -> Optional[float]:
+    """The time in seconds that a file name (its stem, without the extension) is, or None.
+
+    ``<digits>.<digits>`` is seconds (TUM's ``1305031102.175304``); an integer of
+    :data:`NANOSECOND_NAME_DIGITS` or more digits is nanoseconds (EuRoC's
+    ``1403636579763555584``, read as EuRoC's ``data.csv`` stamps: ``int * 1e-9``);
+    anything else (a shorter integer such as a frame number, a sign, an exponent,
+    letters) is not a time.
+    """
+    if _SECONDS_NAME.fullmatch(stem):
+        return float(stem)
+    if _NANOSECONDS_NAME.fullmatch(stem):
+        return int(stem) * 1e-9
+    return None
+
+
+def stamped_files(paths: Sequence[Path], what: str) -> Tuple[List[Path], np.ndarray]:
+    """``paths`` in time order and their times (seconds, (N,) float64) read from their
+    names (:func:`stamp_from_name`).
+
+    Raises :class:`~spgeo.validation.InputError` naming the first file whose name is
+    not a time, or two files of one time (``1.5.png`` and ``1.50.png``); ``what``
+    names the files in the message (e.g. ``"TUM rgb"``).
+    """
+    stamps = []
+    for p in paths:
+        t = stamp_from_name(Path(p).stem)
+        if t is None:
+            raise InputError(f"{what} file {p}: its name is not a timestamp (expected "
+                             "<seconds>.<fraction> as 1305031102.175304.png, or integer "
+                             f"nanoseconds of >= {NANOSECOND_NAME_DIGITS} digits)")
+        stamps.append(t)
+    order = np.argsort(np.asarray(stamps, dtype=np.float64), kind="stable")
+    ordered = [Path(paths[i]) for i in order]
+    times = np.asarray(stamps, dtype=np.float64)[order]
+    for k in range(1, len(times)):
+        if not times[k] > times[k - 1]:
+            raise InputError(f"{what} files {ordered[k - 1]} and {ordered[k]} have the same "
+                             f"timestamp {times[k]:.9f}")
+    return ordered, times
 
 
 def check_increasing(stamps: Sequence[float], linenos: Sequence[int], path: Path) -> None:

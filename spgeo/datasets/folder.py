@@ -2,17 +2,28 @@
 
 Layout::
 
-    *.png | *.jpg | *.jpeg      the images, in natural name order (img2 before img10)
+    *.png | *.jpg | *.jpeg      the images, in natural name order (img2 before img10),
+                                or in time order when every name is a timestamp
     camera.json                 PinholeCamera.to_dict() (may carry distortion), or
     intrinsics.txt              "fx fy cx cy" on one line, or a 3x3 K (9 numbers);
                                 the size is taken from the first image
     times.txt                   optional: one timestamp (seconds) per image, in order
     depth/<stem>.png            optional: uint16 depth, raw / depth_scale metres
-                                (default millimetres), 0 = no measurement
+                                (default 1000: millimetres; TUM's is 5000), 0 = no
+                                measurement
     depth/<stem>.npy            optional: float depth in metres (<= 0 / non-finite invalid)
 
 * Frame number = 0-based position in the sorted image list; timestamp = frame
-  number unless ``times.txt`` exists.
+  number unless ``times.txt`` exists or the names are timestamps.
+* Timestamp names: when *every* image's name is a time
+  (:func:`spgeo.datasets.files.stamp_from_name`: ``<seconds>.<fraction>`` as
+  TUM's ``1305031102.175304.png``, or an integer of 18 or more digits, in
+  nanoseconds, as EuRoC's ``1403636579763555584.png``), the frames are in time
+  order and their timestamps are those times in seconds (an info line says
+  so), so that ``trajectory.txt`` matches a TUM / EuRoC ground truth; two
+  names of one time are an :class:`~spgeo.validation.InputError`.  Shorter
+  integers (``000123.png``) are frame numbers, not times.  ``times.txt``, when
+  present, still gives the timestamps.
 * ``camera`` passed in the config overrides the files; ``camera.json`` wins
   over ``intrinsics.txt``; with neither, the intrinsics are guessed
   (:func:`spgeo.datasets.calibration.guess_camera`, a warning) and
@@ -25,7 +36,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Tuple, Union
+from typing import List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -35,7 +46,8 @@ from ..frame import Frame
 from ..validation import InputError
 from .calibration import CameraSpec
 from .common import FileRecord, FrameSelection, FrameSequence, select_frames
-from .files import PathLike, parse_stamp, read_camera_json, read_depth_png, read_rgb
+from .files import (IMAGE_EXTENSIONS, PathLike, parse_stamp, read_camera_json, read_depth_png,
+                    read_rgb, stamp_from_name, stamped_files)
 
 __all__ = ["FolderConfig", "FolderSequence", "read_intrinsics_txt"]
 
@@ -83,7 +95,8 @@ class FolderConfig:
         frames: selection by frame number (position in the sorted list;
             ``"A:B[:S]"``, slice, range, list; default None = all).
         depth_dir: depth sub-folder name (default ``"depth"``).
-        depth_scale: raw PNG depth units per metre (default 1000: millimetres).
+        depth_scale: raw PNG depth units per metre (default 1000: 16-bit PNGs in
+            millimetres; 5000 for TUM's; ``spgeo vo --depth-scale``); finite and > 0.
         extensions: image file extensions, case-insensitive (default png, jpg, jpeg).
     """
 
@@ -93,7 +106,7 @@ class FolderConfig:
     frames: FrameSelection = None
     depth_dir: str = "depth"
     depth_scale: float = 1000.0
-    extensions: Tuple[str, ...] = (".png", ".jpg", ".jpeg")
+    extensions: Tuple[str, ...] = IMAGE_EXTENSIONS
 
 
 class FolderSequence(FrameSequence):
@@ -103,7 +116,20 @@ class FolderSequence(FrameSequence):
         super().__init__()
         cfg = self._open(path, FolderConfig, config, kwargs, "image folder")
         root = self.root
-        exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in cfg.extensions)
+        images, times = self._images(cfg.extensions)
+        self._raw_camera = self._resolve_camera(cfg.camera, images[0])
+        times_path = root / "times.txt"
+        if times_path.is_file():
+            times = self._read_times(times_path, len(images))
+        keep = select_frames(range(len(images)), cfg.frames)
+        self._records = [FileRecord(k, float(times[k]), images[k]) for k in keep]
+
+    def _images(self, extensions) -> Tuple[List[Path], np.ndarray]:
+        """The image files and their timestamps (module docstring): in time order,
+        timed by their names when every name is a time, else in natural name order,
+        timed by their positions."""
+        root = self.root
+        exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
         images = sorted((p for p in root.iterdir() if p.is_file() and p.suffix.lower() in exts),
                         key=lambda p: _natural_key(p.name))
         if not images:
@@ -112,15 +138,13 @@ class FolderSequence(FrameSequence):
         if len(set(stems)) != len(stems):
             dup = sorted({s for s in stems if stems.count(s) > 1})
             raise ValueError(f"{root}: several images share a stem: {dup[:5]}")
-
-        self._raw_camera = self._resolve_camera(cfg.camera, images[0])
-
-        times = np.arange(len(images), dtype=np.float64)
-        times_path = root / "times.txt"
-        if times_path.is_file():
-            times = self._read_times(times_path, len(images))
-        keep = select_frames(range(len(images)), cfg.frames)
-        self._records = [FileRecord(k, float(times[k]), images[k]) for k in keep]
+        if all(stamp_from_name(s) is not None for s in stems):
+            images, times = stamped_files(images, "image")
+            logger.info("%s: the %d image names are timestamps: frames in time order, "
+                        "timed by their names (%.6f to %.6f s)", root, len(images), times[0],
+                        times[-1])
+            return images, times
+        return images, np.arange(len(images), dtype=np.float64)
 
     def _resolve_camera(self, camera, first_image: Path) -> PinholeCamera:
         """Given camera, else ``camera.json``, else ``intrinsics.txt`` (source

@@ -44,7 +44,8 @@ from ..camera import PinholeCamera
 from ..configs import config_class
 from ..frame import Frame
 from ..images import read_raw_image
-from .common import FileRecord, FrameSelection, FrameSequence, numbered_frames
+from .common import (FileRecord, FrameSelection, FrameSequence, check_depth_scale,
+                     numbered_frames)
 from .files import PathLike, read_depth_png, read_matrix_file, read_pose_file, read_rgb
 
 __all__ = ["ScanNetConfig", "ScanNetScene", "list_scenes", "read_scannet_matrix",
@@ -155,8 +156,7 @@ class ScanNetScene(FrameSequence):
         if cfg.intrinsics not in _INTRINSICS:
             raise ValueError(f"ScanNetConfig.intrinsics must be one of {_INTRINSICS}, "
                              f"got {cfg.intrinsics!r}")
-        if not (np.isfinite(cfg.depth_scale) and cfg.depth_scale > 0):
-            raise ValueError(f"ScanNetConfig.depth_scale must be > 0, got {cfg.depth_scale}")
+        check_depth_scale(cfg.depth_scale)
 
     @property
     def scene_id(self) -> str:

@@ -2,13 +2,19 @@
 
 Folder layout (Sturm et al., IROS 2012)::
 
-    rgb.txt            "timestamp filename" per line, '#' comments
+    rgb.txt            "timestamp filename" per line, '#' comments (optional: see below)
     depth.txt          same, optional
     groundtruth.txt    "timestamp tx ty tz qx qy qz qw" (camera-to-world), optional
     rgb/*.png  depth/*.png (uint16, metres x 5000, 0 = no measurement)
     camera.json        optional, PinholeCamera.to_dict() (spgeo's synthetic sequences)
 
 * Frame number = 0-based index of the line in ``rgb.txt``; timestamp = its stamp.
+* Without ``rgb.txt`` (``depth.txt``) the images of ``rgb/`` (``depth/``) are
+  listed instead, each timed by its file name (TUM's ``<seconds>.<fraction>.png``,
+  :func:`spgeo.datasets.files.stamp_from_name`), in time order, with an info
+  line saying so: the same frames, stamps and association as the list files
+  give.  A file name that is not a timestamp is an
+  :class:`~spgeo.validation.InputError` naming the file.
 * Depth is associated to each colour image like TUM's ``associate.py``: pairs
   closer than ``max_depth_difference`` seconds, matched greedily one-to-one by
   increasing time difference.  Frames without a match get ``depth=None``.
@@ -41,11 +47,11 @@ from ..configs import config_class
 from ..frame import Frame
 from ..geometry import pose_from_tum
 from .common import FileRecord, FrameSelection, FrameSequence, select_frames
-from .files import (PathLike, check_increasing, check_selection_files, parse_stamp,
-                    read_camera_json, read_depth_png, read_rgb)
+from .files import (IMAGE_EXTENSIONS, PathLike, check_increasing, check_selection_files,
+                    parse_stamp, read_camera_json, read_depth_png, read_rgb, stamped_files)
 
 __all__ = ["TUMConfig", "TUMSequence", "tum_camera", "detect_tum_calibration", "read_tum_list",
-           "read_tum_groundtruth", "associate", "interpolate_poses", "TUM_CALIBRATIONS"]
+           "list_tum_folder", "read_tum_groundtruth", "associate", "interpolate_poses", "TUM_CALIBRATIONS"]
 
 logger = logging.getLogger(__name__)
 
@@ -158,6 +164,28 @@ def read_tum_list(path: PathLike) -> Tuple[np.ndarray, List[str]]:
     return _read_stamped(Path(path), "timestamp filename", lambda rest, lineno: rest[0])
 
 
+def list_tum_folder(root: PathLike, folder: str) -> Tuple[np.ndarray, List[str]]:
+    """What ``rgb.txt`` / ``depth.txt`` would list, from the folder itself: the
+    images of ``root/folder`` (extensions of
+    :data:`~spgeo.datasets.files.IMAGE_EXTENSIONS`; other files are ignored),
+    each timed by its name (``1305031102.175304.png``), in time order.
+
+    Returns ``(stamps (N,) seconds, file names relative to root)`` as
+    :func:`read_tum_list`.  Raises ``FileNotFoundError`` when the folder is
+    missing or holds no image, :class:`~spgeo.validation.InputError` naming a
+    file whose name is not a timestamp or two files of one stamp
+    (:func:`~spgeo.datasets.files.stamped_files`).
+    """
+    path = Path(root) / folder
+    files = ([p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
+             if path.is_dir() else [])
+    if not files:
+        raise FileNotFoundError(f"TUM sequence {root}: no {folder}.txt and no images in "
+                                f"{path}")
+    paths, stamps = stamped_files(files, f"TUM {folder}")
+    return stamps, [f"{folder}/{p.name}" for p in paths]
+
+
 # Kept apart from spgeo.io.tum.read_tum (one 4x4 pose per line, inline '#' comments, any
 # order): interpolation needs the raw quaternion rows and strictly increasing stamps.
 def read_tum_groundtruth(path: PathLike) -> Tuple[np.ndarray, np.ndarray]:
@@ -264,7 +292,8 @@ class TUMSequence(FrameSequence):
     """Lazy reader of a TUM RGB-D sequence folder (see the module docstring).
 
     Args:
-        path: the sequence folder (containing ``rgb.txt``).
+        path: the sequence folder (containing ``rgb.txt``, or ``rgb/`` of images
+            named by their timestamps).
         config: a :class:`TUMConfig`; keyword arguments override its fields.
     """
 
@@ -275,7 +304,7 @@ class TUMSequence(FrameSequence):
         self._raw_camera, self.calibration_source = self._resolve_camera(cfg.calibration)
         self._intrinsics_detail = self.calibration_source
 
-        stamps, names = read_tum_list(root / "rgb.txt")
+        stamps, names = self._listed("rgb")
         if len(stamps) == 0:
             raise ValueError(f"{root / 'rgb.txt'} lists no images")
         keep = select_frames(range(len(stamps)), cfg.frames)
@@ -284,15 +313,15 @@ class TUMSequence(FrameSequence):
         d_stamps: np.ndarray = np.zeros(0)
         d_names: List[str] = []
         if cfg.load_depth:
-            if (root / "depth.txt").is_file():
-                d_stamps, d_names = read_tum_list(root / "depth.txt")
+            if (root / "depth.txt").is_file() or (root / "depth").is_dir():
+                d_stamps, d_names = self._listed("depth")
                 depth_idx = associate(stamps, d_stamps, cfg.max_depth_difference)
                 unmatched = int(np.sum(depth_idx[keep] < 0))
                 if unmatched:
                     logger.info("%s: %d of %d selected frames have no depth within %.3f s",
                                 self._name, unmatched, len(keep), cfg.max_depth_difference)
             else:
-                logger.warning("%s: no depth.txt, frames will have no depth", root)
+                logger.warning("%s: no depth.txt nor depth/, frames will have no depth", root)
 
         poses: List[Optional[np.ndarray]] = [None] * len(stamps)
         if cfg.load_pose:
@@ -319,6 +348,18 @@ class TUMSequence(FrameSequence):
                                   "depth")
         logger.debug("opened TUM sequence %s: %d frames, camera %r (%s)", root, len(self),
                      self._raw_camera, self.calibration_source)
+
+    def _listed(self, kind: str) -> Tuple[np.ndarray, List[str]]:
+        """``(stamps, names)`` of ``<kind>.txt`` (``"rgb"`` / ``"depth"``), or without
+        it of the images of ``<kind>/`` timed by their names (:func:`list_tum_folder`,
+        an info line)."""
+        listing = self.root / f"{kind}.txt"
+        if listing.is_file():
+            return read_tum_list(listing)
+        stamps, names = list_tum_folder(self.root, kind)
+        logger.info("%s: no %s.txt: the %d images of %s/ are timed by their file names",
+                    self._name, kind, len(names), kind)
+        return stamps, names
 
     def _resolve_camera(self, calibration) -> Tuple[PinholeCamera, str]:
         if isinstance(calibration, PinholeCamera):

@@ -186,6 +186,11 @@ def test_complete_normalised_intrinsics(images, tmp_path, capsys):
     (["--resolution", "100000x100000"], "<= 8192"),
     (["--set", "no_such_field=1"], "no_such_field"),
     (["--frames", "5:3"], "5:3"),
+    (["--depth-scale", "0"], "depth scale must be a finite number > 0 (raw depth units per "
+                             "metre, e.g. 5000 for TUM, 1000 for millimetres), got '0'"),
+    (["--depth-scale", "-5000"], "got '-5000'"),
+    (["--depth-scale", "nan"], "got 'nan'"),
+    (["--depth-scale", "5mm"], "got '5mm'"),
 ])
 def test_vo_bad_arguments(images, tmp_path, capsys, extra, fragment):
     folder, _ = images
@@ -194,6 +199,13 @@ def test_vo_bad_arguments(images, tmp_path, capsys, extra, fragment):
                               "--no-progress", *extra])
     assert rc == 2 and fragment in err and err.startswith("spgeo vo: error:")
     assert not out.exists()
+
+
+def test_vo_depth_scale_for_a_reader_without_depth(tmp_path, capsys):
+    rc, _, err = run(capsys, ["vo", "--dataset", "video", tmp_path / "clip.avi",
+                              "--depth-scale", "5000", "--out", tmp_path / "o"])
+    assert rc == 2 and "--depth-scale: the 'video' reader reads no depth PNG" in err
+    assert "tum, 7scenes, icl, folder" in err
 
 
 def test_vo_missing_dataset(tmp_path, capsys):
