@@ -87,10 +87,11 @@ class VORunConfig:
             such a frame is skipped with a warning naming the file, marked
             ``skipped`` in the status file and listed in ``report.json``.
         frontend: front-end name for :func:`spgeo.frontend.make_frontend`:
-            ``"classical"`` (default; monocular, reads no depth), ``"depth"``
-            (normals and initial scales from the sensor depth: RGB-D / oracle)
-            or ``"onnx"`` (SAM + normal network; models from
-            ``spgeo models fetch``).  Ignored when a built front-end is given.
+            ``"classical"`` (default; monocular, reads no depth), ``"manhattan"``
+            (monocular, vanishing-point normals), ``"depth"`` (normals and initial
+            scales from the sensor depth: RGB-D / oracle), ``"onnx"`` (SAM + normal
+            network) or ``"onnx-depth"`` (SAM + normals from a depth network; models
+            from ``spgeo models fetch``).  Ignored when a built front-end is given.
         odometry: :class:`~spgeo.vo.OdometryConfig` of the VO.
         progress: show a tqdm progress bar with live FPS (default True).
         sam_family: ``onnx`` / ``onnx-depth``: SAM registry family (default
