@@ -11,7 +11,7 @@ import pytest
 pycolmap = pytest.importorskip("pycolmap")
 
 from layouts import write_7scenes  # noqa: E402
-from spgeo.vo import OdometryConfig  # noqa: E402
+from spgeo.vo import KeyframeDecisionConfig, OdometryConfig  # noqa: E402
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.frontend import FrontEndConfig, make_frontend  # noqa: E402
@@ -29,7 +29,7 @@ def vo_run():
     scene = synthetic.SyntheticScene.generate(0)
     frames = synthetic.render_frames(scene, CAM, synthetic.make_trajectory(40, 0)[::2],
                                      supersample=2)
-    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)), frontend="depth",
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120), keyframe=KeyframeDecisionConfig(max_translation=0.05)), frontend="depth",
                                            progress=False))
     return run, frames
 

@@ -5,7 +5,7 @@ import pytest
 
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_odometry
-from spgeo.vo import OdometryConfig, MappingConfig
+from spgeo.vo import KeyframeDecisionConfig, OdometryConfig, MappingConfig
 
 #: longest repr accepted (a few hundred characters, one line)
 MAX_REPR = 400
@@ -24,7 +24,7 @@ def vo_run():
     frames = synthetic.render_frames(synthetic.SyntheticScene.generate(0), cam,
                                      synthetic.make_trajectory(40, 0)[::2])
     seen = []
-    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)),
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120), keyframe=KeyframeDecisionConfig(max_translation=0.05)),
                                            frontend="depth", progress=False),
                        on_frame=lambda frame, result, odo: seen.append(result))
     return run, seen

@@ -11,7 +11,7 @@ import pytest
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from spgeo.vo import OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, OdometryConfig
 from spgeo import synthetic  # noqa: E402
 from spgeo.apps.vo_run import VORunConfig, run_odometry  # noqa: E402
 from spgeo.cli import main  # noqa: E402
@@ -35,7 +35,7 @@ def logged(tmp_path_factory):
             online.append(np.array(result.T_world_cam, dtype=float))
             viewer.on_frame(frame, result, odometry)
 
-        run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)), frontend="depth",
+        run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120), keyframe=KeyframeDecisionConfig(max_translation=0.05)), frontend="depth",
                                                progress=False), on_frame=hook)
         viewer.finish(run.odometry)
     rows = {}

@@ -170,9 +170,9 @@ def test_frame_features_are_computed_once_per_frame_content(room):
     images, _ = room
     tracker = FrameTracker(CAM, OdometryConfig())
     frame = images[0].copy()
-    first = tracker._frame_features(frame)
-    assert tracker._frame_features(frame) is first
+    first = tracker.frame_features(frame)
+    assert tracker.frame_features(frame) is first
     frame[...] = images[3]
-    second = tracker._frame_features(frame)
+    second = tracker.frame_features(frame)
     assert second is not first
     np.testing.assert_array_equal(second[0], FeatureRetry(CAM).frame_features(images[3])[0])

@@ -15,16 +15,15 @@ from spgeo.validation import InputError
 from spgeo.vo import KeyframeDecisionConfig, MappingConfig, Odometry, OdometryConfig
 from spgeo.vo.saved_map import SavedMap
 
-CAM = synthetic.default_camera(160, 120)
-CFG = OdometryConfig(keyframe=KeyframeDecisionConfig(max_translation=0.03),
-                     mapping=MappingConfig(mode="inline"))
-N_SAVED, N_LOADED = 30, 14
+CAM = synthetic.default_camera(320, 240)
+CFG = OdometryConfig(mapping=MappingConfig(mode="inline"))
+N_SAVED, N_LOADED = 30, 30
 
 
 def _odometry(saved=None, config=CFG):
     from spgeo.frontend import FrontEndConfig, make_frontend
 
-    return Odometry(CAM, config, make_frontend("classical", FrontEndConfig(working_size=(160, 120))),
+    return Odometry(CAM, config, make_frontend("classical", FrontEndConfig(working_size=CAM.size)),
                     saved_map=saved)
 
 
@@ -38,19 +37,23 @@ def _run(vo, images, first):
 
 @pytest.fixture(scope="module")
 def split_run(tmp_path_factory):
-    """The synthetic room (every third pose, 160x120): frames 0-29 run and their
-    map saved, then frames 30-43 run in the loaded map."""
+    """The synthetic room (every third pose, 320x240, the defaults with inline mapping):
+    one run over all 60 frames; frames 0-29 run and their map saved, then frames 30-59
+    run in the loaded map."""
     poses = synthetic.make_trajectory(3 * (N_SAVED + N_LOADED), 0)[::3]
     room = synthetic.SyntheticScene.generate(0)
     images = [room.render(CAM, T).rgb for T in poses]
+    whole = _run(_odometry(), images, 0)
     vo1 = _odometry()
     res1 = _run(vo1, images[:N_SAVED], 0)
     folder = tmp_path_factory.mktemp("saved") / "map"
     saved = vo1.saved_map()
     saved.save(folder)
     loaded = SavedMap.load(folder)
-    res2 = _run(_odometry(loaded), images[N_SAVED:], N_SAVED)
-    return poses, res1, res2, saved, loaded, folder
+    vo2 = _odometry(loaded)
+    res2 = _run(vo2, images[N_SAVED:], N_SAVED)
+    entered = [vo2.keyframe(k).T_world_kf for k in range(CFG.window)]
+    return poses, res1, res2, saved, loaded, folder, whole, entered
 
 
 def _sim3(est, gt):
@@ -63,7 +66,7 @@ def _sim3(est, gt):
 def test_a_saved_map_reads_back_equal(split_run):
     """Every keyframe's pose, image and scaled primitives, and the landmarks, read
     back as saved (log-depth stored as float32)."""
-    _, _, _, saved, loaded, folder = split_run
+    _, _, _, saved, loaded, folder, _, _ = split_run
     head = json.loads((folder / "map.json").read_text())
     assert head["format"] == "spgeo-vo-map" and head["version"] == 1
     assert len(loaded.keyframes) == len(saved.keyframes) >= 3
@@ -83,16 +86,27 @@ def test_a_saved_map_reads_back_equal(split_run):
 @pytest.mark.slow
 def test_a_loaded_run_continues_in_the_saved_frame_and_scale(split_run):
     """The loaded run's first frame is relocalised into the saved map, none is lost,
-    one segment, and its poses, mapped to the ground truth by the Sim(3) of the saved
-    run, lie within 1.5 % of the scene depth (about 2.8) of the truth over its first
-    ten frames: the same frame and scale, not a new map."""
-    poses, res1, res2, _, _, _ = split_run
+    one segment; its first poses, mapped to the ground truth by the Sim(3) of the saved
+    run, lie within 1 % of the scene depth (about 2.8) of the truth (the same frame and
+    scale, not a new map), and the two runs joined and aligned by one Sim(3) are within
+    1.5x the ATE of one run over all frames (the issue's goal; 0.92x when measured)."""
+    from spgeo.metrics.ate import ate_sim3
+
+    poses, res1, res2, saved, _, _, whole, entered = split_run
     assert res2.statuses[0] is FrameStatus.RELOCALISED
     assert FrameStatus.LOST not in res2.statuses and set(res2.segments.tolist()) == {0}
     S = _sim3(res1.poses, poses[:N_SAVED])
-    moved = (S[:3, :3] @ res2.poses[:10, :3, 3].T).T + S[:3, 3]
-    err = np.linalg.norm(moved - poses[N_SAVED:N_SAVED + 10, :3, 3], axis=1)
-    assert err.max() < 0.015 * 2.8, err
+    moved = (S[:3, :3] @ res2.poses[:5, :3, 3].T).T + S[:3, 3]
+    err = np.linalg.norm(moved - poses[N_SAVED:N_SAVED + 5, :3, 3], axis=1)
+    assert err.max() < 0.01 * 2.8, err
+    ts = np.concatenate([res1.timestamps, res2.timestamps])
+    joined = ate_sim3((ts, np.concatenate([res1.poses, res2.poses])), (ts, poses))
+    one = ate_sim3((whole.timestamps, whole.poses), (whole.timestamps, poses))
+    assert joined.rmse < 1.5 * one.rmse, (joined.rmse, one.rmse)
+    # the saved keyframe it was placed against (the last) and the window before it are the
+    # run's first keyframes, held at their saved poses by the window smoother
+    for T, kf in zip(entered, saved.keyframes[-CFG.window:]):
+        np.testing.assert_allclose(T, kf.T_world_kf, atol=1e-6)
 
 
 @pytest.mark.slow
@@ -100,7 +114,7 @@ def test_a_map_of_another_scene_is_given_up_for_a_map_of_its_own(split_run):
     """Frames of another room are never placed in the saved map: after
     ``max_lost_frames`` lost frames the run starts its own map (a warning), not a
     map at a wrong pose."""
-    _, _, _, _, loaded, _ = split_run
+    _, _, _, _, loaded, _, _, _ = split_run
     other = synthetic.SyntheticScene.generate(7)
     poses = synthetic.make_trajectory(30, 0)[::3]
     cfg = OdometryConfig(keyframe=CFG.keyframe, mapping=CFG.mapping, max_lost_frames=3)
@@ -134,7 +148,7 @@ def test_a_folder_that_is_not_a_saved_map_is_refused_naming_it(tmp_path):
 
 
 def test_a_map_saved_at_another_camera_is_refused():
-    saved = SavedMap(synthetic.default_camera(320, 240), VO_UNITS, "integrated", [])
+    saved = SavedMap(synthetic.default_camera(160, 120), VO_UNITS, "integrated", [])
     with pytest.raises(InputError, match="processing camera"):
         _odometry(saved)
     saved = SavedMap(CAM, METRES, "integrated", [])

@@ -4,7 +4,7 @@ matches the sensor's and the keyframe baselines the ground truth's, so the
 ratios are 1 within a few per cent."""
 import numpy as np
 
-from spgeo.vo import OdometryConfig
+from spgeo.vo import KeyframeDecisionConfig, OdometryConfig
 from spgeo import synthetic
 from spgeo.apps.vo_run import VORunConfig, run_odometry
 from spgeo.evaluation.vo.scale_drift import keyframe_baseline_ratios, keyframe_depth_ratios, main
@@ -14,7 +14,7 @@ def test_depth_frontend_ratios_are_one():
     cam = synthetic.default_camera(160, 120)
     frames = synthetic.render_frames(synthetic.SyntheticScene.generate(0), cam,
                                      synthetic.make_trajectory(30, 0), supersample=2)
-    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120)), frontend="depth",
+    run = run_odometry(frames, VORunConfig(odometry=OdometryConfig(resolution=(160, 120), keyframe=KeyframeDecisionConfig(max_translation=0.05)), frontend="depth",
                                            progress=False))
     ratios = keyframe_depth_ratios(run, frames)
     assert len(ratios) >= 2 and ratios[0][0] == 0

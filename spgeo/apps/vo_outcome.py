@@ -201,14 +201,16 @@ class VORun:
 
     @property
     def has_map(self) -> bool:
-        """Whether some map segment was initialised (a keyframe after frame 0:
-        keyframe 1 of a segment), or, with a depth-using front-end (keyframe 0
-        carries the sensor depth), some frame after frame 0 was tracked against
-        keyframe 0 (``init``): a depth run whose frames were all lost has no map
-        (issue 53; before, any depth run had one)."""
-        after = self.result().statuses[1:]
-        return any(s == "keyframe" for s in after) or (
-            bool(self.odometry.frontend.uses_depth) and any(s == "init" for s in after))
+        """Whether some frame was tracked against a map: a keyframe after frame 0
+        (keyframe 1 of a segment, or one the policy made), or a frame ``ok`` or
+        ``relocalised`` (a segment that has its keyframe pair, or whose keyframe 0
+        came with its scale: sensor depth, a saved map).  Frames ``init`` (a
+        monocular segment waiting for keyframe 1) do not count: their poses are
+        provisional; a depth run whose frames were all lost has no map (issue 53;
+        before, any depth run had one)."""
+        statuses = self.result().statuses
+        return (any(s in ("ok", "relocalised") for s in statuses)
+                or any(s == "keyframe" for s in statuses[1:]))
 
     @property
     def status(self) -> str:

@@ -213,10 +213,10 @@ class WindowBackend:
         if self._landmark_segment != segment:
             self.landmarks.clear()
             self._landmark_segment = segment
-            if len(segment_kfs) >= 2:     # the previous keyframe's features too
-                prev = segment_kfs[-2]
-                self.landmarks.add_keyframe(prev.index, prev.image, prev.keyframe.T_world_kf,
-                                            [prev.index])
+            older = segment_kfs[-self.config.window:-1]   # keyframe 0, or a saved map's
+            for j, kf in enumerate(older):
+                self.landmarks.add_keyframe(kf.index, kf.image, kf.keyframe.T_world_kf,
+                                            [k.index for k in older[:j + 1]])
         live = [kf.index for kf in segment_kfs[-self.config.window:]]
         self.landmarks.add_keyframe(new.index, new.image, new.keyframe.T_world_kf, live)
         timings["landmarks"] = time.perf_counter() - t

@@ -1,8 +1,10 @@
 """Entering a saved map (``spgeo vo --load-map DIR``, issue 53): the first frames of a
 run are relocalised into a :class:`~spgeo.vo.saved_map.SavedMap` until one is placed;
-the saved keyframe it was placed against becomes keyframe 0 of the run's first map
-segment, with its pose and scales (so the run continues in the saved map's world frame
-and units, tracked at once, with no two-view initialisation).
+the saved keyframe it was placed against and the ones before it in its saved segment
+(up to ``window`` in all) become the keyframes of the run's first map segment, with
+their poses and scales, the one it was placed against the newest (so the run continues
+in the saved map's world frame and units, tracked at once, with no two-view
+initialisation; the window smoother holds their poses at the saved ones).
 
 Relocalisation is the one tracking decision (:meth:`FrameTracker.track
 <spgeo.vo.frame_tracker.FrameTracker.track>`) against a saved keyframe: from its own
@@ -62,13 +64,14 @@ class MapEntry:
         return self.tries >= self._config.max_lost_frames
 
     def step(self, image: np.ndarray, index: int, segment: int
-             ) -> Optional[Tuple[MapKeyframe, TrackResult, Optional[LandmarkSnapshot]]]:
-        """Relocalise the frame ``image`` (processing size): ``(keyframe, track
+             ) -> Optional[Tuple[List[MapKeyframe], TrackResult, Optional[LandmarkSnapshot]]]:
+        """Relocalise the frame ``image`` (processing size): ``(keyframes, track
         result, landmarks)`` when it is placed — the saved keyframe it was placed
-        against as the map keyframe ``index`` of ``segment`` (frame number -1, every
-        shape prior at ``render_prior_weight``: its scales are the saved map's) and
-        the saved landmarks of its segment (None: none) — else None.  Logs a warning
-        when it gives up (:attr:`given_up`)."""
+        against, last, after those before it in its saved segment (at most
+        ``window`` in all), as map keyframes ``index, index + 1, ...`` of ``segment``
+        (frame number -1, every shape prior at ``render_prior_weight``: their scales
+        are the saved map's), and the saved landmarks of its segment (None: none) —
+        else None.  Logs a warning when it gives up (:attr:`given_up`)."""
         self.tries += 1
         for kf in self._candidates(image):
             mkf = self._keyframe(kf)
@@ -79,11 +82,12 @@ class MapEntry:
             if tr is not None and tr.ok:
                 log.info("relocalised into the saved map against its keyframe %d (frame %d of "
                          "the run that saved it)", kf.index, kf.frame)
-                n = len(mkf.keyframe.primitives)
-                weights = np.full(n, float(self._config.render_prior_weight))
+                kfs = [self._keyframe(k) for k in self._before(kf)] + [mkf]
                 self._built.clear()
-                return MapKeyframe(index, -1, mkf.image, mkf.keyframe, segment,
-                                   prior_weights=weights), tr, lms
+                w = float(self._config.render_prior_weight)
+                return [MapKeyframe(index + j, -1, k.image, k.keyframe, segment,
+                                    prior_weights=np.full(len(k.keyframe.primitives), w))
+                        for j, k in enumerate(kfs)], tr, lms
         if self.given_up:
             log.warning("not relocalised into the saved map in %d frames; the run starts a "
                         "map of its own", self.tries)
@@ -105,6 +109,13 @@ class MapEntry:
                     votes[i] += 1
         order = sorted(range(len(kfs)), key=lambda i: (-votes[i], -i))
         return [kfs[i] for i in order[:MAX_CANDIDATES]]
+
+    def _before(self, kf: SavedKeyframe) -> List[SavedKeyframe]:
+        """The saved keyframes before ``kf`` in its segment that join it in the
+        window (``window - 1`` at most, oldest first)."""
+        same = [k for k in self.saved.keyframes if k.segment == kf.segment]
+        i = next(j for j, k in enumerate(same) if k.index == kf.index)
+        return same[max(0, i - self._config.window + 1):i]
 
     def _keyframe(self, kf: SavedKeyframe) -> MapKeyframe:
         """The map keyframe of saved ``kf`` to track against (built once; its

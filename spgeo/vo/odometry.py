@@ -167,11 +167,13 @@ class Odometry(ReadSide):
 
     def _start(self, frame: Frame, idx: int, T_world: np.ndarray,
                timings: Dict[str, float], median_depth: Optional[float] = None) -> FrameResult:
-        """Keyframe 0 of a map segment at ``T_world``."""
+        """Keyframe 0 of a map segment at ``T_world``; with sensor depth it comes with
+        its scale (tracked against at once, its shapes' priors as a render's)."""
         kf = self._builder.first(frame, T_world, timings, median_depth)
-        k = self._map.next_index
-        self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), kf, self._map.segment),
-                      new_segment=True)
+        k, depth = self._map.next_index, bool(self.frontend.uses_depth)
+        w = np.full(len(kf.primitives), self.config.render_prior_weight) if depth else None
+        self._map.add(MapKeyframe(k, idx, np.asarray(frame.image), kf, self._map.segment,
+                                  prior_weights=w), new_segment=True, scaled=depth)
         self._map.retire_outside_window()
         self._map.take_candidates()
         self._initialiser.reset()
@@ -182,8 +184,8 @@ class Odometry(ReadSide):
 
     def _enter(self, frame: Frame, idx: int, timings: Dict[str, float]) -> FrameResult:
         """A frame of a run entering a saved map (:class:`MapEntry`): ``LOST`` until
-        placed, then ``RELOCALISED`` with the saved keyframe as keyframe 0 of the
-        segment (its scales: tracked at once); given up, a map of the run's own."""
+        placed, then ``RELOCALISED`` against the saved keyframe, the newest of the
+        segment's (saved) keyframes; given up, a map of the run's own."""
         with timed(timings, "track"):
             got = self._entry.step(frame.image, self._map.next_index, self._map.segment)
         if got is None and not self._entry.given_up:
@@ -191,9 +193,10 @@ class Odometry(ReadSide):
         self._entry = None
         if got is None:
             return self._start(frame, idx, np.eye(4), timings)
-        kf, tr, _ = got
-        self._map.add(kf, new_segment=True, scaled=True)
-        self._map.landmarks = got[2]
+        kfs, tr, self._map.landmarks = got
+        for j, k in enumerate(kfs):
+            self._map.add(k, new_segment=j == 0, scaled=True)
+        kf = kfs[-1]
         self._motion.reset(tr.T_world_frame, float(frame.timestamp))
         self._motion.accept(tr, float(frame.timestamp))     # its brightness, no velocity
         self._map.anchor(idx, kf.index, invert_pose(kf.T_world_kf) @ tr.T_world_frame,

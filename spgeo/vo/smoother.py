@@ -13,7 +13,8 @@ poses are optimised too.  One
 and pair, built at pyramid level ``mapping.level``; the factors of a pair are
 evaluated together (:class:`~spgeo.factors.photometric_group.PhotometricFactorGroup`,
 identical values, one vectorised pass).  The first keyframe's pose has a tight
-gauge prior; every shape variable a weak prior (weight ``scale_prior_weight``)
+gauge prior (each of a saved map's keyframes a segment starts with, too:
+:mod:`spgeo.vo.map_entry`); every shape variable a weak prior (weight ``scale_prior_weight``)
 to its initial value; a new keyframe's primitives whose scale was rendered
 from the map (or, with a depth-using front-end, all of them) get the stronger
 ``render_prior_weight``: the render is a measurement of their scale (after a
@@ -110,6 +111,7 @@ class WindowMapper:
         self.landmarks: Optional[LandmarkMap] = None
         self._poses_in: set = set()       # keyframes whose pose is in the smoother
         self._lms_in: set = set()         # landmark ids in the smoother
+        self._added: set = set()          # keyframes given to the smoother since its reset
 
     def new_smoother(self) -> gtsam.BatchFixedLagSmoother:
         """An empty smoother with the configured LM parameters and lag."""
@@ -127,6 +129,7 @@ class WindowMapper:
         release_groups(self._groups)     # else never freed: a reference cycle through gtsam
         self._groups = []
         self._poses_in, self._lms_in = set(), set()
+        self._added = set()
 
     def estimate(self) -> gtsam.Values:
         """The smoother's current estimate (only the keys inside the window)."""
@@ -181,10 +184,11 @@ class WindowMapper:
         :class:`_UpdateFailed` when gtsam raises."""
         new, prev = kfs[-1], kfs[-2]
         batch = FactorBatch()
-        if len(kfs) == 2:
-            self._add_keyframe(batch, prev)
-            batch.graph.add(pose_gauge_prior(pose_key(prev.index), prev.keyframe.T_world_kf,
-                                             GAUGE_SIGMA))
+        for kf in kfs[:-1]:     # a segment's start: its keyframe 0, or a saved map's keyframes
+            if kf.index not in self._added:
+                self._add_keyframe(batch, kf)
+                batch.graph.add(pose_gauge_prior(pose_key(kf.index), kf.keyframe.T_world_kf,
+                                                 GAUGE_SIGMA))
         self._add_keyframe(batch, new)
         n_pair = self._link_keyframes(batch, prev, new)
         sel_new = self._map_pixels(new)
@@ -211,6 +215,7 @@ class WindowMapper:
     def _add_keyframe(self, batch: FactorBatch, kf: MapKeyframe) -> None:
         """A keyframe's pose and shape variables, with the shapes' priors."""
         add_keyframe_variables(batch, kf, self.config)
+        self._added.add(kf.index)
 
     def _add_group(self, batch: FactorBatch, group: Optional[PhotometricFactorGroup],
                    bkey: int, b0, t: int) -> int:
