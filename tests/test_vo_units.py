@@ -2,7 +2,9 @@
 :class:`~spgeo.vo.initialisation.Initialiser` (its decisions on tracked
 frames) and the :class:`~spgeo.vo.smoother.WindowMapper` (keyframes with known
 poses).  Synthetic 160x120 frames, depth-derived ("depth") front-end: metric
-primitives, so poses compare with ground truth without a scale."""
+primitives (keyframe 0 is tracked against at ground-truth scale; the
+initialisation's SfM, monocular, solves in its own units: its poses compare with
+ground truth after the scale of keyframe 0's median depth)."""
 import dataclasses
 
 import gtsam
@@ -52,6 +54,17 @@ def _pose_error(T, T_gt):
     return float(np.linalg.norm(T[:3, 3] - T_gt[:3, 3])), rotation_angle_deg(D[:3, :3])
 
 
+def _in_metres(T, dec, kf0):
+    """``T`` (camera-to-world, in the units of the initialisation ``dec``'s solved
+    keyframe 0) with its translation from keyframe 0 scaled to metres (keyframe 0's
+    metric median depth over the solved one)."""
+    s = kf0.keyframe.median_depth / dec.keyframe0.median_depth
+    T = np.array(T, dtype=float)
+    origin = kf0.keyframe.T_world_kf[:3, 3]
+    T[:3, 3] = origin + s * (T[:3, 3] - origin)
+    return T
+
+
 def _step(init, frames, kf0, i, image=None, tr=None):
     """One Initialiser step for frame ``i`` tracked against ``kf0`` from its
     ground-truth pose (or the given TrackResult)."""
@@ -68,7 +81,7 @@ def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, fro
     the first frame past it starts the map: keyframe 1's pose and the
     re-tracked buffered frames are near ground truth, the buffer is emptied."""
     kf0 = _map_keyframe(frames, frontend, 0, 0)
-    init = Initialiser(INIT, CAM, uses_depth=True)
+    init = Initialiser(INIT, CAM)
     waited = []
     for i in range(1, N_FRAMES):
         dec, tr, timings = _step(init, frames, kf0, i)
@@ -88,11 +101,12 @@ def test_initialiser_waits_then_starts_a_map_and_retracks_the_buffer(frames, fro
     # keyframe 0 keeps its pose and pixels, with the SfM's shapes
     np.testing.assert_array_equal(dec.keyframe0.T_world_kf, kf0.keyframe.T_world_kf)
     np.testing.assert_array_equal(dec.keyframe0.primitives.pixels, kf0.keyframe.primitives.pixels)
-    t_err, r_err = _pose_error(dec.T_world_kf1, frames[i].T_world_cam)
+    t_err, r_err = _pose_error(_in_metres(dec.T_world_kf1, dec, kf0), frames[i].T_world_cam)
     assert t_err < 0.01 and r_err < 0.5, (t_err, r_err)
     assert [r.frame for r in dec.retracked] == waited and all(r.ok for r in dec.retracked)
     for r in dec.retracked:
-        t_err, r_err = _pose_error(r.T_world_frame, frames[r.frame].T_world_cam)
+        t_err, r_err = _pose_error(_in_metres(r.T_world_frame, dec, kf0),
+                                   frames[r.frame].T_world_cam)
         assert t_err < 0.01 and r_err < 0.5, (r.frame, t_err, r_err)
         np.testing.assert_allclose(dec.keyframe0.T_world_kf @ r.T_kf_frame, r.T_world_frame,
                                    atol=1e-12)
@@ -104,7 +118,7 @@ def test_initialiser_rejects_a_pair_without_parallax(frames, frontend):
     solved, rejected (no map) with a note; the next retry waits half a gap."""
     cfg = dataclasses.replace(INIT, init=dataclasses.replace(INIT.init, max_gap=4))
     kf0 = _map_keyframe(frames, frontend, 0, 0, cfg)
-    init = Initialiser(cfg, CAM, uses_depth=True)
+    init = Initialiser(cfg, CAM)
     still = frames[0].image.copy()
     tr = track_frame(kf0.keyframe, still, kf0.keyframe.T_world_kf, (0.0, 0.0), cfg.tracker)
     dec = init.step(still, 4, kf0, tr, np.zeros(2), 0, {})
@@ -126,7 +140,7 @@ def test_initialiser_spaces_out_retries_after_a_failed_sfm(frames, frontend):
     SfM must be ``ok`` with parallax, else the decision is FAILED and the next
     lost frame waits until the gap has grown by half."""
     kf0 = _map_keyframe(frames, frontend, 0, 0)
-    init = Initialiser(INIT, CAM, uses_depth=True)
+    init = Initialiser(INIT, CAM)
     still = frames[0].image.copy()
     tr = track_frame(kf0.keyframe, still, kf0.keyframe.T_world_kf, (0.0, 0.0), INIT.tracker)
     lost = dataclasses.replace(tr, status="lost", reason="high_cost")

@@ -3,7 +3,7 @@
     spgeo vo --dataset {tum,7scenes,icl,folder,kitti,euroc,video,camera} PATH
              [--frames A:B[:STEP]]
              [--intrinsics fx,fy,cx,cy | --fov DEGREES | --calibration FILE[:ID]]
-             [--depth-scale UNITS_PER_METRE]
+             [--depth-scale UNITS_PER_METRE] [--image-dir NAME]
              [--resolution WxH] [--strict]
              [--frontend classical|manhattan|depth|onnx|onnx-depth]
              [--sam-family NAME] [--normal-model NAME|PATH] [--depth-model NAME|PATH]
@@ -144,17 +144,22 @@ def _given_camera(args: argparse.Namespace):
 
 def _reader_options(args: argparse.Namespace, kind: str) -> dict:
     """The reader options of ``--depth-scale`` (``depth_scale``, checked:
-    :func:`spgeo.datasets.check_depth_scale`); :class:`InputError` for a kind whose
-    reader reads no depth PNG."""
-    if args.depth_scale is None:
-        return {}
+    :func:`spgeo.datasets.check_depth_scale`) and ``--image-dir`` (``image_dir``);
+    :class:`InputError` for a kind whose reader has no such option."""
     from ..datasets import check_depth_scale, reader_options
 
-    if "depth_scale" not in reader_options(kind):
-        takes = [k for k in DATASET_KINDS if "depth_scale" in reader_options(k)]
-        raise InputError(f"--depth-scale: the {kind!r} reader reads no depth PNG (kinds "
-                         f"with a depth scale: {', '.join(takes)})")
-    return {"depth_scale": check_depth_scale(args.depth_scale)}
+    given = {"depth_scale": (args.depth_scale, "--depth-scale", check_depth_scale),
+             "image_dir": (args.image_dir, "--image-dir", str)}
+    options = {}
+    for field, (value, flag, check) in given.items():
+        if value is None:
+            continue
+        if field not in reader_options(kind):
+            takes = [k for k in DATASET_KINDS if field in reader_options(k)]
+            raise InputError(f"{flag}: the {kind!r} reader has no such option (kinds that "
+                             f"take it: {', '.join(takes)})")
+        options[field] = check(value)
+    return options
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -335,6 +340,9 @@ def add_vo_cli(subparsers) -> argparse.ArgumentParser:
                         "stops at B)")
     _add_camera_arguments(p)
     p.add_argument("--depth-scale", default=None, metavar="UNITS_PER_METRE", help=_DEPTH_SCALE)
+    p.add_argument("--image-dir", default=None, metavar="NAME",
+                   help="kitti: the image folder, i.e. the camera (image_0 ... image_3, image_l, "
+                        "image_r; default the first of image_0, image_2, image_l present)")
     p.add_argument("--resolution", default=None, metavar="WxH",
                    help="processing resolution (default: the input's aspect ratio at about "
                         "320x240 = 76800 pixels, width and height multiples of 8; a 4:3 "

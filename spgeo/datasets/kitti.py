@@ -169,10 +169,10 @@ class KITTISequence(FrameSequence):
     @staticmethod
     def _image_dir(root: Path, name: Optional[str]) -> str:
         """The image folder: ``name``, else the first of :data:`DEFAULT_IMAGE_DIRS`
-        present; ``ValueError`` for a name not in :data:`IMAGE_DIRS`,
+        present; :class:`InputError` for a name not in :data:`IMAGE_DIRS`,
         ``FileNotFoundError`` naming the folders looked for otherwise."""
         if name is not None and name not in IMAGE_DIRS:
-            raise ValueError(f"kitti: image_dir must be one of {sorted(IMAGE_DIRS)}, "
+            raise InputError(f"kitti: image_dir must be one of {sorted(IMAGE_DIRS)}, "
                              f"got {name!r}")
         for cand in (name,) if name is not None else DEFAULT_IMAGE_DIRS:
             if (root / cand).is_dir():

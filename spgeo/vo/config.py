@@ -188,8 +188,8 @@ class InitConfig:
             geometry (:func:`~spgeo.vo.initialisation.twoview_start`), falling
             back to ``"tracked"`` when that has no estimate; ``"tracked"``:
             keyframe 1's pose tracked against keyframe 0's unscaled primitives,
-            every primitive at depth 1.  A depth-using front-end always starts
-            from the tracked pose and its metric scales.
+            every primitive at depth 1.  (A depth-using front-end has no
+            initialisation: its keyframe 0 comes with the sensor depth's scale.)
         extra_views: frames between keyframes 0 and 1 (evenly spaced) added as
             supporting views to the initialisation's SfM (>= 0; default 1):
             with keyframe 1 alone the monocular structure of keyframe 0 fits

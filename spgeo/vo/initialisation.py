@@ -185,7 +185,7 @@ class InitJob:
         tracked: whether that tracking was ``ok``.
         brightness: the VO's brightness estimate (the re-tracking's start).
         segment: the map segment.
-        camera, config, uses_depth: as :class:`Initialiser`'s.
+        camera, config: as :class:`Initialiser`'s.
         ahead: also solve keyframe 0 and re-track the buffer (:meth:`run`), for
             a solve away from the tracker, whose result is only judged there.
     """
@@ -202,7 +202,6 @@ class InitJob:
     segment: int
     camera: PinholeCamera
     config: OdometryConfig
-    uses_depth: bool
     ahead: bool = False
 
     def run(self) -> "InitSolution":
@@ -240,10 +239,10 @@ def solve_keyframe1(job: InitJob) -> Tuple[SfMResult, int]:
     """The SfM of keyframe 0 (reference), ``job``'s candidate and extra views;
     its view count."""
     cfg = job.config
-    sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=not job.uses_depth)
+    sfm_cfg = dataclasses.replace(cfg.sfm, reset_scales=True)
     prims0 = job.kf0_keyframe.primitives
     T_init = job.T_kf0_f if job.tracked else None
-    if job.tracked and cfg.init.method == "twoview" and not job.uses_depth:
+    if job.tracked and cfg.init.method == "twoview":
         tv = twoview_start(job.kf0_image, job.image, job.camera, prims0)
         if tv is not None:
             T_init, prims0 = tv
@@ -300,7 +299,6 @@ class Initialiser:
         config: the VO's :class:`OdometryConfig` (``init``, ``sfm``, ``keyframe_levels``,
             ``keyframe`` overlap thresholds, ``primitive_model``, ``tracker``).
         camera: the frames' intrinsics.
-        uses_depth: whether the front-end uses depth (metric primitives).
         solver: where the keyframe-1 solve runs: an object with
             ``solve_init(job) -> InitSolution or None`` (None: solved elsewhere,
             the tracker goes on) and ``init_result() -> InitSolution or None``
@@ -320,12 +318,10 @@ class Initialiser:
             tracking (:class:`Solving`), or None.
     """
 
-    def __init__(self, config: OdometryConfig, camera: PinholeCamera, uses_depth: bool,
-                 solver=None, policy: Optional[KeyframePolicy] = None) -> None:
+    def __init__(self, config: OdometryConfig, camera: PinholeCamera, solver=None, policy: Optional[KeyframePolicy] = None) -> None:
         self.config = config
         self.policy = policy if policy is not None else KeyframePolicy(config.keyframe, solver)
         self.camera = camera
-        self.uses_depth = bool(uses_depth)
         self.solver = solver
         self.reports: List[dict] = []
         self.reset()
@@ -408,7 +404,7 @@ class Initialiser:
         t = time.perf_counter()
         job = InitJob(np.asarray(image), idx, kf0.image, kf0.frame, kf0.keyframe,
                       list(self.buffer), T_kf0_f, bool(tr.ok), np.asarray(brightness, float),
-                      segment, self.camera, self.config, self.uses_depth)
+                      segment, self.camera, self.config)
         solving = Solving(job, tr, T_kf0_f, float(parallax), bool(early))
         sol = job.run() if self.solver is None else self.solver.solve_init(job)
         if sol is None:
@@ -524,8 +520,8 @@ def solved_keyframe0(job: InitJob, sfm: SfMResult) -> Tuple[Keyframe, np.ndarray
     new_prims = sfm.primitives
     if config.primitive_model != "integrated":
         new_prims = apply_primitive_model(new_prims, config.primitive_model)
-    if not job.uses_depth and job.segment > 0:
-        # a re-initialised monocular segment keeps the previous map's depth scale
+    if job.segment > 0:
+        # a re-initialised segment keeps the previous map's depth scale
         # (keyframe 0's primitives were set to it by Odometry._start at re-initialisation)
         med = np.median(np.exp(kf0.primitives.scaled_log_depth()))
         med_new = np.median(np.exp(new_prims.scaled_log_depth()))

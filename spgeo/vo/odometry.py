@@ -58,14 +58,13 @@ class Odometry(ReadSide):
             (lead 0): the numbers of ``"inline"`` mapping, through the worker (tests).
         port: the :class:`~spgeo.vo.mapping_port.MappingPort` (default None: the
             one of ``config.mapping.mode``, :func:`~spgeo.vo.mapping_port.make_port`).
-        saved_map: a :class:`~spgeo.vo.saved_map.SavedMap` to continue in: the first
-            frames are relocalised into it (:mod:`spgeo.vo.map_entry`); raises
-            :class:`~spgeo.validation.InputError` when it does not fit (camera,
-            primitive model, units).
+        saved_map: a :class:`~spgeo.vo.saved_map.SavedMap` to continue in (the first
+            frames relocalised into it, :mod:`spgeo.vo.map_entry`); ``InputError``
+            when it does not fit (camera, primitive model, units).
 
     Attributes:
         readout: the :class:`~spgeo.vo.readout.OdometryReadout`, whose members
-            (:meth:`result`, :attr:`keyframes`, :meth:`report`, :meth:`save`, ...) it forwards.
+            (:meth:`result`, :meth:`report`, :meth:`save`, ...) it forwards (``ReadSide``).
 
     Mapping (docs/design.md §5.1): reads apply the pending update first; :meth:`close`
     (or ``with``) stops a worker.  Memory: after a frame its :class:`FrameResult` and
@@ -92,8 +91,8 @@ class Odometry(ReadSide):
         self._port = port if port is not None else make_port(self.camera, config,
                                                               wait_for_mapper)
         self._policy = KeyframePolicy(config.keyframe, self._port)
-        self._initialiser = Initialiser(config, self.camera, frontend.uses_depth,
-                                        solver=self._port, policy=self._policy)
+        self._initialiser = Initialiser(config, self.camera, solver=self._port,
+                                        policy=self._policy)
         self._builder = KeyframeBuilder(self.camera, config, frontend)
         self._sync = functools.partial(apply_pending_update, self._port, self._map, self._motion,
                                        self._frames)

@@ -204,8 +204,22 @@ def test_vo_bad_arguments(images, tmp_path, capsys, extra, fragment):
 def test_vo_depth_scale_for_a_reader_without_depth(tmp_path, capsys):
     rc, _, err = run(capsys, ["vo", "--dataset", "video", tmp_path / "clip.avi",
                               "--depth-scale", "5000", "--out", tmp_path / "o"])
-    assert rc == 2 and "--depth-scale: the 'video' reader reads no depth PNG" in err
+    assert rc == 2 and "--depth-scale: the 'video' reader has no such option" in err
     assert "tum, 7scenes, icl, folder" in err
+
+
+def test_vo_image_dir_for_kitti_only_and_named(tmp_path, capsys):
+    """``--image-dir`` picks a KITTI camera folder: refused for another reader (naming
+    the kinds that take it), and a folder name KITTI does not have is named."""
+    rc, _, err = run(capsys, ["vo", "--dataset", "folder", tmp_path, "--image-dir", "image_2",
+                              "--out", tmp_path / "o"])
+    assert rc == 2 and "--image-dir: the 'folder' reader has no such option" in err
+    assert "(kinds that take it: kitti)" in err
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "calib.txt").write_text("P0: " + " ".join(["1"] * 12) + "\n")
+    rc, _, err = run(capsys, ["vo", "--dataset", "kitti", tmp_path / "seq", "--image-dir",
+                              "image_9", "--out", tmp_path / "o"])
+    assert rc == 2 and "image_dir must be one of" in err and "'image_9'" in err
 
 
 def test_vo_missing_dataset(tmp_path, capsys):
