@@ -205,8 +205,9 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_FLAGGED
     _export(args, run, given)
     if args.save_map:
-        kept = run.odometry.saved_map().save(args.save_map)
-        print(f"wrote the map ({run.odometry.n_keyframes} keyframes) to {kept}")
+        kept = run.odometry.saved_map()
+        kept.save(args.save_map)
+        print(f"wrote the map ({len(kept.keyframes)} keyframes with depth) to {args.save_map}")
     return 0
 
 

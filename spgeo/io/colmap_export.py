@@ -393,12 +393,13 @@ def export_odometry(directory: Union[str, os.PathLike], odometry, names: Sequenc
     sel, images = odometry_images(odometry, names, keyframe_images, frames)
     pos = {i: p for p, i in enumerate(sel)}
     points = keyframe_points([(pos[kf_frame[k]], keyframe_images.get(k), kf)
-                              for k, kf in enumerate(kfs)], stride)
+                              for k, kf in enumerate(kfs) if k in kf_frame], stride)
     return export_colmap(directory, cam, images, res.poses[sel], points, max_points)
 
 
 def _keyframe_frames(odometry) -> Dict[int, int]:
-    """Keyframe index -> index of the frame it was made from."""
+    """Keyframe index -> index of the frame it was made from (a saved map's keyframe,
+    no frame of this run, has none: it is not exported)."""
     return {f.keyframe_index: f.index for f in odometry.frames if f.keyframe_index is not None}
 
 
@@ -428,8 +429,9 @@ def odometry_images(odometry, names: Sequence[str], keyframe_images: Dict[int, n
         raise ValueError(f"export: {len(names)} names for {len(res.poses)} frames")
     if frames is None:
         kf_frame = _keyframe_frames(odometry)
-        sel = [kf_frame[k] for k in range(odometry.n_keyframes)]
-        images: Iterable = ((names[i], keyframe_images[k]) for k, i in enumerate(sel))
+        made = [k for k in range(odometry.n_keyframes) if k in kf_frame]
+        sel = [kf_frame[k] for k in made]
+        images: Iterable = ((names[kf_frame[k]], keyframe_images[k]) for k in made)
     else:
         sel = [i for i, s in enumerate(res.statuses) if s != "lost"]
         images = _processed(frames, names, set(sel), cam)
