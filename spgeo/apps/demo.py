@@ -369,7 +369,8 @@ class VORow:
         n_frames: frames given to :meth:`Odometry.track`.
         duration_s: last minus first timestamp (seconds).
         init_frame: frame that became keyframe 1 (end of the two-view
-            initialisation); None if the run never initialised.
+            initialisation; with sensor depth, which has none, the keyframe policy's
+            first keyframe); None if the run made no keyframe 1.
         n_tracked: frames whose final status is not ``"lost"``.
         n_keyframes: keyframes created (keyframe 0 included).
         n_lost: frames whose final status is ``"lost"``.
@@ -423,8 +424,9 @@ class VODemoResult:
                          f"{r.ate_percent:6.2f} {r.sim3_scale:6.3f} {r.fps:5.1f}")
         lines.append("ATE: RMSE of the camera centres of the frames not lost after Sim(3) "
                      "alignment (evo); ATE % = of the ground-truth path length ('path m')\n"
-                     "init@: frame that became keyframe 1 (two-view initialisation); scale: "
-                     "Sim(3) scale (1 = metric); FPS excludes rendering/loading")
+                     "init@: frame that became keyframe 1 (two-view initialisation; with "
+                     "sensor depth the policy's first keyframe); scale: Sim(3) scale (1 = "
+                     "metric); FPS excludes rendering/loading")
         return "\n".join(lines)
 
 
