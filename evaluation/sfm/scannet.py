@@ -38,7 +38,6 @@ from spgeo.frontend import PrimitiveFrontEnd
 from spgeo.geometry import relative_pose, rotation_angle_deg
 from spgeo.sfm import SfMConfig, few_view_sfm
 
-from spgeo.evaluation.metrics import depth_metrics
 from spgeo.evaluation.pose_metrics import relative_pose_errors
 from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
 from spgeo.evaluation.tables import cell, markdown_table
@@ -200,29 +199,13 @@ def select_view_sets(frame_numbers: Sequence[int], poses: Mapping[int, Optional[
 
 def evaluate_depth(pred: np.ndarray, gt: np.ndarray, min_depth: float = 0.1,
                    max_depth: float = 10.0) -> Dict[str, float]:
-    """Median-scale ``pred`` to ``gt`` and score it.
+    """Median-scale ``pred`` to ``gt`` and score it, unclipped:
+    :func:`spgeo.evaluation.depth_eval.median_scaled_depth` (``abs_rel``,
+    ``median_rel``, ``delta_1.25``, ``imae_per_km``, ``irmse_per_km``, ``scale``,
+    ``coverage``, ``n_pixels``; NaN with ``coverage`` 0 when no pixel is valid)."""
+    from spgeo.evaluation.depth_eval import median_scaled_depth
 
-    The scale is ``median(gt / pred)`` over pixels where both are valid and
-    ``min_depth < gt < max_depth``; metrics are :func:`depth_metrics` of the
-    scaled prediction (``imae_per_km``, ``irmse_per_km``, ``abs_rel`` = mean
-    relative error, ``median_rel``, ``delta_1.25``, ``coverage``) plus
-    ``scale``.  All NaN (``coverage`` 0) when no pixel is valid.
-    """
-    pred = np.asarray(pred, np.float64)
-    gt = np.asarray(gt, np.float64)
-    if pred.shape != gt.shape:
-        raise ValueError(f"prediction shape {pred.shape} != ground-truth shape {gt.shape}")
-    ok = (np.isfinite(pred) & (pred > 0) & np.isfinite(gt) & (gt > min_depth)
-          & (gt < max_depth))
-    keys = ("imae_per_km", "irmse_per_km", "abs_rel", "median_rel", "delta_1.25", "scale")
-    if not ok.any():
-        return {k: float("nan") for k in keys} | {"coverage": 0.0, "n_pixels": 0}
-    scale = float(np.median(gt[ok] / pred[ok]))
-    m = depth_metrics(pred * scale, gt, min_depth=min_depth, max_depth=max_depth)
-    return {"imae_per_km": m["imae_per_km"], "irmse_per_km": m["irmse_per_km"],
-            "abs_rel": m["mean_rel"], "median_rel": m["median_rel"],
-            "delta_1.25": m["delta_1.25"], "scale": scale, "coverage": m["coverage"],
-            "n_pixels": m["n_pixels"]}
+    return median_scaled_depth(pred, gt, min_depth, max_depth, clip=False)
 
 
 _SUMMARY_KEYS = ("imae_per_km", "irmse_per_km", "abs_rel", "delta_1.25", "coverage",
