@@ -39,15 +39,22 @@ def test_unknown_name_exits_2_naming_it(tmp_path, capsys, flag, known, name):
 
 @pytest.mark.slow
 def test_synthetic_loop_smoke(tmp_path, capsys):
-    """Two runs (each its own process) of a short synthetic loop: one row each with a
-    finite, small ATE, the loop report only where loop closure is on, and the table."""
+    """Three runs (each its own process) of a short synthetic loop: one row each with a
+    finite, small ATE, the loop report only where loop closure is on, the keyframes'
+    depth against the exact depth (the sensor-depth front-end's, the floor, near 0),
+    and the table."""
     rc = main(["--out", str(tmp_path), "--sequences", "synthetic-loop", "--frames", "40",
-               "--variants", "default,loops", "--timeout", "300"])
+               "--variants", "default,loops,sensor-depth", "--timeout", "300"])
     printed = capsys.readouterr().out
     assert rc == 0
     data = json.loads((tmp_path / "long_run.json").read_text())
     rows = {r["variant"]: r for r in data["rows"]}
-    assert list(rows) == ["default", "loops"]
+    assert list(rows) == ["default", "loops", "sensor-depth"]
+    # measured at 9276954: AbsRel 0.040 / delta 0.982 (10 keyframes), floor 0.022 / 0.995
+    for variant, bound in (("default", 0.06), ("loops", 0.06), ("sensor-depth", 0.035)):
+        r = rows[variant]
+        assert 0 <= r["depth_abs_rel"] < bound and r["depth_delta"] > 0.95, r
+        assert r["depth_maps"] >= 5 and r["depth_coverage"] > 0.9
     for r in rows.values():
         assert r["error"] is None and r["sequence"] == "synthetic-loop"
         assert r["frames"] <= 40 and r["tracked"] + r["lost"] == r["frames"]
@@ -59,7 +66,7 @@ def test_synthetic_loop_smoke(tmp_path, capsys):
     md = (tmp_path / "long_run.md").read_text()
     header = "| " + " | ".join(h for h, _, _ in TABLE) + " |"
     assert header in md and header in printed
-    assert md.count("| synthetic-loop |") == 2
+    assert md.count("| synthetic-loop |") == 3
 
 
 @pytest.mark.slow

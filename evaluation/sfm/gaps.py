@@ -339,11 +339,16 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
         ``(triplet dict, view records)``: the triplet dict holds ``gap, ref, frames``,
         ``comparison`` (:func:`compare_on_dataset`'s dict), ``colmap`` (the judge's
         ``ColmapResult.summary()`` or None) and ``per_method`` (method -> ``status,
-        view_status, heldout_px, sigma_rot_deg, pose_covariances`` where its result has
-        them; ``heldout_px``: spgeo's held-out check of the photometric poses)."""
+        view_status, heldout_px, sigma_rot_deg, pose_covariances, depth`` where its
+        result has them; ``heldout_px``: spgeo's held-out check of the photometric
+        poses; ``depth``: its reference depth against the reference frame's sensor
+        depth, :func:`spgeo.evaluation.depth_eval.sfm_reference_depth`)."""
+    from spgeo.evaluation.depth_eval import sfm_reference_depth
+
     index = {int(n): i for i, n in enumerate(seq.frame_numbers)}
     numbers = [ref, ref + gap, ref + 2 * gap]
-    comp = compare_on_dataset([seq[index[n]] for n in numbers], estimators)
+    frames = [seq[index[n]] for n in numbers]
+    comp = compare_on_dataset(frames, estimators)
     statuses: Dict[str, List[str]] = {}
     sigmas: Dict[str, List[float]] = {}
     per_method: Dict[str, Dict[str, object]] = {}
@@ -360,6 +365,9 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
             info["sigma_rot_deg"] = sigmas[name]
             info["pose_covariances"] = [None if c is None else np.asarray(c).tolist()
                                         for c in covs]
+        if (getattr(res, "depth", None) is not None
+                and getattr(frames[0], "depth", None) is not None):
+            info["depth"] = sfm_reference_depth(res, frames[0].depth)
         per_method[name] = info
     jres = _last(estimators[judge]) if judge in estimators else None
     how = list(getattr(jres, "view_method", [])) or [None] * (len(numbers) - 1)
@@ -485,22 +493,53 @@ class GapResults:
             rows.append(cells)
         return "\n".join(markdown_table(head, rows, "llll" + "r" * (len(head) - 4)))
 
+    def depth_summary(self) -> Dict[str, Dict[str, Dict[str, float]]]:
+        """``"gap G"`` -> method -> :func:`spgeo.evaluation.depth_eval.summarize` of the
+        reference depths (``per_method[m]["depth"]`` of each triplet: one median scale
+        per depth map, the mean over the gap's triplets); methods without depth absent."""
+        from spgeo.evaluation.depth_eval import DepthMapScore, summarize
+
+        maps: Dict[str, Dict[str, List[DepthMapScore]]] = {}
+        for t in self.triplets:
+            for m, info in t.get("per_method", {}).items():  # type: ignore[union-attr]
+                if info.get("depth") is not None:
+                    maps.setdefault(f"gap {t['gap']}", {}).setdefault(m, []).append(
+                        DepthMapScore(f"ref {t['ref']}", int(t["ref"]), info["depth"]))
+        return {g: {m: summarize(s) for m, s in per.items()} for g, per in maps.items()}
+
+    def depth_table(self) -> str:
+        """Markdown: per gap and method, the reference depth against the sensor depth
+        (:meth:`depth_summary`): maps, AbsRel, delta < 1.25, coverage."""
+        rows = [[g.split()[-1], m, cell(s["n_maps"]), cell(s["abs_rel"], 3),
+                 cell(s["delta_1.25"], 3), cell(s["coverage"])]
+                for g, per in self.depth_summary().items() for m, s in per.items()]
+        header = [self.label, "method", "depth maps", "depth AbsRel", "depth d<1.25",
+                  "coverage"]
+        return "\n".join(markdown_table(header, rows, "ll" + "r" * 4))
+
     def table(self) -> str:
-        """The three tables, each under a one-line title."""
-        return "\n\n".join([
+        """The tables, each under a one-line title (the depth table where a method
+        gave a reference depth and the frames have depth)."""
+        parts = [
             f"Gap cases on {self.data}, refs {self.refs}, judged by {self.judge!r} (the "
             "tables' COLMAP): medians over each gap's views "
             "(degrees; rot = rotation error, tdir = translation-direction error)",
             self.summary_table(),
             "Rotation covariance coverage (sigma_rot = degrees(sqrt(trace(C_rot))))",
             self.coverage_table(), "Per view: rotation error vs COLMAP / vs GT (degrees)",
-            self.views_table()])
+            self.views_table()]
+        if self.depth_summary():
+            parts += ["Reference depth against the sensor depth (one median scale per depth "
+                      "map, clipped to 0.1-10; mean over the refs; spgeo.evaluation.depth_eval)",
+                      self.depth_table()]
+        return "\n\n".join(parts)
 
     def to_dict(self) -> Dict[str, object]:
         """Everything, JSON-friendly (numpy values through ``json_default``)."""
         return {"data": self.data, "gaps": list(self.gaps), "refs": list(self.refs),
                 "judge": self.judge,
-                "summary": self.summary, "coverage": self.coverage, "views": self.records,
+                "summary": self.summary, "coverage": self.coverage,
+                "depth": self.depth_summary(), "views": self.records,
                 "triplets": self.triplets}
 
 

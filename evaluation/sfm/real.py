@@ -14,7 +14,12 @@ none) and ref of ``--refs``, spgeo / COLMAP / SIFT two-view judged against COLMA
 pose of each view beside the ground truth, with spgeo's rotation-covariance coverage
 (:mod:`.gaps`; ``--clip-reference``: COLMAP on the whole clip judges instead);
 ``synthetic``: synthetic rooms with views ``--angles`` degrees from the reference, one
-per seed of ``--seeds``, against the exact ground truth (:mod:`.baselines`).  One
+per seed of ``--seeds``, against the exact ground truth (:mod:`.baselines`).  Every case
+also scores spgeo's reference depth against the reference frame's depth (issue 54; one
+median scale per depth map, clipped to 0.1-10, AbsRel and delta < 1.25,
+:mod:`spgeo.evaluation.depth_eval`; synthetic: exact depth); the gap cases add the
+sensor-depth front-end's SfM (``spgeo depth (floor)``) as the depth table's floor, the
+TUM and ICL cases have it already (``spgeo depth-normals (oracle)``).  One
 ``SfMConfig`` throughout: the default (marginals on, so pose
 covariances exist); the gap cases use the classical front-end.  The regression tests
 ``tests/test_sfm_real.py`` and ``tests/test_sfm_gaps.py`` assert numbers from this
@@ -28,6 +33,7 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
+from spgeo.evaluation.depth_eval import sfm_reference_depth
 from spgeo.evaluation.references.colmap import colmap_estimator
 from spgeo.evaluation.pose_compare import compare_on_dataset
 from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
@@ -39,7 +45,7 @@ from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 from spgeo.trajectory import Trajectory
 
-__all__ = ["CASES", "CASE_KINDS", "spgeo_estimator", "twoview_estimator", "gap_estimators",
+__all__ = ["CASES", "CASE_KINDS", "FLOOR", "spgeo_estimator", "twoview_estimator", "gap_estimators",
            "run_case", "run_gap_cases", "parse_cases", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
@@ -83,13 +89,21 @@ def twoview_estimator() -> Callable:
     return estimate
 
 
-def gap_estimators(inits: Sequence[str] = ("features",)) -> Dict[str, Callable]:
+#: the gap cases' floor of the depth table: the sensor-depth front-end's SfM
+FLOOR = "spgeo depth (floor)"
+
+
+def gap_estimators(inits: Sequence[str] = ("features",), floor: bool = False
+                   ) -> Dict[str, Callable]:
     """Fresh estimators of the gap and synthetic cases: ``"spgeo"`` (:func:`spgeo_estimator`,
     classical, ``SfMConfig(init=inits[0])``), ``"spgeo init=I"`` for each further start
-    ``I`` of ``inits`` (to compare starts in one run), ``"colmap"`` (the judge) and
-    ``"sift two-view"``."""
+    ``I`` of ``inits`` (to compare starts in one run), with ``floor`` :data:`FLOOR` (the
+    ``depth`` front-end, which reads the reference's sensor depth: the depth table's
+    floor), ``"colmap"`` (the judge) and ``"sift two-view"``."""
     out = {"spgeo" if k == 0 else f"spgeo init={init}":
            spgeo_estimator("classical", SfMConfig(init=init)) for k, init in enumerate(inits)}
+    if floor:
+        out[FLOOR] = spgeo_estimator("depth", SfMConfig(init=inits[0]))
     out.update({"colmap": colmap_estimator(), "sift two-view": twoview_estimator()})
     return out
 
@@ -121,6 +135,10 @@ def run_case(name: str, shared: Optional[Path] = None,
                            for name, fn in estimators.items()
                            if getattr(fn, "last_result", None) is not None
                            and hasattr(fn.last_result, "view_status")}
+    if getattr(frames[0], "depth", None) is not None:
+        comp["depth"] = {name: sfm_reference_depth(fn.last_result, frames[0].depth)
+                         for name, fn in estimators.items()
+                         if getattr(getattr(fn, "last_result", None), "depth", None) is not None}
     return comp
 
 
@@ -139,6 +157,10 @@ def _table(name: str, comp: dict) -> str:
                              + (f" [{status[j]}]" if status else ""))
         lines.append(f"  {method:30s} " + "   ".join(cells)
                      + f"   ({comp['time_s'][method]:.1f} s)")
+    for method, m in comp.get("depth", {}).items():
+        lines.append(f"  {method:30s} reference depth: AbsRel {m['abs_rel']:.3f}, "
+                     f"d<1.25 {m['delta_1.25']:.3f}, coverage {m['coverage']:.2f} "
+                     "(one median scale, clipped to 0.1-10 m)")
     return "\n".join(lines)
 
 
@@ -252,7 +274,7 @@ def run(args: argparse.Namespace) -> int:
         elif not (shared / GAP_DATA).is_dir():
             print(f"gaps: skipped ({shared / GAP_DATA} not found)")
         else:
-            res = run_gap_cases(shared, gaps, refs, lambda: gap_estimators(inits),
+            res = run_gap_cases(shared, gaps, refs, lambda: gap_estimators(inits, floor=True),
                                 args.clip_reference)
             out["gaps"] = res.to_dict()
             print(res.table())

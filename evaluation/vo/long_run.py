@@ -43,8 +43,10 @@ after the sequence's own; ``default`` (none), ``loops``
 remembers the start, so loops are sought), ``inline`` (the back end between two
 frames instead of the live mapping worker) and ``no-feature-check``
 (``odometry.feature_retry.min_agreement=None``: a pose refused for its photometric
-cost is never kept at its own pose; since issue 51 the PnP pose is kept instead).
-Adding a variant is one entry there.
+cost is never kept at its own pose; since issue 51 the PnP pose is kept instead) and
+``sensor-depth`` (``frontend=depth``: the sensor-depth front-end, the floor of the depth
+columns; run only on the sequences with depth: ``7scenes``, ``7scenes-palindrome``,
+``synthetic-loop``).  Adding a variant is one entry there.
 
 Each (sequence, variant) runs in a fresh ``python -m`` process, one after
 the other, with one BLAS / OpenMP thread, through
@@ -60,7 +62,11 @@ truth; synthetic: scene units), loop closures accepted / rejected
 drift (:mod:`spgeo.evaluation.vo.scale_drift`: the last keyframe's median
 sensor-depth / keyframe-depth ratio over the first keyframe's, or without
 sensor depth the ratio of ground-truth to estimated keyframe baselines, last
-over first; one means no drift), end-pose error (the estimated relative pose
+over first; one means no drift), keyframe depth (issue 54; on the sequences with depth:
+each keyframe's primitive depth map at the processing size against its frame's sensor
+depth resized with nearest neighbours, one median scale per keyframe, clipped to 0.1-10,
+AbsRel and delta < 1.25 averaged over the keyframes, :mod:`spgeo.evaluation.depth_eval`),
+end-pose error (the estimated relative pose
 from the first to the last evaluated frame after the Sim(3) alignment's scale,
 against the ground truth's: metres and degrees; on a palindrome the true
 relative pose is the identity), FPS (frames over the run loop's wall time),

@@ -3,7 +3,7 @@
 :func:`run_one` runs one (sequence, variant) in this process
 (:func:`spgeo.apps.vo_run.run_odometry`), saves it and returns its row's fields
 (:func:`run_metrics`: counts, ATE, loop closures, :func:`scale_drift`,
-:func:`end_pose_error`, FPS, peak RSS).  :func:`run_subprocess` runs it in a fresh
+:func:`keyframe_depth`, :func:`end_pose_error`, FPS, peak RSS).  :func:`run_subprocess` runs it in a fresh
 ``python -m spgeo.evaluation.vo.long_run --_run ...`` process (one BLAS / OpenMP thread,
 this checkout first on ``PYTHONPATH``) whose entry is :func:`child_main` (the row in
 ``row.json``); :func:`make_jobs` makes one job per (sequence, variant).  Every row
@@ -22,9 +22,9 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from spgeo.evaluation.jobs import THREAD_ENV, Job, write_atomic
-from spgeo.evaluation.vo.long_run_sequences import SEQUENCES, run_config
+from spgeo.evaluation.vo.long_run_sequences import SEQUENCES, run_config, runs_on
 
-__all__ = ["end_pose_error", "scale_drift", "kitti_errors", "run_metrics", "run_one", "base_row",
+__all__ = ["end_pose_error", "scale_drift", "kitti_errors", "keyframe_depth", "run_metrics", "run_one", "base_row",
            "child_main", "run_subprocess", "make_jobs"]
 
 
@@ -91,11 +91,26 @@ def kitti_errors(run, ate) -> Dict[str, Any]:
             "kitti_lengths": list(k.lengths)}
 
 
+def keyframe_depth(run, depth_frames) -> Dict[str, Any]:
+    """The depth columns of a run: its keyframes' dense depth against the sensor depth of
+    ``depth_frames`` (:func:`~spgeo.evaluation.depth_eval.vo_keyframe_depth`, one median
+    scale per keyframe, mean over the keyframes): ``depth_abs_rel``, ``depth_delta``
+    (delta < 1.25), ``depth_coverage``, ``depth_maps`` (keyframes scored); None each
+    (``depth_maps`` 0) where no keyframe's frame has depth."""
+    from spgeo.evaluation.depth_eval import summarize, vo_keyframe_depth
+
+    s = summarize(vo_keyframe_depth(run.odometry, depth_frames))
+    some = s["n_maps"] > 0
+    return {"depth_abs_rel": s["abs_rel"] if some else None,
+            "depth_delta": s["delta_1.25"] if some else None,
+            "depth_coverage": s["coverage"] if some else None, "depth_maps": s["n_maps"]}
+
+
 def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, Any]:
     """The row fields of a finished run: ``run`` (:class:`~spgeo.apps.vo_run.VORun`),
     ``ate`` (its :meth:`~spgeo.apps.vo_run.VORun.ate`), ``report`` (its saved
     ``report.json``), ``depth_frames`` (its frames with sensor depth, for the
-    scale drift)."""
+    scale drift and :func:`keyframe_depth`)."""
     counts = run.status_counts()
     per, kf = (ate or {}).get("per-frame"), (ate or {}).get("keyframe-only")
     loops = report.get("loop_closures")
@@ -113,6 +128,7 @@ def run_metrics(run, ate, report: Mapping[str, Any], depth_frames) -> Dict[str, 
         "loops_accepted": None if loops is None else len(loops["accepted"]),
         "loops_rejected": None if loops is None else int(loops["rejected"]),
         "scale_drift": drift, "scale_drift_from": drift_from,
+        **keyframe_depth(run, depth_frames),
         "end_err_m": end_m, "end_err_deg": end_deg, "fps": run.fps,
         "peak_rss_mb": (report.get("run") or {}).get("memory", {}).get("peak_rss_mb"),
         **kitti_errors(run, per),
@@ -124,10 +140,12 @@ def run_one(sequence: str, variant: str, cap: Optional[int], folder: Path) -> Di
     (:func:`~spgeo.apps.vo_run.run_odometry`), the run saved in ``folder``
     (:meth:`~spgeo.apps.vo_run.VORun.save`) and its row (:func:`run_metrics`)."""
     from spgeo.apps.vo_run import run_odometry
+    from spgeo.frontend import MONOCULAR_FRONTENDS
 
     seq = SEQUENCES[sequence]
-    frames = seq.frames(cap, depth=False)
-    run = run_odometry(frames, run_config(sequence, variant), n_frames=len(frames))
+    cfg = run_config(sequence, variant)
+    frames = seq.frames(cap, depth=cfg.frontend not in MONOCULAR_FRONTENDS)
+    run = run_odometry(frames, cfg, n_frames=len(frames))
     ate = run.ate()
     run.save(folder, ate=ate, title=f"{sequence} {variant}")
     report = json.loads((Path(folder) / "report.json").read_text(encoding="utf-8"))
@@ -194,6 +212,9 @@ def run_subprocess(sequence: str, variant: str, cap: Optional[int], out: Path,
 
 def make_jobs(sequences: Sequence[str], variants: Sequence[str], cap: Optional[int], out: Path,
               timeout: Optional[float] = None) -> List[Job]:
-    """One :class:`~spgeo.evaluation.jobs.Job` per (sequence, variant), sequence-major."""
+    """One :class:`~spgeo.evaluation.jobs.Job` per (sequence, variant), sequence-major;
+    a variant that reads sensor depth only on sequences with depth
+    (:func:`~spgeo.evaluation.vo.long_run_sequences.runs_on`)."""
     return [Job(f"{s}.{v}", run_subprocess, (s, v, cap, Path(out), timeout),
-                meta=base_row(s, v, cap)) for s in sequences for v in variants]
+                meta=base_row(s, v, cap)) for s in sequences for v in variants
+            if runs_on(s, v)]

@@ -21,7 +21,7 @@ from spgeo.evaluation.vo.memory import palindrome
 
 __all__ = ["SEVENSCENES_FRAMES", "SYNTHETIC_LOOP", "FOREIGN_SPAN", "Reordered", "Spliced",
            "LongRunSequence", "SEQUENCES",
-           "VARIANTS", "run_config"]
+           "VARIANTS", "DEPTH_VARIANTS", "runs_on", "run_config"]
 
 #: Frames of the 7-Scenes sample the ``7scenes`` sequences use (frame numbers ``0:N``).
 SEVENSCENES_FRAMES = 300
@@ -193,11 +193,14 @@ class LongRunSequence:
         loop: played as a palindrome (returns to its first frame).
         overrides: :class:`~spgeo.apps.vo_run.VORunConfig` overrides of this
             sequence (dotted names), applied before the variant's.
+        has_depth: every frame has sensor (or rendered) depth: its keyframes' depth
+            is scored and the :data:`DEPTH_VARIANTS` run on it.
     """
 
     open: Callable[..., Reordered]
     loop: bool = False
     overrides: Mapping[str, Any] = field(default_factory=dict)
+    has_depth: bool = False
 
     def frames(self, cap: Optional[int] = None, depth: bool = False) -> Reordered:
         """The frames of the sequence (see :attr:`open`)."""
@@ -206,14 +209,14 @@ class LongRunSequence:
 
 #: ``--sequences`` name -> :class:`LongRunSequence`.
 SEQUENCES: Dict[str, LongRunSequence] = {
-    "7scenes": LongRunSequence(_sevenscenes),
-    "7scenes-palindrome": LongRunSequence(_sevenscenes, loop=True),
+    "7scenes": LongRunSequence(_sevenscenes, has_depth=True),
+    "7scenes-palindrome": LongRunSequence(_sevenscenes, loop=True, has_depth=True),
     "kitti": LongRunSequence(_kitti),
     "7scenes-foreign": LongRunSequence(_sevenscenes_foreign),
     "synthetic-loop": LongRunSequence(
         _synthetic_loop, loop=True,
         overrides={"odometry.resolution": SYNTHETIC_LOOP["size"],
-                   "odometry.keyframe.max_translation": 0.03}),
+                   "odometry.keyframe.max_translation": 0.03}, has_depth=True),
     "road-straight": LongRunSequence(_road("straight", 500)),
     "road-block": LongRunSequence(_road("block", 725)),
 }
@@ -227,7 +230,18 @@ VARIANTS: Dict[str, Mapping[str, Any]] = {
                            "odometry.loop_closure.enabled": True},
     "inline": {"odometry.mapping.mode": "inline"},
     "no-feature-check": {"odometry.feature_retry.min_agreement": None},
+    "sensor-depth": {"frontend": "depth"},
 }
+
+#: variants that read the sensor depth: run only on sequences that have it
+#: (:attr:`LongRunSequence.has_depth`); ``sensor-depth`` is the depth columns' floor
+DEPTH_VARIANTS = ("sensor-depth",)
+
+
+def runs_on(sequence: str, variant: str) -> bool:
+    """Whether the benchmark runs ``variant`` on ``sequence``: every variant but the
+    :data:`DEPTH_VARIANTS` on every sequence, those only where it has depth."""
+    return variant not in DEPTH_VARIANTS or SEQUENCES[sequence].has_depth
 
 
 def run_config(sequence: str, variant: str):

@@ -22,6 +22,7 @@ TABLE: Tuple[Tuple[str, str, int], ...] = (
     ("KF ATE m", "kf_ate_m", 4), ("t_rel %", "t_rel_pct", 2),
     ("r_rel deg/100m", "r_rel_deg_per_100m", 2), ("loops acc.", "loops_accepted", 0),
     ("loops rej.", "loops_rejected", 0), ("scale drift", "scale_drift", 3),
+    ("depth AbsRel", "depth_abs_rel", 3), ("depth d<1.25", "depth_delta", 3),
     ("end err m", "end_err_m", 4), ("end err deg", "end_err_deg", 2), ("FPS", "fps", 1),
     ("peak RSS MiB", "peak_rss_mb", 0), ("run s", "run_s", 1),
     ("status", "status", 0), ("error", "error", 0))
@@ -48,7 +49,12 @@ _NOTE = ("ATE: Sim(3)-aligned RMSE of camera centres, frames flagged lost exclud
          "run.memory of the run's own process. t_rel / r_rel: KITTI's relative errors over path "
          "segments (the devkit's definition, spgeo.evaluation.kitti_metrics) at the ATE's Sim(3) "
          "scale, over 100-800 m or, on a shorter path, 10-80 % of it (the KITTI clip: 5.2-41.6 m; "
-         "each row's kitti_lengths in long_run.json).")
+         "each row's kitti_lengths in long_run.json). Depth: the keyframes' dense depth (their "
+         "primitives' depth map at the processing size) against the sensor depth (resized, "
+         "nearest), one median scale per keyframe, clipped to 0.1-10, AbsRel and "
+         "delta < 1.25 averaged over the keyframes (spgeo.evaluation.depth_eval); '-' without "
+         "depth; variant sensor-depth (the sensor-depth front-end) is its floor (7-Scenes' "
+         "depth is not registered to colour; synthetic: exact).")
 
 
 _REFERENCE_NOTE = ("Against COLMAP (--reference colmap; COLMAP's reconstruction of the same "
