@@ -83,14 +83,16 @@ def _row(kind: str, sequence: str, frontend: str, scores: Sequence[DepthMapScore
 
 
 def vo_depth_row(spec: str, config, depth_range: Tuple[float, float] = DEPTH_RANGE,
-                 breakdown: bool = False) -> Dict[str, Any]:
+                 breakdown: bool = False, oracle: bool = False) -> Dict[str, Any]:
     """Run the VO on the sequence ``spec`` with ``config`` (a
     :class:`~spgeo.apps.vo_run.VORunConfig`; :func:`vo_overrides` applied on top) and
     score its keyframes' depth (:func:`~spgeo.evaluation.depth_eval.vo_keyframe_depth`):
     the row has the summary, ``frames``, ``keyframes`` (with depth and a frame),
     ``ate_m`` (per-frame Sim(3) ATE RMSE), ``seconds`` (the VO run's wall time),
-    ``maps`` (per keyframe) and with ``breakdown`` the merged
-    :func:`~spgeo.evaluation.depth_eval.primitive_breakdown`."""
+    ``maps`` (per keyframe), with ``breakdown`` the merged
+    :func:`~spgeo.evaluation.depth_eval.primitive_breakdown` and with ``oracle`` the
+    ``oracle_scale_abs_rel`` / ``oracle_plane_abs_rel`` of
+    :func:`~spgeo.evaluation.depth_eval.oracle_depth_maps` (mean over the keyframes)."""
     from spgeo.apps.vo_run import run_odometry
     from spgeo.configs import apply_overrides
 
@@ -101,7 +103,7 @@ def vo_depth_row(spec: str, config, depth_range: Tuple[float, float] = DEPTH_RAN
     secs = time.perf_counter() - t0
     ate = run.ate()
     per = None if ate is None else ate.get("per-frame")
-    scores = vo_keyframe_depth(run.odometry, frames, depth_range, breakdown)
+    scores = vo_keyframe_depth(run.odometry, frames, depth_range, breakdown, oracle)
     row = _row("vo", spec, cfg.frontend, scores, frames=len(frames), keyframes=len(scores),
                ate_m=None if per is None else float(per.rmse), seconds=secs,
                fps=run.fps)

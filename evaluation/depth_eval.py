@@ -27,7 +27,9 @@ protocol), with the pixel-pooled ``abs_rel_pooled`` beside it.
 
 :func:`primitive_breakdown` splits a map's relative error by primitive size, by a
 pixel's distance from its primitive's anchor and by image region (a 3x3 grid), per
-primitive entry, at the map's median scale.
+primitive entry, at the map's median scale.  :func:`oracle_depth_maps` gives the
+headroom: the same primitives with each one's log-scale, or its log-depth plane (scale and
+two slopes, a bent primitive), fitted to the sensor depth itself.
 """
 from __future__ import annotations
 
@@ -40,7 +42,8 @@ from spgeo.metrics.depth import depth_metrics
 
 __all__ = ["DEPTH_RANGE", "median_scaled_depth", "resize_depth", "DepthMapScore", "summarize",
            "keyframe_primitives", "vo_keyframe_depth", "sfm_reference_depth",
-           "primitive_breakdown", "merge_breakdowns", "SIZE_BINS", "ANCHOR_BINS"]
+           "primitive_breakdown", "merge_breakdowns", "oracle_depth_maps", "SIZE_BINS",
+           "ANCHOR_BINS"]
 
 #: default ``(min_depth, max_depth)`` of the sensor pixels judged (metres)
 DEPTH_RANGE = (0.1, 10.0)
@@ -120,13 +123,16 @@ class DepthMapScore:
 
 def summarize(scores: Sequence[DepthMapScore]) -> Dict[str, Any]:
     """A sequence's figures: ``n_maps`` (maps with a valid pixel), the mean over those
-    maps of ``abs_rel``, ``median_rel``, ``delta_1.25``, ``coverage``, ``clipped``, and
+    maps of ``abs_rel``, ``median_rel``, ``delta_1.25``, ``coverage``, ``clipped`` (and of
+    the ``oracle_*_abs_rel`` where the maps have them), and
     ``abs_rel_pooled`` (every valid pixel of every map weighted alike); NaN without maps."""
     ok = [s.metrics for s in scores if s.metrics.get("n_pixels", 0) > 0]
     out: Dict[str, Any] = {"n_maps": len(ok)}
-    for k in ("abs_rel", "median_rel", "delta_1.25", "coverage", "clipped"):
+    for k in ("abs_rel", "median_rel", "delta_1.25", "coverage", "clipped",
+              "oracle_scale_abs_rel", "oracle_plane_abs_rel"):
         vals = [m[k] for m in ok if k in m]
-        out[k] = float(np.mean(vals)) if vals else float("nan")
+        if vals or not k.startswith("oracle"):
+            out[k] = float(np.mean(vals)) if vals else float("nan")
     n = np.array([m["n_pixels"] for m in ok], float)
     out["abs_rel_pooled"] = (float(np.sum(n * [m["abs_rel"] for m in ok]) / n.sum())
                              if ok else float("nan"))
@@ -145,7 +151,7 @@ def keyframe_primitives(odometry) -> Iterator[Tuple[int, int, Any]]:
 
 
 def vo_keyframe_depth(odometry, frames, depth_range: Tuple[float, float] = DEPTH_RANGE,
-                      breakdown: bool = False) -> List[DepthMapScore]:
+                      breakdown: bool = False, oracle: bool = False) -> List[DepthMapScore]:
     """Score every keyframe depth map of a VO run (module docstring).
 
     Args:
@@ -155,6 +161,8 @@ def vo_keyframe_depth(odometry, frames, depth_range: Tuple[float, float] = DEPTH
             (any size; a frame without depth is left out).
         depth_range: ``(min_depth, max_depth)`` of the judged sensor pixels.
         breakdown: also :func:`primitive_breakdown` per keyframe.
+        oracle: also the AbsRel of :func:`oracle_depth_maps` (metrics
+            ``oracle_scale_abs_rel``, ``oracle_plane_abs_rel``).
     Returns:
         one :class:`DepthMapScore` per keyframe with sensor depth (``name`` ``"kf K"``)."""
     out = []
@@ -166,7 +174,58 @@ def vo_keyframe_depth(odometry, frames, depth_range: Tuple[float, float] = DEPTH
         m = median_scaled_depth(prims.depth_map(), gt, *depth_range)
         b = (primitive_breakdown(prims, gt, m["scale"], depth_range)
              if breakdown and m["n_pixels"] else None)
+        if oracle:
+            for name, pred in oracle_depth_maps(prims, gt, depth_range).items():
+                m[f"oracle_{name}_abs_rel"] = median_scaled_depth(pred, gt, *depth_range)["abs_rel"]
         out.append(DepthMapScore(f"kf {k}", f, m, b))
+    return out
+
+
+def _plane_log_depth(prims, lg: np.ndarray, ok: np.ndarray, min_points: int = 3) -> np.ndarray:
+    """(M,) per entry: its primitive's least-squares log-depth plane ``a + b x + c y``
+    (``x, y`` normalised image coordinates) through the valid (``ok``) log-depths ``lg``;
+    NaN for a primitive with fewer than ``min_points`` valid entries."""
+    cam, w, n = prims.camera, prims.camera.size[0], len(prims)
+    ids = prims.primitive_ids
+    A = np.stack([np.ones(ids.size), (prims.pixels % w - cam.cx) / cam.fx,
+                  (prims.pixels // w - cam.cy) / cam.fy], axis=1)
+    Aw = A * ok[:, None]
+    ata = np.stack([np.bincount(ids, Aw[:, i] * A[:, j], minlength=n)
+                    for i in range(3) for j in range(3)], axis=1).reshape(n, 3, 3)
+    atb = np.stack([np.bincount(ids, Aw[:, i] * lg, minlength=n) for i in range(3)], axis=1)
+    good = np.bincount(ids, ok.astype(float), minlength=n) >= min_points
+    theta = np.full((n, 3), np.nan)
+    if good.any():
+        theta[good] = np.linalg.solve(ata[good] + 1e-9 * np.eye(3), atb[good][..., None])[..., 0]
+    return np.einsum("ij,ij->i", A, theta[ids])
+
+
+def oracle_depth_maps(prims, gt: np.ndarray, depth_range: Tuple[float, float] = DEPTH_RANGE
+                      ) -> Dict[str, np.ndarray]:
+    """Depth maps of ``prims``'s pixels with shapes fitted to the sensor depth ``gt`` (at
+    the primitives' size), the headroom of a better scale or shape: ``"scale"``: each
+    primitive's own shape at its median log-scale (:meth:`PrimitiveSet.fit_log_scales
+    <spgeo.primitives.PrimitiveSet.fit_log_scales>`: perfect scales); ``"plane"``: each
+    primitive's least-squares log-depth plane in normalised image coordinates (a scale
+    and two slopes: a perfect bent primitive).  A primitive without valid sensor depth
+    (three pixels for a plane) is NaN (not predicted)."""
+    g = np.asarray(gt, np.float64)
+    inside = np.where((g > depth_range[0]) & (g < depth_range[1]), g, np.nan)
+    s, _ = prims.fit_log_scales(inside)
+    gv = inside.reshape(-1)[prims.pixels]
+    ok = np.isfinite(gv)
+    lg = np.log(np.where(ok, gv, 1.0))
+    npix = prims.camera.width * prims.camera.height
+    out = {}
+    for name, ld in (("scale", prims.log_depth + s[prims.primitive_ids]),
+                     ("plane", _plane_log_depth(prims, lg, ok))):
+        d = np.exp(ld)
+        fin = np.isfinite(d)
+        tot = np.bincount(prims.pixels[fin], weights=d[fin], minlength=npix)
+        cnt = np.bincount(prims.pixels[fin], minlength=npix)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[name] = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan).reshape(
+                prims.camera.shape)
     return out
 
 

@@ -5,7 +5,8 @@ shape models and settings.
 
     python scripts/dense_depth_probe.py [--vo SPEC ...] [--frontends classical,depth]
         [--sfm SPEC ...] [--refs 0,60,120] [--sfm-frontends classical]
-        [--set FIELD=VALUE ...] [--sfm-set FIELD=VALUE ...] [--breakdown] [--json OUT]
+        [--set FIELD=VALUE ...] [--sfm-set FIELD=VALUE ...] [--breakdown] [--oracle]
+        [--json OUT]
 
 VO specs: ``7scenes[:A:B]`` (shared 7-Scenes redkitchen frames A:B; only 0:300 exist),
 ``tum`` (TUM fr1_desk, 9 frames), ``icl`` (ICL-NUIM, 5 wide frames), ``synthetic[:SEED[:N]]``
@@ -15,6 +16,9 @@ ref+2G for each of --refs), ``tum`` (0, 4, 8), ``icl`` (1, 2, 3).  ``--vo none``
 sequence (``depth``: the sensor-depth front-end, the floor row).  ``--set`` applies to the
 VO's :class:`~spgeo.apps.vo_run.VORunConfig` (odometry fields without prefix, e.g.
 ``primitive_model=bent`` or ``window=7``), ``--sfm-set`` to the :class:`~spgeo.sfm.SfMConfig`.
+``--breakdown``: AbsRel by primitive size, anchor distance and image region;
+``--oracle``: the keyframes' AbsRel with perfect per-primitive scales / log-depth planes
+(:func:`spgeo.evaluation.depth_eval.oracle_depth_maps`), the headroom.
 
 Defaults: VO on 7scenes:0:300, tum, icl, synthetic:0, synthetic:1 (90 frames) with the
 classical and depth front-ends; SfM 7scenes:10 and 7scenes:30 at refs 0,60,120 with the
@@ -63,12 +67,20 @@ def _cell(v: Any, decimals: Optional[int]) -> str:
     return "nan" if f != f else f"{f:.{decimals}f}"
 
 
+#: the columns of ``--oracle`` (before ``error``)
+ORACLE_COLUMNS = (("oracle scale AbsRel", "oracle_scale_abs_rel", 3),
+                  ("oracle bent AbsRel", "oracle_plane_abs_rel", 3))
+
+
 def table(rows: Sequence[Dict[str, Any]]) -> str:
-    """The rows as a Markdown table (:data:`COLUMNS`)."""
-    lines = ["| " + " | ".join(h for h, _, _ in COLUMNS) + " |",
-             "|" + "---|" * len(COLUMNS)]
+    """The rows as a Markdown table (:data:`COLUMNS`, and :data:`ORACLE_COLUMNS` when a
+    row has them)."""
+    cols = COLUMNS
+    if any("oracle_scale_abs_rel" in r for r in rows):
+        cols = COLUMNS[:-1] + ORACLE_COLUMNS + COLUMNS[-1:]
+    lines = ["| " + " | ".join(h for h, _, _ in cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
-        lines.append("| " + " | ".join(_cell(r.get(k), d) for _, k, d in COLUMNS) + " |")
+        lines.append("| " + " | ".join(_cell(r.get(k), d) for _, k, d in cols) + " |")
     return "\n".join(lines)
 
 
@@ -110,6 +122,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     metavar="FIELD=VALUE", help="SfMConfig overrides")
     ap.add_argument("--breakdown", action="store_true",
                     help="VO rows: AbsRel by primitive size, anchor distance, image region")
+    ap.add_argument("--oracle", action="store_true",
+                    help="VO rows: AbsRel of the keyframes' primitives with each one's scale, or "
+                         "its log-depth plane (scale + 2 slopes: a perfect bent primitive), "
+                         "fitted to the sensor depth: the headroom")
     ap.add_argument("--label", default="", help="a label written into the JSON")
     ap.add_argument("--json", default=None, help="write the rows (and settings) here")
     ap.add_argument("-v", "--verbose", action="store_true")
@@ -134,7 +150,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         try:
             if kind == "vo":
                 row = vo_depth_row(spec, apply_overrides(vo_cfg, {"frontend": fe}),
-                                   breakdown=args.breakdown)
+                                   breakdown=args.breakdown, oracle=args.oracle)
             else:
                 row = sfm_depth_row(spec, refs, fe, sfm_cfg)
         except Exception as exc:        # a failed run is a row, the others go on

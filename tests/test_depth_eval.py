@@ -166,3 +166,22 @@ def test_short_synthetic_vo_keyframe_depth():
     floor = vo_depth_row("synthetic:0:40", VORunConfig(progress=False, frontend="depth"))
     assert mono["n_maps"] >= 2 and mono["abs_rel"] < 0.08 and mono["delta_1.25"] > 0.9
     assert mono["coverage"] > 0.9 and floor["n_maps"] >= 1 and floor["abs_rel"] < 0.005
+
+
+def test_oracles_fit_scales_and_log_depth_planes():
+    """A slanted floor seen by two flat primitives: the scale oracle keeps them flat
+    (AbsRel > 0), the plane oracle (a scale and two log-depth slopes per primitive: a
+    bent primitive) recovers a log-depth plane exactly."""
+    from spgeo.evaluation.depth_eval import oracle_depth_maps
+
+    cam = PinholeCamera(100.0, 100.0, 39.5, 29.5, 80, 60)
+    y = (np.arange(60)[:, None] - cam.cy) / cam.fy * np.ones((1, 80))
+    x = (np.arange(80)[None, :] - cam.cx) / cam.fx * np.ones((60, 1))
+    gt = np.exp(0.7 + 0.4 * x - 0.8 * y)              # a log-depth plane
+    masks = np.zeros((2, 60, 80), bool)
+    masks[0, :30] = True
+    masks[1, 30:] = True
+    prims = PrimitiveSet.from_masks(cam, masks, np.zeros((2, 60, 80)))
+    maps = oracle_depth_maps(prims, gt)
+    assert median_scaled_depth(maps["plane"], gt)["abs_rel"] < 1e-9
+    assert median_scaled_depth(maps["scale"], gt)["abs_rel"] > 0.05
