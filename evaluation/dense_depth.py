@@ -26,8 +26,8 @@ from spgeo.evaluation.depth_eval import (DEPTH_RANGE, DepthMapScore, merge_break
                                          sfm_reference_depth, summarize, vo_keyframe_depth)
 from spgeo.evaluation.shared_data import shared_data_root
 
-__all__ = ["SEVENSCENES", "vo_frames", "vo_overrides", "vo_depth_row", "sfm_triplets",
-           "sfm_depth_row", "ROW_KEYS"]
+__all__ = ["SEVENSCENES", "SFM_SIZE", "vo_frames", "vo_overrides", "vo_depth_row",
+           "sfm_triplets", "sensor_depth_floor", "sfm_depth_row", "ROW_KEYS"]
 
 log = logging.getLogger(__name__)
 
@@ -144,6 +144,27 @@ def sfm_triplets(spec: str, refs: Sequence[int] = (0, 60, 120)
     raise ValueError(f"unknown SfM spec {spec!r} (7scenes:G, tum, icl)")
 
 
+#: SfM working size of the evaluation (as ``spgeo eval sfm_real``)
+SFM_SIZE = (320, 240)
+
+
+def sensor_depth_floor(frame, working_size: Tuple[int, int] = SFM_SIZE,
+                       depth_range: Tuple[float, float] = DEPTH_RANGE) -> Dict[str, float]:
+    """The floor of a reference depth: the ``depth`` front-end's primitives of ``frame``
+    (normals and one log-scale per primitive fitted to its sensor depth, at
+    ``working_size``) scored against that depth
+    (:func:`~spgeo.evaluation.depth_eval.median_scaled_depth`): what the primitives can
+    represent of the sensor depth (its noise, its registration to colour, the shapes)
+    when no view has to find their scales."""
+    from spgeo.evaluation.depth_eval import median_scaled_depth, resize_depth
+    from spgeo.frontend import FrontEndConfig, make_frontend
+
+    fe = make_frontend("depth", FrontEndConfig(working_size=tuple(working_size)))
+    prims = fe.primify(frame.image, frame.camera, frame.depth)
+    return median_scaled_depth(prims.depth_map(), resize_depth(frame.depth, prims.camera.size),
+                               *depth_range)
+
+
 def _rotation_errors(result, frames) -> List[float]:
     """Per view: the rotation error (degrees) of ``result.T_ref_view`` against the
     ground truth (NaN without)."""
@@ -165,7 +186,8 @@ def sfm_depth_row(spec: str, refs: Sequence[int] = (0, 60, 120), frontend: str =
                   ) -> Dict[str, Any]:
     """Few-view SfM (``frontend`` at 320x240, ``config`` a :class:`~spgeo.sfm.SfMConfig`,
     None: the default) on each triplet of ``spec`` (:func:`sfm_triplets`), its reference
-    depth scored (:func:`~spgeo.evaluation.depth_eval.sfm_reference_depth`): the row has
+    depth scored (:func:`~spgeo.evaluation.depth_eval.sfm_reference_depth`); ``frontend
+    "floor"``: no SfM, :func:`sensor_depth_floor` of each reference.  The row has
     the summary over the triplets, ``frames`` (triplets), ``rot_err_deg`` (mean over the
     views), ``seconds`` (sum of the SfM runs), ``maps`` (per triplet, with its status)."""
     from spgeo.frontend import FrontEndConfig, make_frontend
@@ -175,7 +197,11 @@ def sfm_depth_row(spec: str, refs: Sequence[int] = (0, 60, 120), frontend: str =
     scores, rot, secs, status = [], [], 0.0, []
     for number, frames in sfm_triplets(spec, refs):
         ref = frames[0]
-        fe = make_frontend(frontend, FrontEndConfig(working_size=(320, 240)))
+        if frontend == "floor":
+            scores.append(DepthMapScore(f"ref {number}", number, sensor_depth_floor(ref)))
+            status.append("floor")
+            continue
+        fe = make_frontend(frontend, FrontEndConfig(working_size=SFM_SIZE))
         t0 = time.perf_counter()
         res = few_view_sfm(ref.image, [v.image for v in frames[1:]], ref.camera, fe, config,
                            ref_depth=ref.depth if fe.uses_depth else None)

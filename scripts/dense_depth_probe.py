@@ -16,13 +16,16 @@ ref+2G for each of --refs), ``tum`` (0, 4, 8), ``icl`` (1, 2, 3).  ``--vo none``
 sequence (``depth``: the sensor-depth front-end, the floor row).  ``--set`` applies to the
 VO's :class:`~spgeo.apps.vo_run.VORunConfig` (odometry fields without prefix, e.g.
 ``primitive_model=bent`` or ``window=7``), ``--sfm-set`` to the :class:`~spgeo.sfm.SfMConfig`.
+``--sfm-frontends``: ``classical``, ``depth`` (SfM with the sensor-depth front-end's shapes:
+its scales are still the views'), ``floor`` (no SfM: the depth front-end's primitives with
+scales fitted to the sensor depth, :func:`spgeo.evaluation.dense_depth.sensor_depth_floor`).
 ``--breakdown``: AbsRel by primitive size, anchor distance and image region;
 ``--oracle``: the keyframes' AbsRel with perfect per-primitive scales / log-depth planes
 (:func:`spgeo.evaluation.depth_eval.oracle_depth_maps`), the headroom.
 
 Defaults: VO on 7scenes:0:300, tum, icl, synthetic:0, synthetic:1 (90 frames) with the
-classical and depth front-ends; SfM 7scenes:10 and 7scenes:30 at refs 0,60,120 with the
-classical front-end.  A run that raises is a row with its error.
+classical and depth front-ends; SfM 7scenes:10 and 7scenes:30 at refs 0,60,120, classical
+and floor.  A run that raises is a row with its error.
 """
 from __future__ import annotations
 
@@ -114,8 +117,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--sfm", nargs="+", default=None, metavar="SPEC",
                     help=f"SfM cases (default {' '.join(DEFAULT_SFM)}; 'none': no SfM)")
     ap.add_argument("--refs", default="0,60,120", help="7-Scenes SfM reference frames")
-    ap.add_argument("--sfm-frontends", default="classical",
-                    help="SfM front-ends (default %(default)s; 'depth': the floor)")
+    ap.add_argument("--sfm-frontends", default="classical,floor",
+                    help="SfM front-ends (default %(default)s; 'floor': no SfM, the depth "
+                         "front-end's primitives with scales fitted to the sensor depth; "
+                         "'depth': SfM with the depth front-end's shapes, photometric scales)")
     ap.add_argument("--set", dest="set", nargs="+", action="extend", default=[],
                     metavar="FIELD=VALUE", help="VORunConfig / OdometryConfig overrides")
     ap.add_argument("--sfm-set", dest="sfm_set", nargs="+", action="extend", default=[],

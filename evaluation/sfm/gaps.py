@@ -36,7 +36,8 @@ from spgeo.evaluation.tables import MISSING, cell, markdown_table
 
 __all__ = ["GAP_DATA", "JUDGE", "MAX_JUDGE_DISAGREEMENT_DEG", "parse_int_list", "sigma_rot_deg",
            "rotation_coverage", "view_records", "summarize_views", "coverage_report",
-           "clip_estimator", "methods_with", "gap_triplets", "run_gap_triplet", "GapResults",
+           "clip_estimator", "methods_with", "gap_triplets", "DEPTH_FLOOR", "run_gap_triplet",
+           "GapResults",
            "run_gaps"]
 
 log = logging.getLogger(__name__)
@@ -330,8 +331,13 @@ def _last(fn: Callable) -> object:
     return getattr(fn, "last_result", None)
 
 
+#: the depth table's floor row (:func:`spgeo.evaluation.dense_depth.sensor_depth_floor`)
+DEPTH_FLOOR = "sensor-depth primitives (floor)"
+
+
 def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
-                    judge: str = JUDGE) -> Tuple[Dict[str, object], List[Record]]:
+                    judge: str = JUDGE, depth_floor: bool = False
+                    ) -> Tuple[Dict[str, object], List[Record]]:
     """Run ``estimators`` (fresh ones: their ``last_result`` is read) on the triplet
     ``(ref, ref + gap, ref + 2 gap)`` of ``seq`` (frames looked up by frame number).
 
@@ -342,7 +348,9 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
         view_status, heldout_px, sigma_rot_deg, pose_covariances, depth`` where its
         result has them; ``heldout_px``: spgeo's held-out check of the photometric
         poses; ``depth``: its reference depth against the reference frame's sensor
-        depth, :func:`spgeo.evaluation.depth_eval.sfm_reference_depth`)."""
+        depth, :func:`spgeo.evaluation.depth_eval.sfm_reference_depth`) and, with
+        ``depth_floor`` and a reference with depth, ``depth_floor``
+        (:func:`spgeo.evaluation.dense_depth.sensor_depth_floor`)."""
     from spgeo.evaluation.depth_eval import sfm_reference_depth
 
     index = {int(n): i for i, n in enumerate(seq.frame_numbers)}
@@ -376,6 +384,10 @@ def run_gap_triplet(seq, gap: int, ref: int, estimators: Mapping[str, Callable],
     triplet = {"gap": gap, "ref": ref, "frames": numbers, "comparison": comp,
                "colmap": jres.summary() if hasattr(jres, "summary") else None,
                "per_method": per_method}
+    if depth_floor and getattr(frames[0], "depth", None) is not None:
+        from spgeo.evaluation.dense_depth import sensor_depth_floor
+
+        triplet["depth_floor"] = sensor_depth_floor(frames[0])
     return triplet, records
 
 
@@ -496,15 +508,18 @@ class GapResults:
     def depth_summary(self) -> Dict[str, Dict[str, Dict[str, float]]]:
         """``"gap G"`` -> method -> :func:`spgeo.evaluation.depth_eval.summarize` of the
         reference depths (``per_method[m]["depth"]`` of each triplet: one median scale
-        per depth map, the mean over the gap's triplets); methods without depth absent."""
+        per depth map, the mean over the gap's triplets; :data:`DEPTH_FLOOR`: the
+        triplets' ``depth_floor``); methods without depth absent."""
         from spgeo.evaluation.depth_eval import DepthMapScore, summarize
 
         maps: Dict[str, Dict[str, List[DepthMapScore]]] = {}
         for t in self.triplets:
-            for m, info in t.get("per_method", {}).items():  # type: ignore[union-attr]
-                if info.get("depth") is not None:
+            depths = {m: info.get("depth") for m, info in t.get("per_method", {}).items()}
+            depths[DEPTH_FLOOR] = t.get("depth_floor")
+            for m, d in depths.items():
+                if d is not None:
                     maps.setdefault(f"gap {t['gap']}", {}).setdefault(m, []).append(
-                        DepthMapScore(f"ref {t['ref']}", int(t["ref"]), info["depth"]))
+                        DepthMapScore(f"ref {t['ref']}", int(t["ref"]), d))
         return {g: {m: summarize(s) for m, s in per.items()} for g, per in maps.items()}
 
     def depth_table(self) -> str:
@@ -544,10 +559,12 @@ class GapResults:
 
 
 def run_gaps(seq, gaps: Sequence[int], refs: Sequence[int], make_estimators: EstimatorFactory,
-             data: str = "", judge: str = JUDGE, k: float = 3.0) -> GapResults:
+             data: str = "", judge: str = JUDGE, k: float = 3.0,
+             depth_floor: bool = False) -> GapResults:
     """Every triplet of :func:`gap_triplets` through :func:`run_gap_triplet` with
     fresh estimators from ``make_estimators()`` (name -> estimator, the judge among
-    them), then the per-gap summaries and the coverage of each method with covariances.
+    them; ``depth_floor`` passed on), then the per-gap summaries and the coverage of
+    each method with covariances.
 
     Raises:
         ValueError: a triplet frame the sequence lacks (before anything runs)."""
@@ -557,7 +574,8 @@ def run_gaps(seq, gaps: Sequence[int], refs: Sequence[int], make_estimators: Est
     seconds: Dict[int, Dict[str, List[float]]] = {}
     for gap, ref, numbers in plan:
         log.info("gap %d, frames %s", gap, numbers)
-        triplet, records = run_gap_triplet(seq, gap, ref, make_estimators(), judge)
+        triplet, records = run_gap_triplet(seq, gap, ref, make_estimators(), judge,
+                                           depth_floor)
         out.triplets.append(triplet)
         out.records.extend(records)
         for m, s in triplet["comparison"]["time_s"].items():  # type: ignore[index]

@@ -17,9 +17,12 @@ pose of each view beside the ground truth, with spgeo's rotation-covariance cove
 per seed of ``--seeds``, against the exact ground truth (:mod:`.baselines`).  Every case
 also scores spgeo's reference depth against the reference frame's depth (issue 54; one
 median scale per depth map, clipped to 0.1-10, AbsRel and delta < 1.25,
-:mod:`spgeo.evaluation.depth_eval`; synthetic: exact depth); the gap cases add the
-sensor-depth front-end's SfM (``spgeo depth (floor)``) as the depth table's floor, the
-TUM and ICL cases have it already (``spgeo depth-normals (oracle)``).  One
+:mod:`spgeo.evaluation.depth_eval`; synthetic: exact depth) with a floor row
+(``sensor-depth primitives (floor)``: the depth front-end's primitives with their scales
+fitted to the sensor depth, no SfM, :func:`spgeo.evaluation.dense_depth.sensor_depth_floor`);
+the gap cases add spgeo's SfM with the depth front-end's shapes (``spgeo depth shapes``;
+its scales are the views', as those of ``spgeo depth-normals (oracle)`` in the TUM and
+ICL cases).  One
 ``SfMConfig`` throughout: the default (marginals on, so pose
 covariances exist); the gap cases use the classical front-end.  The regression tests
 ``tests/test_sfm_real.py`` and ``tests/test_sfm_gaps.py`` assert numbers from this
@@ -33,19 +36,20 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
 
 from spgeo.datasets import load_bundled_tum, open_dataset
+from spgeo.evaluation.dense_depth import sensor_depth_floor
 from spgeo.evaluation.depth_eval import sfm_reference_depth
 from spgeo.evaluation.references.colmap import colmap_estimator
 from spgeo.evaluation.pose_compare import compare_on_dataset
 from spgeo.evaluation.runner import protocol_parser, run_protocol, write_json
 from spgeo.evaluation.shared_data import shared_data_root
 from spgeo.evaluation.sfm.baselines import ANGLES, run_baselines
-from spgeo.evaluation.sfm.gaps import (GAP_DATA, GapResults, clip_estimator, parse_int_list,
-                                       run_gaps)
+from spgeo.evaluation.sfm.gaps import (DEPTH_FLOOR, GAP_DATA, GapResults, clip_estimator,
+                                       parse_int_list, run_gaps)
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
 from spgeo.trajectory import Trajectory
 
-__all__ = ["CASES", "CASE_KINDS", "FLOOR", "spgeo_estimator", "twoview_estimator", "gap_estimators",
+__all__ = ["CASES", "CASE_KINDS", "DEPTH_SHAPES", "spgeo_estimator", "twoview_estimator", "gap_estimators",
            "run_case", "run_gap_cases", "parse_cases", "build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
@@ -89,21 +93,22 @@ def twoview_estimator() -> Callable:
     return estimate
 
 
-#: the gap cases' floor of the depth table: the sensor-depth front-end's SfM
-FLOOR = "spgeo depth (floor)"
+#: the gap cases' SfM with the sensor-depth front-end's shapes (normals from the
+#: reference's depth; the scales are the views', ``SfMConfig.reset_scales``)
+DEPTH_SHAPES = "spgeo depth shapes"
 
 
-def gap_estimators(inits: Sequence[str] = ("features",), floor: bool = False
+def gap_estimators(inits: Sequence[str] = ("features",), depth_shapes: bool = False
                    ) -> Dict[str, Callable]:
     """Fresh estimators of the gap and synthetic cases: ``"spgeo"`` (:func:`spgeo_estimator`,
     classical, ``SfMConfig(init=inits[0])``), ``"spgeo init=I"`` for each further start
-    ``I`` of ``inits`` (to compare starts in one run), with ``floor`` :data:`FLOOR` (the
-    ``depth`` front-end, which reads the reference's sensor depth: the depth table's
-    floor), ``"colmap"`` (the judge) and ``"sift two-view"``."""
+    ``I`` of ``inits`` (to compare starts in one run), with ``depth_shapes``
+    :data:`DEPTH_SHAPES` (the ``depth`` front-end: its shapes from the reference's sensor
+    depth, its scales from the views), ``"colmap"`` (the judge) and ``"sift two-view"``."""
     out = {"spgeo" if k == 0 else f"spgeo init={init}":
            spgeo_estimator("classical", SfMConfig(init=init)) for k, init in enumerate(inits)}
-    if floor:
-        out[FLOOR] = spgeo_estimator("depth", SfMConfig(init=inits[0]))
+    if depth_shapes:
+        out[DEPTH_SHAPES] = spgeo_estimator("depth", SfMConfig(init=inits[0]))
     out.update({"colmap": colmap_estimator(), "sift two-view": twoview_estimator()})
     return out
 
@@ -139,6 +144,7 @@ def run_case(name: str, shared: Optional[Path] = None,
         comp["depth"] = {name: sfm_reference_depth(fn.last_result, frames[0].depth)
                          for name, fn in estimators.items()
                          if getattr(getattr(fn, "last_result", None), "depth", None) is not None}
+        comp["depth"][DEPTH_FLOOR] = sensor_depth_floor(frames[0])
     return comp
 
 
@@ -184,13 +190,15 @@ def parse_cases(text: str) -> List[str]:
 
 def run_gap_cases(shared: Path, gaps: Sequence[int], refs: Sequence[int],
                   make_estimators: Callable[[], Dict[str, Callable]] = gap_estimators,
-                  clip_reference: Optional[Path] = None) -> GapResults:
+                  clip_reference: Optional[Path] = None,
+                  depth_floor: bool = False) -> GapResults:
     """The gap cases (:func:`spgeo.evaluation.sfm.gaps.run_gaps`) on
     ``shared / GAP_DATA`` with ``make_estimators`` (default :func:`gap_estimators`).
     With ``clip_reference`` (a TUM trajectory of the whole clip with its status file,
     e.g. ``spgeo eval colmap_vo --out DIR``'s ``trajectory.txt``) its poses,
     ``"colmap clip"`` (:func:`~spgeo.evaluation.sfm.gaps.clip_estimator`), judge
-    instead of COLMAP on the three views.
+    instead of COLMAP on the three views.  ``depth_floor``: the depth table's floor row
+    (:func:`~spgeo.evaluation.sfm.gaps.run_gaps`).
 
     Raises:
         FileNotFoundError: no such folder or file; ValueError: a triplet frame the clip
@@ -200,13 +208,14 @@ def run_gap_cases(shared: Path, gaps: Sequence[int], refs: Sequence[int],
         raise FileNotFoundError(f"data of the gap cases not found: {folder}")
     seq = open_dataset("7scenes", folder)
     if clip_reference is None:
-        return run_gaps(seq, gaps, refs, make_estimators, data=GAP_DATA)
+        return run_gaps(seq, gaps, refs, make_estimators, data=GAP_DATA, depth_floor=depth_floor)
     traj = Trajectory.load(clip_reference)
 
     def with_clip() -> Dict[str, Callable]:
         return {**make_estimators(), CLIP_JUDGE: clip_estimator(traj)}
 
-    return run_gaps(seq, gaps, refs, with_clip, data=GAP_DATA, judge=CLIP_JUDGE)
+    return run_gaps(seq, gaps, refs, with_clip, data=GAP_DATA, judge=CLIP_JUDGE,
+                    depth_floor=depth_floor)
 
 
 NAME = "sfm_real"
@@ -274,8 +283,9 @@ def run(args: argparse.Namespace) -> int:
         elif not (shared / GAP_DATA).is_dir():
             print(f"gaps: skipped ({shared / GAP_DATA} not found)")
         else:
-            res = run_gap_cases(shared, gaps, refs, lambda: gap_estimators(inits, floor=True),
-                                args.clip_reference)
+            res = run_gap_cases(shared, gaps, refs,
+                                lambda: gap_estimators(inits, depth_shapes=True),
+                                args.clip_reference, depth_floor=True)
             out["gaps"] = res.to_dict()
             print(res.table())
     if "synthetic" in cases and angles and seeds:
