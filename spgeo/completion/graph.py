@@ -37,7 +37,8 @@ from .planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, PlaneFit, apply_planes, 
                      primitive_adjacency)
 from .scales import flat_primitives
 
-__all__ = ["GraphScales", "solve_log_scales_graph", "solve_planes_graph"]
+__all__ = ["GraphScales", "WeakEdges", "weak_edges", "solve_log_scales_graph",
+           "solve_planes_graph"]
 
 
 @dataclass
@@ -57,7 +58,7 @@ class GraphScales:
 
 
 @dataclass
-class _Edges:
+class WeakEdges:
     """Weakly separated neighbours: per coupled pair of primitives (``edge_*``,
     ``edge_a < edge_b``) and per boundary pixel pair (entries ``ent_p`` of
     ``edge_a``'s primitive, ``ent_q`` of ``edge_b``'s, ``pair_edge``)."""
@@ -71,9 +72,12 @@ class _Edges:
     pair_edge: np.ndarray
 
 
-def _weak_edges(prims: PrimitiveSet, image: np.ndarray, edge_scale: float) -> _Edges:
+def weak_edges(prims: PrimitiveSet, image: np.ndarray, edge_scale: float) -> WeakEdges:
     """Adjacent primitive pairs with mean colour step ``<= 2 edge_scale`` and
-    weight ``exp(-(step / edge_scale)^2)``."""
+    weight ``exp(-(step / edge_scale)^2)`` (:class:`WeakEdges`; the completion's
+    coupling and the few-view SfM's continuity factors).  ``image``: (H, W[, C])
+    float in [0, 1] at ``prims.camera``'s size (else ``ValueError``);
+    ``edge_scale`` (intensity units) > 0."""
     n = len(prims)
     img = np.asarray(image, dtype=np.float64)
     img = img[..., None] if img.ndim == 2 else img
@@ -91,7 +95,7 @@ def _weak_edges(prims: PrimitiveSet, image: np.ndarray, edge_scale: float) -> _E
     keep = mstep <= 2 * edge_scale
     new_id = np.cumsum(keep) - 1
     sel = keep[inv]
-    return _Edges((uk // n)[keep], (uk % n)[keep], np.exp(-(mstep[keep] / edge_scale) ** 2),
+    return WeakEdges((uk // n)[keep], (uk % n)[keep], np.exp(-(mstep[keep] / edge_scale) ** 2),
                   cnt[keep], lab_ent[p[sel]], lab_ent[q[sel]], new_id[inv[sel]])
 
 
@@ -133,7 +137,7 @@ def solve_log_scales_graph(prims: PrimitiveSet, image: np.ndarray, point_prim: n
     out = np.full(n, np.nan)
     if n == 0 or pp.size == 0:
         return GraphScales(out, np.ones(pp.size), 0)
-    e = _weak_edges(prims, image, edge_scale) if coupling > 0 else None
+    e = weak_edges(prims, image, edge_scale) if coupling > 0 else None
     ei = ej = np.zeros(0, np.int64)
     ec = ew = np.zeros(0)
     if e is not None and e.edge_a.size:
@@ -268,7 +272,7 @@ def _data_rows(prims: PrimitiveSet, act: np.ndarray, rho0: np.ndarray, pp: np.nd
 def _continuity_rows(prims: PrimitiveSet, image: np.ndarray, act: np.ndarray, L1: np.ndarray,
                      rho0: np.ndarray, coupling: float, edge_scale: float) -> _Continuity:
     """:class:`_Continuity` (empty when ``coupling`` is 0 or no edge is weak)."""
-    e = _weak_edges(prims, image, edge_scale) if coupling > 0 else None
+    e = weak_edges(prims, image, edge_scale) if coupling > 0 else None
     if e is not None and e.edge_a.size:
         ok = act[e.edge_a[e.pair_edge]] & act[e.edge_b[e.pair_edge]]
         ep, eq, pe = e.ent_p[ok], e.ent_q[ok], e.pair_edge[ok]

@@ -18,7 +18,9 @@
   report and log).
 
 Prior sigmas of the keyframe graphs (module constants: nothing overrides them):
-:data:`GAUGE_SIGMA`, :data:`PLANAR_SLOPE_SIGMA`, :data:`BRIGHTNESS_PRIOR_SIGMA`.
+:data:`GAUGE_SIGMA`, :data:`PLANAR_SLOPE_SIGMA`, :data:`BEND_SIGMA`,
+:data:`BRIGHTNESS_PRIOR_SIGMA`, and of the SfM depth stage's :func:`continuity_factors`:
+:data:`CONTINUITY_SIGMA`, :data:`CONTINUITY_EDGE_SCALE`.
 """
 from __future__ import annotations
 
@@ -29,10 +31,10 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..factors.photometric import PlanarShape, ScaledShape
+from ..factors.photometric import BentShape, PlanarShape, ScaledShape, ShapeModel
 from ..factors.photometric_group import PhotometricFactorGroup
-from ..factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
-                              pose_gauge_prior)
+from ..factors.priors import (bend_prior, brightness_prior, log_scale_prior,
+                              planar_slope_prior, pose_gauge_prior)
 from ..primitive_models import shape_values
 from ..primitives import PrimitiveSet
 from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
@@ -41,7 +43,9 @@ from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 # (spgeo.vo.config, spgeo.vo.map, spgeo.sfm.config): not imported, as those packages
 # import this module (no import circle, not even a type-only one: tests/test_layering.py)
 
-__all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam_error_line",
+__all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BEND_SIGMA", "BRIGHTNESS_PRIOR_SIGMA",
+           "CONTINUITY_SIGMA", "CONTINUITY_EDGE_SCALE", "gtsam_error_line", "primitive_shape",
+           "add_shape_prior", "continuity_factors",
            "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
            "add_factor_group", "link_keyframe_pair", "level_pixels",
            "hold_translation_and_shape", "build_level_graph", "projection_model"]
@@ -50,6 +54,14 @@ __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA", "gtsam
 GAUGE_SIGMA = 1e-6
 #: sigma of the planar model's slope prior (towards fronto-parallel; weak)
 PLANAR_SLOPE_SIGMA = 2.0
+#: sigma of the bent model's slope prior (log-depth per unit of normalised image
+#: coordinate, towards the integrated shape; docs/results.md, issue 54)
+BEND_SIGMA = 100.0
+#: log-depth sigma of the continuity factors between adjacent primitives in the
+#: few-view SfM's depth stage (:func:`continuity_factors`; docs/results.md, issue 54)
+CONTINUITY_SIGMA = 5.0
+#: colour-step scale of their weights (as ``CompletionConfig``'s edge scale)
+CONTINUITY_EDGE_SCALE = 0.08
 #: sigmas of the priors of the brightness ``(a, b)`` variables (as the SfM graph's
 #: default ``SfMConfig.brightness_prior_sigma``)
 BRIGHTNESS_PRIOR_SIGMA: Tuple[float, float] = (0.3, 0.3)
@@ -64,6 +76,76 @@ def projection_model(K: np.ndarray, pixel_sigma: float, huber_px: float):
         gtsam.noiseModel.mEstimator.Huber.Create(huber_px / pixel_sigma),
         gtsam.noiseModel.Isotropic.Sigma(2, pixel_sigma))
     return cal, noise
+
+
+def primitive_shape(prims: PrimitiveSet, entries: np.ndarray, rays: np.ndarray,
+                    model: str) -> ShapeModel:
+    """The factors' shape model of the entries ``entries`` (into ``prims.pixels``)
+    with rays ``rays`` (K, 3): :class:`PlanarShape` for ``model == "planar"``,
+    :class:`BentShape` on the integrated shape for ``"bent"`` (the bends are
+    variables), else :class:`ScaledShape` on the shape with its bends."""
+    if model == "planar":
+        return PlanarShape(rays)
+    if model == "bent":
+        return BentShape(rays, prims.log_depth[entries], prims.bend_coordinates()[entries])
+    return ScaledShape(rays, prims.scaled_log_depth(np.zeros(len(prims)))[entries])
+
+
+def add_shape_prior(graph: gtsam.NonlinearFactorGraph, key: int, theta: np.ndarray,
+                    model: str, weight: float, planar_sigma: float,
+                    slope: Optional[np.ndarray] = None) -> None:
+    """The prior of one primitive's shape variable ``theta`` (as
+    :func:`~spgeo.primitive_models.shape_values` gives it) under ``model``
+    (``"planar"``, ``"bent"`` or a 1-DoF model): its log-scale (planar: its
+    inverse depth ``c``) held with ``weight``, a plane's slopes towards ``slope``
+    (None: theta's own) with ``planar_sigma``, bends towards 0 with
+    :data:`BEND_SIGMA`."""
+    if model == "planar":
+        graph.add(planar_slope_prior(key, float(theta[2]), planar_sigma, 1.0 / np.sqrt(weight),
+                                     slope=theta[:2] if slope is None else slope))
+    elif model == "bent":
+        graph.add(bend_prior(key, float(theta[0]), BEND_SIGMA, weight))
+    else:
+        graph.add(log_scale_prior(key, float(theta[0]), weight))
+
+
+def continuity_factors(prims: PrimitiveSet, image: np.ndarray, keys: List[int],
+                       sigma: float = CONTINUITY_SIGMA,
+                       edge_scale: float = CONTINUITY_EDGE_SCALE) -> List[gtsam.NonlinearFactor]:
+    """Factors that keep adjacent primitives' depths continuous across weak image
+    edges (docs/design.md §5, "Depth stage").
+
+    For each pair ``(i, j)`` of primitives that touch along a boundary whose mean
+    colour step is at most ``2 edge_scale`` (intensity units;
+    :func:`spgeo.completion.graph.weak_edges`), one ``BetweenFactorVector`` on
+    their log-scales, ``s_j - s_i = c_ij`` with ``c_ij`` the mean of
+    ``l_i(p) - l_j(q)`` over the boundary pixel pairs ``(p, q)`` (``l``: the
+    unscaled log-depth, bends included), Gaussian noise of sigma
+    ``sigma / sqrt(w_ij)`` (log units; ``w_ij = exp(-(step / edge_scale)^2)``).
+    Gaussian, not robust: a robust kernel is flat far from 0 and lets a
+    primitive that no view constrains run away (measured, docs/results.md).
+
+    Args:
+        prims: the primitives (``prims.camera`` their resolution).
+        image: (H, W) grey or (H, W, C) image in [0, 1] at ``prims.camera``'s size.
+        keys: ``keys[i]`` the 1-DoF log-scale variable of primitive ``i``.
+        sigma, edge_scale: > 0.
+    Raises:
+        ValueError: ``image`` of another size, ``keys`` of another length.
+    """
+    from ..completion.graph import weak_edges
+
+    if len(keys) != len(prims):
+        raise ValueError(f"continuity_factors: {len(keys)} keys for {len(prims)} primitives")
+    e = weak_edges(prims, image, edge_scale)
+    ok = (e.ent_p >= 0) & (e.ent_q >= 0)
+    ld = prims.scaled_log_depth(np.zeros(len(prims)))
+    n_e = e.edge_a.size
+    c = (np.bincount(e.pair_edge[ok], weights=ld[e.ent_p[ok]] - ld[e.ent_q[ok]], minlength=n_e)
+         / np.maximum(np.bincount(e.pair_edge[ok], minlength=n_e), 1))
+    return [gtsam.BetweenFactorVector(keys[a], keys[b], np.array([cab]),
+                                      gtsam.noiseModel.Isotropic.Sigma(1, sigma / np.sqrt(w)))
+            for a, b, w, cab in zip(e.edge_a, e.edge_b, e.edge_weight, c)]
 
 
 def gtsam_error_line(exc: BaseException) -> str:
@@ -138,8 +220,7 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
     entries, ids, prim_index, ref_int = sel
     prims = ref.keyframe.primitives
     rays = prims.camera.rays().reshape(-1, 3)[prims.pixels[entries]]
-    shape = (PlanarShape(rays) if config.primitive_model == "planar"
-             else ScaledShape(rays, prims.log_depth[entries]))
+    shape = primitive_shape(prims, entries, rays, config.primitive_model)
     counts = np.bincount(ids, minlength=prim_index.size)
     offsets = np.concatenate([[0], np.cumsum(counts)])
     keys = [scale_key(i, keyframe=ref.index) for i in prim_index]
@@ -152,7 +233,8 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
 def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig) -> None:
     """A (live) keyframe's pose and shape variables at their current values,
     with the shapes' priors (weights ``kf.prior_weights`` (N,), else
-    ``scale_prior_weight``; planar: the slope prior too); timestamps ``kf.index``."""
+    ``scale_prior_weight``; planar and bent: the slope prior too,
+    :func:`add_shape_prior`); timestamps ``kf.index``."""
     batch.insert(pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
     th = shape_values(kf.keyframe.primitives, config.primitive_model)
     pw = kf.prior_weights
@@ -161,11 +243,8 @@ def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: Odometry
     for i in range(th.shape[0]):
         key = scale_key(i, keyframe=kf.index)
         batch.insert(key, th[i].copy(), kf.index)
-        if config.primitive_model == "planar":
-            batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
-                                               1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
-        else:
-            batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
+        add_shape_prior(batch.graph, key, th[i], config.primitive_model, pw[i],
+                        PLANAR_SLOPE_SIGMA)
 
 
 def add_factor_group(batch: FactorBatch, group: Optional[PhotometricFactorGroup], bkey: int,
@@ -223,12 +302,14 @@ def hold_translation_and_shape(graph: gtsam.NonlinearFactorGraph, values: gtsam.
 
 def build_level_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_pyrs, lvl: int,
                 values: gtsam.Values, config: "SfMConfig",
-                orientations: Optional[np.ndarray] = None):
+                orientations: Optional[np.ndarray] = None, continuity: bool = False):
     """The graph of one pyramid level; returns ``(graph, groups)``: one
     :class:`PhotometricFactorGroup` per view over the primitives with at least
     ``min_level_pixels`` pixels on the level's lattice.  ``orientations``:
     planar model, (N, 2) ``(a / c, b / c)`` the slope priors pull towards
-    (None: fronto-parallel)."""
+    (None: fronto-parallel).  ``continuity``: with the 1-DoF model, the
+    :func:`continuity_factors` of the reference's primitives too (the depth
+    stage)."""
     graph = gtsam.NonlinearFactorGraph()
     builders: List[PhotometricFactorGroup] = []
     graph.add(pose_gauge_prior(pose_key(0), None, config.ref_prior_sigma))
@@ -236,16 +317,19 @@ def build_level_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_p
     if config.brightness:
         for j in range(n_views):
             graph.add(brightness_prior(brightness_key(j + 1), config.brightness_prior_sigma))
-    if config.shape_model == "scaled":
-        for i in range(len(prims)):
-            graph.add(log_scale_prior(scale_key(i), prims.log_scales[i], config.scale_prior_weight))
-    else:
-        for i in range(len(prims)):
-            c0 = values.atVector(scale_key(i))[2]
+    for i in range(len(prims)):
+        th = values.atVector(scale_key(i))
+        if config.shape_model == "planar":
             # slope prior towards the primitive's orientation (a/c, b/c), at the current c
-            slope = (0.0, 0.0) if orientations is None else c0 * orientations[i]
-            graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
-                                         1.0 / np.sqrt(config.scale_prior_weight), slope=slope))
+            slope = np.zeros(2) if orientations is None else th[2] * orientations[i]
+        else:
+            th, slope = np.array([prims.log_scales[i], 0.0, 0.0]), None
+        add_shape_prior(graph, scale_key(i), th, config.shape_model, config.scale_prior_weight,
+                        config.planar_prior_sigma, slope)
+    if continuity and config.shape_model == "scaled":
+        for f in continuity_factors(prims, ref_pyr.images[0],
+                                    [scale_key(i) for i in range(len(prims))]):
+            graph.add(f)
     stride = 2 ** lvl
     ref_img = ref_pyr.images[lvl]
     w = prims.camera.width
@@ -259,8 +343,7 @@ def build_level_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_p
     pix = prims.pixels[ent]
     ref_int = ref_img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
     rays = rays_all[ent]
-    shape = (ScaledShape(rays, prims.log_depth[ent]) if config.shape_model == "scaled"
-             else PlanarShape(rays))
+    shape = primitive_shape(prims, ent, rays, config.shape_model)
     keys = [scale_key(i) for i in keep]
     for j in range(n_views):
         g = PhotometricFactorGroup(

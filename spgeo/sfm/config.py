@@ -18,7 +18,10 @@ class SfMConfig:
 
     Attributes:
         shape_model: ``"scaled"`` (1-DoF log-scale on the integrated shape, the
-            paper) or ``"planar"`` (3-DoF inverse-depth plane per primitive).
+            paper), ``"bent"`` (log-scale and two log-depth slopes on the
+            integrated shape, the slopes held towards 0 by a prior:
+            :class:`~spgeo.factors.photometric.BentShape`) or ``"planar"``
+            (3-DoF inverse-depth plane per primitive).
         levels: pyramid levels (coarse-to-fine; 4 at 320x240 -> 40x30 coarsest).
         max_iterations: LM iterations per level, coarsest first (the last
             value repeats for extra levels).
@@ -69,6 +72,15 @@ class SfMConfig:
             median depth is flagged ``low_parallax``.
         min_valid_fraction: a view in which fewer primitive pixels project
             inside the image is flagged ``low_overlap``.
+        depth_stage: with ``shape_model="scaled"``, solve the scales once more
+            at the finest level with every pose held and continuity factors
+            between adjacent primitives across weak image edges
+            (:func:`spgeo.graph.builders.continuity_factors`): the reference
+            depth's AbsRel falls on every measured case (7-Scenes gaps of 10 to
+            45 frames, TUM, ICL: docs/results.md, issue 54) and the poses are
+            those of the solve before it.  Default True; the VO's two-view
+            initialisation sets False (its window re-solves the scales; there
+            the stage measured neither better nor worse).
         marginals: compute per-primitive scale stds and pose covariances.
         max_log_scale_std: primitives whose gauge-free log-scale std exceeds
             this (0.5: a factor 1.65 in depth) are unconstrained by the views
@@ -99,14 +111,16 @@ class SfMConfig:
     features: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(min_inliers=30))
     min_parallax: float = 0.01
     min_valid_fraction: float = 0.3
+    depth_stage: bool = True
     marginals: bool = True
     max_log_scale_std: float = 0.5
     lm_lambda_initial: float = 1e-3
     chunk: int = 32
 
     def __post_init__(self) -> None:
-        if self.shape_model not in ("scaled", "planar"):
-            raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
+        if self.shape_model not in ("scaled", "bent", "planar"):
+            raise ValueError(f"shape_model must be 'scaled', 'bent' or 'planar', "
+                             f"got {self.shape_model!r}")
         if self.levels < 1 or not self.max_iterations:
             raise ValueError("levels must be >= 1 and max_iterations non-empty")
         if self.init not in ("features", "twoview", "identity"):

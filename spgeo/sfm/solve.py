@@ -32,6 +32,7 @@ import gtsam
 from ..camera import PinholeCamera
 from ..factors.photometric import PlanarShape
 from ..factors.photometric_group import PhotometricFactorGroup, release_groups
+from ..factors.priors import pose_gauge_prior
 from ..frontend import FrontEndConfig, PrimitiveFrontEnd, make_frontend
 from ..graph.builders import build_level_graph, gtsam_error_line, hold_translation_and_shape
 from ..graph.keys import brightness_key, pose_key, scale_key
@@ -150,7 +151,8 @@ def _problem(ref_image, views, camera, prims, cam, config) -> _Problem:
 
 def _initial_values(prims: PrimitiveSet, n_views: int, init_T_ref_view, config) -> gtsam.Values:
     """Start values: reference at identity, each view at its initial pose (identity
-    when none), brightness 0, log-scales (or fronto-parallel planes) from ``prims``."""
+    when none), brightness 0, log-scales (bent: with the bends; planar:
+    fronto-parallel planes) from ``prims``."""
     values = gtsam.Values()
     values.insert(pose_key(0), gtsam.Pose3())
     for j in range(n_views):
@@ -161,6 +163,9 @@ def _initial_values(prims: PrimitiveSet, n_views: int, init_T_ref_view, config) 
     if config.shape_model == "scaled":
         for i in range(len(prims)):
             values.insert(scale_key(i), np.array([prims.log_scales[i]]))
+    elif config.shape_model == "bent":
+        for i in range(len(prims)):
+            values.insert(scale_key(i), np.array([prims.log_scales[i], *prims.bends[i]]))
     else:
         for i in range(len(prims)):
             values.insert(scale_key(i), PlanarShape.fronto_parallel(np.exp(prims.log_scales[i])))
@@ -201,8 +206,9 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
     ``stage`` (the solve started at its bundle) each registered view keeps the
     photometric pose only where its held-out matches fit it at least as well as the
     bundle's (:meth:`LandmarkStage.choose_poses`); otherwise it takes the bundle's,
-    and the finest level solves the scales once more with the poses held.  Returns
-    the solved values and the factor groups of the last stage."""
+    and the finest level solves the scales once more with the poses held.  With
+    the 1-DoF model and ``config.depth_stage`` the last stage is :func:`_depth_stage`.  Returns the solved
+    values and the factor groups of the last stage."""
     builders: List[PhotometricFactorGroup] = []
     n_levels = pb.n_levels
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
@@ -231,18 +237,39 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
                                                 pb.view_pyrs, 0, values, config, orientations)
             stage.hold_poses(graph, values)
             values = _solve_stage(graph, values, config, 0, n_levels, False, report)
+    if config.shape_model == "scaled" and config.depth_stage:
+        release_groups(builders)
+        values, builders = _depth_stage(pb, values, config, report)
+    return values, builders
+
+
+def _depth_stage(pb: _Problem, values: gtsam.Values, config: SfMConfig, report: dict
+                 ) -> Tuple[gtsam.Values, List[PhotometricFactorGroup]]:
+    """The scales once more at the finest level with every pose held, adding the
+    :func:`~spgeo.graph.builders.continuity_factors` of the reference's primitives:
+    a primitive the views barely constrain takes its neighbours' depth, and the
+    poses stay those of the photometric and landmark solve (docs/design.md §5,
+    "Depth stage").  Its report entry has ``"depth_stage": True``."""
+    graph, builders = build_level_graph(pb.prims, pb.rays_all, pb.ref_pyr, pb.view_pyrs, 0,
+                                        values, config, continuity=True)
+    for j in range(pb.n_views):
+        graph.add(pose_gauge_prior(pose_key(j + 1), values.atPose3(pose_key(j + 1)).matrix()))
+    values = _solve_stage(graph, values, config, 0, pb.n_levels, False, report)
+    report["levels"][-1]["depth_stage"] = True
     return values, builders
 
 
 def _solved_primitives(pb: _Problem, values: gtsam.Values, config: SfMConfig) -> PrimitiveSet:
-    """The reference primitives at the solved log-scales; planar model: the
+    """The reference primitives at the solved log-scales (bent model: and
+    bends); planar model: the
     planes' depths baked into ``log_depth`` (a plane behind the camera keeps
     its primitive's median depth there)."""
     prims, cam, rays_all = pb.prims, pb.cam, pb.rays_all
-    if config.shape_model == "scaled":
-        s = np.array([values.atVector(scale_key(i))[0] for i in range(len(prims))])
-        return prims.with_log_scales(s)
     thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
+    if config.shape_model == "scaled":
+        return prims.with_log_scales(thetas[:, 0])
+    if config.shape_model == "bent":
+        return prims.with_log_scales(thetas[:, 0]).with_bends(thetas[:, 1:])
     rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
     bad = ~(rho > 1e-9)
     rho = np.where(bad, np.nan, rho)
@@ -269,7 +296,7 @@ class _Marginals:
     covs: List[Optional[np.ndarray]]
 
 
-def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
+def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float, dim: int = 1):
     """Std of each log-scale with the global-scale gauge removed, and a mask of
     the scales constrained by nothing but their prior.
 
@@ -277,10 +304,12 @@ def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
     only by the weak prior) as one large shared mode.  Scales whose own std is
     over half the prior's are constrained by the prior alone (returned in the
     mask, raw std kept).  The others are conditioned on their mean log-scale:
-    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
+    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.  ``dim``: the size of
+    each shape variable, whose first component is the log-scale (3: bent).
     """
     keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
     C = marg.jointMarginalCovariance(keys).fullMatrix()
+    C = C[np.ix_(np.arange(n) * dim, np.arange(n) * dim)]   # the log-scales
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     con = np.flatnonzero(std <= 0.5 * prior_sigma)
     if con.size >= 2:
@@ -325,9 +354,10 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
             release_groups(mgroups)
             covs = stage.covariances() if stage is not None else [
                 marg.marginalCovariance(pose_key(j + 1)) for j in range(pb.n_views)]
-            if config.shape_model == "scaled":
-                log_std, prior_only = gauge_free_scale_std(marg, len(prims),
-                                                            1.0 / np.sqrt(prior_w))
+            if config.shape_model in ("scaled", "bent"):
+                log_std, prior_only = gauge_free_scale_std(
+                    marg, len(prims), 1.0 / np.sqrt(prior_w),
+                    3 if config.shape_model == "bent" else 1)
         except RuntimeError as exc:  # indeterminant system: report, do not crash
             report["marginals_error"] = gtsam_error_line(exc)
             log.warning("marginals failed: %s", report["marginals_error"])

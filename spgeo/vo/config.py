@@ -379,7 +379,9 @@ class OdometryConfig:
             ``reset_scales`` is overridden: False with a depth-using
             front-end, True otherwise; ``init="twoview"``: when keyframe 1 was
             not tracked its start is the two-view pose, as measured for the VO;
-            few-view SfM's own default, the landmark bundle, is not measured here).
+            few-view SfM's own default, the landmark bundle, is not measured here;
+            ``depth_stage=False``: measured neither better nor worse for the
+            VO, docs/results.md, issue 54).
         feature_retry: :class:`~spgeo.vo.feature_retry.FeatureRetryConfig`:
             when tracking against the latest keyframe fails, a PnP pose from
             features lifted with its primitive depth restarts the tracker.
@@ -414,7 +416,7 @@ class OdometryConfig:
     init: InitConfig = field(default_factory=InitConfig)
     max_lost_frames: int = 30
     sfm: SfMConfig = field(default_factory=lambda: SfMConfig(levels=3, marginals=False,
-                                                             init="twoview"))
+                                                             init="twoview", depth_stage=False))
     feature_retry: FeatureRetryConfig = field(default_factory=FeatureRetryConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
