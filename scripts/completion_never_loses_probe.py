@@ -135,18 +135,29 @@ def _scores(r, cands, step=0.25, prior=10.0):
 
 
 def rule_weights(r: dict, cands: Sequence[str], rule: str) -> np.ndarray:
-    """(R, C) blend per region of ``rule``: ``blend`` (the default: the blend of the
-    lowest shrunk held-out score), ``margin<m>`` (each blend's score plus ``m``
-    times linear's score times the blend's weight off linear: a blend must beat
-    linear by the fraction ``m`` per unit of departure), ``linear``."""
+    """(R, C) blend per region of ``rule``: ``blend`` (before issue 54: the blend
+    of the lowest shrunk held-out score), ``margin<m>`` (the library's
+    :attr:`~spgeo.completion.choose.ChooseConfig.margin`: each blend's score
+    times ``1 + m`` times its weight off linear), ``additive<m>`` (plus ``m``
+    times linear's score per unit of weight off linear), ``gate<m>`` (plus ``m``
+    times linear's score for any blend off linear), ``lcb<z>`` (plus ``z``
+    standard errors of the blend's held-out gain over linear), ``linear``."""
     w, sc = _scores(r, cands)
     lin = np.eye(len(cands))[list(cands).index("linear")]
     if rule == "linear":
         return np.repeat(lin[None], sc.shape[1], 0)
-    if rule.startswith("margin"):
+    if rule.startswith("margin"):      # the library's rule (ChooseConfig.margin)
         from spgeo.completion.choose import ChooseConfig, _with_margin
 
         sc = _with_margin(sc, w, tuple(cands), ChooseConfig(margin=float(rule[6:])))
+    if rule.startswith("additive"):    # margin times linear's score per unit off linear
+        f = list(cands).index("linear")
+        pure = int(np.flatnonzero(w[:, f] == 1.0)[0])
+        sc = sc + float(rule[8:]) * (1.0 - w[:, f])[:, None] * sc[pure][None, :]
+    if rule.startswith("gate"):
+        f = list(cands).index("linear")
+        pure = int(np.flatnonzero(w[:, f] == 1.0)[0])
+        sc = sc + float(rule[4:]) * (w[:, f] < 1.0)[:, None] * sc[pure][None, :]
     if rule.startswith("lcb"):
         sc = sc + _lcb_penalty(r, cands, w, float(rule[3:]))
     return w[np.argmin(sc, 0)]
@@ -210,7 +221,9 @@ def main() -> int:
     sets = {"no network": ("primitives", "linear", "ip_basic"),
             "no network, slope": ("prim_slope", "linear", "ip_basic"),
             "FastDepth": ("primitives", "linear", "ip_basic", "net:interp")}
-    margins = ["blend"] + [f"margin{m}" for m in (0.1, 0.2, 0.3, 0.4, 0.5)] + [f"lcb{z}" for z in (1, 2, 3, 5)]
+    margins = (["blend"] + [f"margin{m}" for m in (0.4, 0.6, 0.8, 1.0)]
+               + [f"additive{m}" for m in (0.3, 0.4, 0.5)] + [f"gate{m}" for m in (0.2, 0.3)]
+               + [f"lcb{z}" for z in (1, 3)])
     print(table(cache, ("linear",), alone + ["alone:net:interp"]))
     for title, cands in sets.items():
         print(f"\n{title}: {', '.join(cands)}\n")

@@ -29,11 +29,11 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    cell's score towards the global mean in the same way
    (:func:`region_scores`): a region with many points decides by itself, one
    with few or none follows its cell, a cell with few follows the image.
-5. **margin** — a blend's score is raised by ``margin`` times the score of
-   the ``fallback`` candidate (linear interpolation in the completion) times
-   the blend's weight off the fallback: a blend replaces the fallback only
-   where its held-out error is lower by that fraction per unit of weight
-   moved.  Where the points cannot tell the candidates apart (clustered
+5. **margin** — a blend's score is multiplied by ``1 + margin (1 - w_f)``,
+   ``w_f`` its weight on the ``fallback`` candidate (linear interpolation in
+   the completion): a candidate replaces the fallback only where its
+   held-out error is below ``1 / (1 + margin)`` of the fallback's, and a
+   blend moves off the fallback only as far as its gain pays for.  Where the points cannot tell the candidates apart (clustered
    points: every candidate predicts the held-out points about equally well)
    the fallback, whose error the completion must never exceed, is kept.
 6. **winner** — per region the blend of the lowest score; the candidates are
@@ -86,9 +86,9 @@ class ChooseConfig:
         fallback: name of the candidate kept where the others do not beat it
             by ``margin`` (module docstring, step 5; ignored when no
             candidate has that name).
-        margin: fraction of the fallback's score a blend must gain per unit
-            of weight it moves off the fallback (>= 0; 0: the lowest score
-            wins; docs/results.md says why 0.4).
+        margin: a blend's score is multiplied by ``1 + margin`` times its
+            weight off the fallback (>= 0; 0: the lowest score wins; the
+            notes of issue 54 say why 0.6).
     """
 
     folds: int = 5
@@ -98,7 +98,7 @@ class ChooseConfig:
     grid: Tuple[int, int] = (4, 3)
     blend_step: float = 0.25
     fallback: str = "linear"
-    margin: float = 0.0
+    margin: float = 0.6
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
@@ -380,13 +380,12 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
 
 def _with_margin(scores: np.ndarray, blends: np.ndarray, names: Tuple[str, ...],
                  config: ChooseConfig) -> np.ndarray:
-    """(K, R) ``scores`` of the blends plus ``margin * (1 - w_fallback) *`` the
-    fallback's score per region (module docstring, step 5)."""
+    """(K, R) ``scores`` of the blends times ``1 + margin * (1 - w_fallback)``
+    (module docstring, step 5)."""
     if config.margin <= 0 or config.fallback not in names:
         return scores
     f = names.index(config.fallback)
-    pure = int(np.flatnonzero(blends[:, f] == 1.0)[0])
-    return scores + config.margin * (1.0 - blends[:, f])[:, None] * scores[pure][None, :]
+    return scores * (1.0 + config.margin * (1.0 - blends[:, f]))[:, None]
 
 
 def _worst_filled(res: np.ndarray) -> np.ndarray:
