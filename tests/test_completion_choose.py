@@ -404,3 +404,28 @@ def test_never_worse_than_linear_on_synthetic_regimes(regime):
     for degrees, m in mae.items():
         assert np.mean(m) <= (1.0 + NEVER_WORSE_TOLERANCE) * np.mean(lin), (degrees, m, lin)
     assert np.mean(mae[0.0]) < 0.7 * np.mean(lin)      # the right shapes still win
+
+
+def test_margin_keeps_linear_unless_a_candidate_is_clearly_better():
+    """``ChooseConfig.margin`` (issue 54): a candidate whose held-out error is 0.9x
+    linear interpolation's (within the margin: 0.9 > 1 / 1.6) does not replace it;
+    one at 0.5x does, pure; with ``margin=0`` the lowest score wins as before."""
+    h, w = 60, 80
+    truth = 2.0 + np.add.outer(np.arange(h), np.arange(w)) / 100.0
+    rng = np.random.default_rng(0)
+    uv = np.stack([rng.integers(0, w, 60), rng.integers(0, h, 60)], 1)
+    d = truth[uv[:, 1], uv[:, 0]]
+
+    def off(e):
+        return lambda p, q: truth * np.exp(e)
+
+    labels = -np.ones((h, w), int)
+    for other, kept in ((0.09, "linear"), (0.05, "other")):
+        cands = {"linear": off(0.1), "other": off(other)}
+        ch = choose_by_heldout(cands, uv, d, labels)
+        assert ch.region_counts()[kept] == ch.region_winner.size
+        assert np.all(ch.region_weights.max(1) == 1.0)          # pure
+        ch0 = choose_by_heldout(cands, uv, d, labels, ChooseConfig(margin=0.0))
+        assert ch0.region_counts()["other"] == ch0.region_winner.size
+    with pytest.raises(ValueError):
+        ChooseConfig(margin=-0.1)
