@@ -33,9 +33,10 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    ``w_f`` its weight on the ``fallback`` candidate (linear interpolation in
    the completion): a candidate replaces the fallback only where its
    held-out error is below ``1 / (1 + margin)`` of the fallback's, and a
-   blend moves off the fallback only as far as its gain pays for.  Where the points cannot tell the candidates apart (clustered
-   points: every candidate predicts the held-out points about equally well)
-   the fallback, whose error the completion must never exceed, is kept.
+   blend moves off the fallback only as far as its gain pays for.  Where the
+   points cannot tell the candidates apart (clustered points: every candidate
+   predicts the held-out points about equally well) the fallback, whose error
+   the completion must never exceed, is kept.
 6. **winner** — per region the blend of the lowest score; the candidates are
    refitted on all points (kept in ``HeldoutChoice.maps`` for
    :func:`rank_agreement`) and each pixel takes its region's blend of them
