@@ -29,7 +29,15 @@ aligned to the points, ...).  None wins everywhere, so the points decide:
    cell's score towards the global mean in the same way
    (:func:`region_scores`): a region with many points decides by itself, one
    with few or none follows its cell, a cell with few follows the image.
-5. **winner** — per region the blend of the lowest score; the candidates are
+5. **margin** — a blend's score is multiplied by ``1 + margin (1 - w_f)``,
+   ``w_f`` its weight on the ``fallback`` candidate (linear interpolation in
+   the completion): a candidate replaces the fallback only where its
+   held-out error is below ``1 / (1 + margin)`` of the fallback's, and a
+   blend moves off the fallback only as far as its gain pays for.  Where the
+   points cannot tell the candidates apart (clustered points: every candidate
+   predicts the held-out points about equally well) the fallback, whose error
+   the completion must never exceed, is kept.
+6. **winner** — per region the blend of the lowest score; the candidates are
    refitted on all points (kept in ``HeldoutChoice.maps`` for
    :func:`rank_agreement`) and each pixel takes its region's blend of them
    (:func:`choose_by_heldout`).
@@ -76,6 +84,12 @@ class ChooseConfig:
         grid: (columns, rows) of the image cells (each >= 1).
         blend_step: step of the blend weights on the simplex (``1 / blend_step``
             a whole number >= 1; 1.0: the pure candidates only).
+        fallback: name of the candidate kept where the others do not beat it
+            by ``margin`` (module docstring, step 5; ignored when no
+            candidate has that name).
+        margin: a blend's score is multiplied by ``1 + margin`` times its
+            weight off the fallback (>= 0; 0: the lowest score wins; the
+            notes of issue 54 say why 0.6).
     """
 
     folds: int = 5
@@ -84,6 +98,8 @@ class ChooseConfig:
     prior_points: float = 10.0
     grid: Tuple[int, int] = (4, 3)
     blend_step: float = 0.25
+    fallback: str = "linear"
+    margin: float = 0.6
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
@@ -94,6 +110,8 @@ class ChooseConfig:
             raise ValueError(f"ChooseConfig: prior_points must be >= 0, got {self.prior_points}")
         if len(self.grid) != 2 or min(int(g) for g in self.grid) < 1:
             raise ValueError(f"ChooseConfig: grid must be two integers >= 1, got {self.grid}")
+        if not (np.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(f"ChooseConfig: margin must be >= 0, got {self.margin}")
         n = 1.0 / self.blend_step if np.isfinite(self.blend_step) and self.blend_step > 0 else 0
         if not (n >= 1 and abs(n - round(n)) < 1e-9):
             raise ValueError(f"ChooseConfig: 1 / blend_step must be a whole number >= 1, "
@@ -342,6 +360,7 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
     blends = blend_weights(len(names), config.blend_step)
     scores = region_scores(np.abs(blends @ _worst_filled(res)), regions[uv[:, 1], uv[:, 0]],
                            cell, config.prior_points)
+    scores = _with_margin(scores, blends, names, config)
     weights = blends[np.argmin(scores, 0)]                          # (R, C)
     maps = dict(fitted or {})
     log_depth = np.zeros(labels.shape)
@@ -358,6 +377,16 @@ def choose_by_heldout(candidates: Mapping[str, Candidate], uv: np.ndarray, depth
     return HeldoutChoice(np.exp(log_depth), names, region_winner[regions], region_winner,
                          weights, heldout, np.where(np.isfinite(err), err, np.inf), folds,
                          regions, {n: maps[n] for n in names})
+
+
+def _with_margin(scores: np.ndarray, blends: np.ndarray, names: Tuple[str, ...],
+                 config: ChooseConfig) -> np.ndarray:
+    """(K, R) ``scores`` of the blends times ``1 + margin * (1 - w_fallback)``
+    (module docstring, step 5)."""
+    if config.margin <= 0 or config.fallback not in names:
+        return scores
+    f = names.index(config.fallback)
+    return scores * (1.0 + config.margin * (1.0 - blends[:, f]))[:, None]
 
 
 def _worst_filled(res: np.ndarray) -> np.ndarray:
