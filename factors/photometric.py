@@ -51,7 +51,7 @@ from spgeo.configs import config_class
 from . import kernels
 
 __all__ = [
-    "PhotometricConfig", "ShapeModel", "ScaledShape", "BentShape", "PlanarShape",
+    "PhotometricConfig", "ShapeModel", "ScaledShape", "PlanarShape",
     "PrimitivePhotometricFactor", "photometric_rows", "photometric_rows_numpy",
     "photometric_rows_numba", "residual_pass", "robust_weights",
 ]
@@ -146,32 +146,6 @@ class ScaledShape(ShapeModel):
         z = np.exp(self.log_depth + np.asarray(theta, dtype=np.float64)[..., 0])
         X = self.rays * z[:, None]
         return X, X[:, :, None], np.ones(z.size, dtype=bool)
-
-
-class BentShape(ShapeModel):
-    """A primitive that bends: its log-scale ``s`` plus two log-depth slopes
-    ``(a, b)`` per unit of normalised image coordinate (``theta = (s, a, b)``),
-    ``X_k = exp(l_k + s + a dx_k + b dy_k) r_k`` with ``(dx_k, dy_k)`` the
-    pixel's normalised coordinates relative to the primitive's anchor
-    (:meth:`spgeo.primitives.PrimitiveSet.bend_coordinates`), so ``s`` stays
-    the log-depth at the anchor; ``dX/dtheta = X (1, dx, dy)``."""
-
-    dim = 3
-
-    def __init__(self, rays: np.ndarray, log_depth: np.ndarray, coords: np.ndarray) -> None:
-        self.rays = np.asarray(rays, dtype=np.float64)
-        self.log_depth = np.asarray(log_depth, dtype=np.float64)
-        k = self.log_depth.size
-        self.basis = np.column_stack([np.ones(k), np.asarray(coords, dtype=np.float64)])
-        if (self.rays.shape != (k, 3) or self.log_depth.shape != (k,)
-                or self.basis.shape != (k, 3)):
-            raise ValueError("BentShape: rays must be (K, 3), log_depth (K,) and coords (K, 2)")
-
-    def points(self, theta):
-        th = np.asarray(theta, dtype=np.float64)
-        z = np.exp(self.log_depth + np.sum(self.basis * th, axis=-1))
-        X = self.rays * z[:, None]
-        return X, X[:, :, None] * self.basis[:, None, :], np.ones(z.size, dtype=bool)
 
 
 class PlanarShape(ShapeModel):

@@ -18,7 +18,7 @@ import numpy as np
 import gtsam
 
 __all__ = ["LOG_SCALE_PRIOR_WEIGHT", "log_scale_prior", "pose_gauge_prior",
-           "planar_slope_prior", "bend_prior", "brightness_prior", "LogScalePrior"]
+           "planar_slope_prior", "brightness_prior", "LogScalePrior"]
 
 LOG_SCALE_PRIOR_WEIGHT = 1e-5
 """The paper's weight of the scale prior in few-view SfM."""
@@ -53,20 +53,6 @@ def planar_slope_prior(key: int, inverse_depth: float, slope_sigma: float = 2.0,
     return gtsam.PriorFactorVector(key, np.array([a0, b0, float(inverse_depth)]),
                                    gtsam.noiseModel.Diagonal.Sigmas(
                                        np.array([slope_sigma, slope_sigma, inverse_depth_sigma])))
-
-
-def bend_prior(key: int, log_scale: float, bend_sigma: float,
-               weight: float = LOG_SCALE_PRIOR_WEIGHT) -> gtsam.PriorFactorVector:
-    """Prior on a bent primitive's ``(s, a, b)``
-    (:class:`~spgeo.factors.photometric.BentShape`): ``weight (s - log_scale)^2``
-    as :func:`log_scale_prior`, and the slopes ``(a, b)`` (log-depth per unit of
-    normalised image coordinate) towards 0, the integrated shape, with sigma
-    ``bend_sigma``."""
-    if not (weight > 0 and bend_sigma > 0):
-        raise ValueError(f"bend_prior: weight and bend_sigma must be > 0, got {weight}, {bend_sigma}")
-    return gtsam.PriorFactorVector(key, np.array([float(log_scale), 0.0, 0.0]),
-                                   gtsam.noiseModel.Diagonal.Sigmas(
-                                       np.array([1.0 / np.sqrt(weight), bend_sigma, bend_sigma])))
 
 
 def brightness_prior(key: int, sigmas: Sequence[float] = (0.3, 0.3)) -> gtsam.PriorFactorVector:

@@ -1,5 +1,7 @@
-"""Probe of issue 54's completion goals: log-depth slopes per primitive (A) and a
-choice that never loses to linear interpolation (B), scored offline.
+"""Probe of issue 54's completion goal: a choice that never loses to linear
+interpolation, scored offline (the slope model it also scored, ``shape_model="slope"``,
+lived in commits ed4d51a-0a36718 and was removed: it lost to the plane model,
+docs/results.md).
 
 For every frame of 7-Scenes (frames 0:300:60), TUM fr1_desk, ICL-NUIM and four
 synthetic views (:mod:`spgeo.synthetic`, 320x240, 1 % depth noise) and every
@@ -8,7 +10,7 @@ sparse regime (150 points: ``corners`` (strongest FAST corners, clustered),
 front-end runs once and these candidates are fitted on all points and without
 each held-out fold (:func:`spgeo.completion.choose.fold_ids`, the defaults):
 ``primitives`` (the default, graph / plane), ``prim_scale`` (graph / scale),
-``prim_slope`` (graph / slope, :mod:`spgeo.completion.slopes`), ``linear``,
+``linear``,
 ``ip_basic`` and FastDepth aligned by the interpolated ratio (``net:interp``).
 The cache (dense maps on every second pixel with reference depth, held-out
 residuals) is then scored by choice rules (:func:`rule_mae`), each as MAE over
@@ -44,8 +46,6 @@ def _candidates(image, prims, cam, labels, net, config):
     work = _working_image(image, prims)
     fits = candidate_fits(image, prims, cam, config, work, labels, net)
     out = {"primitives": fits["primitives"],
-           "prim_slope": candidate_fits(image, prims, cam, replace(config, shape_model="slope"),
-                                        work, labels)["primitives"],
            "linear": fits["linear"], "ip_basic": fits["ip_basic"]}
     if net is not None:
         out["net:interp"] = fits["network:interp"]
@@ -217,9 +217,8 @@ def main() -> int:
                 (folder / f"{key[0]}_{key[1]}.pkl").write_bytes(pickle.dumps(rows))
     cache = {tuple(p.stem.split("_", 1)): pickle.loads(p.read_bytes())
              for p in sorted(folder.glob("*.pkl"))}
-    alone = [f"alone:{c}" for c in ("primitives", "prim_scale", "prim_slope", "ip_basic")]
+    alone = [f"alone:{c}" for c in ("primitives", "prim_scale", "ip_basic")]
     sets = {"no network": ("primitives", "linear", "ip_basic"),
-            "no network, slope": ("prim_slope", "linear", "ip_basic"),
             "FastDepth": ("primitives", "linear", "ip_basic", "net:interp")}
     margins = (["blend"] + [f"margin{m}" for m in (0.4, 0.6, 0.8, 1.0)]
                + [f"additive{m}" for m in (0.3, 0.4, 0.5)] + [f"gate{m}" for m in (0.2, 0.3)]

@@ -3,11 +3,9 @@ shape variables a factor graph optimises for them.
 
 :data:`PRIMITIVE_MODELS` (``OdometryConfig.primitive_model``): ``"integrated"`` (the
 paper's model), ``"constant_depth"``, ``"constant_normal"`` and ``"planar"``
-and ``"bent"`` (:func:`apply_primitive_model`).  The graphs' shape variable of a
-primitive is its log-scale ``(1,)``, with ``"bent"`` its log-scale and two log-depth
-slopes ``(s, a, b)`` (:class:`~spgeo.factors.photometric.BentShape`), or with
-``"planar"`` its inverse-depth plane ``(a, b, c)`` (:func:`shape_values`,
-:func:`from_shape_values`).
+(:func:`apply_primitive_model`).  The graphs' shape variable of a primitive is its
+log-scale ``(1,)``, or with ``"planar"`` its inverse-depth plane ``(a, b, c)``
+(:func:`shape_values`, :func:`from_shape_values`).
 """
 from __future__ import annotations
 
@@ -20,10 +18,8 @@ __all__ = ["PRIMITIVE_MODELS", "apply_primitive_model", "shape_values", "from_sh
 #: ``OdometryConfig.primitive_model`` values: ``"integrated"`` (the paper's model),
 #: ``"constant_depth"`` (each primitive a fronto-parallel plane at its anchor depth),
 #: ``"constant_normal"`` (the least-squares plane of its integrated shape) and
-#: ``"planar"`` (those planes with their three parameters optimised in mapping) and
-#: ``"bent"`` (the integrated shape with its log-scale and two log-depth slopes
-#: optimised, the slopes held towards 0 by a prior: :attr:`PrimitiveSet.bends`).
-PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar", "bent")
+#: ``"planar"`` (those planes with their three parameters optimised in mapping).
+PRIMITIVE_MODELS = ("integrated", "constant_depth", "constant_normal", "planar")
 
 
 def apply_primitive_model(primitives: PrimitiveSet, model: str) -> PrimitiveSet:
@@ -32,7 +28,7 @@ def apply_primitive_model(primitives: PrimitiveSet, model: str) -> PrimitiveSet:
     anchor depth; ``"constant_normal"`` / ``"planar"``: each primitive the
     least-squares inverse-depth plane of its integrated shape.  Raises
     ``ValueError`` for another name."""
-    if model in ("integrated", "bent"):
+    if model == "integrated":
         return primitives
     if model == "constant_depth":
         return primitives.with_scaled_log_depth(np.repeat(primitives.log_scales, primitives.sizes))
@@ -42,14 +38,11 @@ def apply_primitive_model(primitives: PrimitiveSet, model: str) -> PrimitiveSet:
 
 
 def shape_values(prims: PrimitiveSet, primitive_model: str) -> np.ndarray:
-    """``(N, dim)`` shape variables of the primitives: ``(N, 1)`` log-scales,
-    with ``primitive_model == "bent"`` the ``(N, 3)`` log-scales and bends
-    ``(s, a, b)``, or with ``"planar"`` the ``(N, 3)`` inverse-depth planes
+    """``(N, dim)`` shape variables of the primitives: ``(N, 1)`` log-scales, or
+    with ``primitive_model == "planar"`` the ``(N, 3)`` inverse-depth planes
     ``(a, b, c)`` of :meth:`PrimitiveSet.fit_planes`."""
     if primitive_model == "planar":
         return prims.fit_planes()
-    if primitive_model == "bent":
-        return np.column_stack([prims.log_scales, prims.bends])
     return prims.log_scales.reshape(-1, 1)
 
 
@@ -59,9 +52,4 @@ def from_shape_values(prims: PrimitiveSet, thetas: np.ndarray,
     returns them)."""
     if primitive_model == "planar":
         return prims.with_planes(thetas)[0]
-    th = np.asarray(thetas, dtype=np.float64)
-    if primitive_model == "bent":
-        out = prims.with_log_scales(th[:, 0])
-        out.bends = th[:, 1:3].copy()
-        return out
-    return prims.with_log_scales(th[:, 0])
+    return prims.with_log_scales(np.asarray(thetas)[:, 0])

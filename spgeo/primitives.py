@@ -145,18 +145,12 @@ class PrimitiveSet:
         normals: optional (M, 3) unit normals per entry (camera frame) used to
             build the primitives; kept for planar initialisation and plots.
         meta: free-form provenance (front-end name, whether depth was used, ...).
-        bends: (N, 2) log-depth slopes ``(a, b)`` of each primitive per unit of
-            normalised image coordinate, relative to its anchor (default 0): the
-            metric log-depth is ``log D(u) + s + a (x - x_p) + b (y - y_p)``
-            (:meth:`bend_coordinates`; the ``"bent"`` primitive model,
-            docs/design.md §2).
     """
 
     def __init__(self, camera: PinholeCamera, pixels: np.ndarray, offsets: np.ndarray,
                  log_depth: np.ndarray, anchors: np.ndarray,
                  log_scales: Optional[np.ndarray] = None, scores: Optional[np.ndarray] = None,
-                 normals: Optional[np.ndarray] = None, meta: Optional[dict] = None,
-                 bends: Optional[np.ndarray] = None) -> None:
+                 normals: Optional[np.ndarray] = None, meta: Optional[dict] = None) -> None:
         self.camera = camera
         self.pixels = np.ascontiguousarray(pixels, dtype=np.int64).reshape(-1)
         self.offsets = np.ascontiguousarray(offsets, dtype=np.int64).reshape(-1)
@@ -169,8 +163,6 @@ class PrimitiveSet:
                        else np.asarray(scores, dtype=np.float64).reshape(-1))
         self.normals = None if normals is None else np.asarray(normals, dtype=np.float32)
         self.meta = dict(meta or {})
-        self.bends = (np.zeros((n, 2)) if bends is None
-                      else np.array(bends, dtype=np.float64).reshape(-1, 2))
         self._ids: Optional[np.ndarray] = None
         self._validate()
         # Normalise so that log D(anchor) = 0 for every primitive.
@@ -183,12 +175,6 @@ class PrimitiveSet:
         state = dict(self.__dict__)
         state["_ids"] = None
         return state
-
-    def __setstate__(self, state: dict) -> None:
-        """Unpickle; a set pickled before :attr:`bends` existed gets zero bends."""
-        self.__dict__.update(state)
-        if "bends" not in state:
-            self.bends = np.zeros((self.offsets.size - 1, 2))
 
     # ------------------------------------------------------------ validation
     def _validate(self) -> None:
@@ -209,9 +195,6 @@ class PrimitiveSet:
                 raise ValueError(f"PrimitiveSet: {name} has shape {arr.shape}, expected ({n},)")
         if not np.all(np.isfinite(self.log_scales)):
             raise ValueError("PrimitiveSet: log_scales contain NaN or inf")
-        if self.bends.shape != (n, 2) or not np.all(np.isfinite(self.bends)):
-            raise ValueError(f"PrimitiveSet: bends must be ({n}, 2) finite, "
-                             f"got shape {self.bends.shape}")
         if m and (self.pixels.min() < 0 or self.pixels.max() >= npix):
             raise ValueError("PrimitiveSet: pixel indices outside the image")
         step = np.diff(self.pixels)
@@ -305,25 +288,11 @@ class PrimitiveSet:
 
     # ------------------------------------------------------------ derived maps
     def scaled_log_depth(self, log_scales: Optional[np.ndarray] = None) -> np.ndarray:
-        """(M,) metric log-depth ``log D + s`` per entry (log metres), plus the
-        bend ``a (x - x_p) + b (y - y_p)`` where :attr:`bends` are not zero."""
+        """(M,) metric log-depth ``log D + s`` per entry (log metres)."""
         s = self.log_scales if log_scales is None else np.asarray(log_scales, dtype=np.float64)
         if s.shape != (len(self),):
             raise ValueError(f"log_scales must have shape ({len(self)},), got {s.shape}")
-        out = self.log_depth + s[self.primitive_ids]
-        if np.any(self.bends):
-            out += np.einsum("kj,kj->k", self.bend_coordinates(), self.bends[self.primitive_ids])
-        return out
-
-    def bend_coordinates(self) -> np.ndarray:
-        """(M, 2) normalised image coordinates ``(x - x_p, y - y_p)`` of each entry
-        relative to its primitive's anchor ``p`` (``x = (u - cx) / fx``): the
-        coefficients of :attr:`bends` in the log-depth."""
-        w, cam = self.camera.width, self.camera
-        ids = self.primitive_ids
-        du = (self.pixels % w) - (self.anchors % w)[ids]
-        dv = (self.pixels // w) - (self.anchors // w)[ids]
-        return np.stack([du / cam.fx, dv / cam.fy], -1).astype(np.float64)
+        return self.log_depth + s[self.primitive_ids]
 
     def coverage(self) -> np.ndarray:
         """(H, W) int32 number of primitives covering each pixel."""
@@ -395,19 +364,10 @@ class PrimitiveSet:
         out.log_scales = s.copy()
         return out
 
-    def with_bends(self, bends: np.ndarray) -> "PrimitiveSet":
-        """A copy sharing geometry with new :attr:`bends` ``(N, 2)``."""
-        out = self.subset(np.arange(len(self)))
-        b = np.asarray(bends, dtype=np.float64)
-        if b.shape != (len(self), 2) or not np.all(np.isfinite(b)):
-            raise ValueError(f"bends must be ({len(self)}, 2) finite, got shape {b.shape}")
-        out.bends = b.copy()
-        return out
-
     def with_scaled_log_depth(self, scaled_log_depth: np.ndarray) -> "PrimitiveSet":
         """A copy whose shapes follow a new per-pixel metric log-depth (N
         entries, as :meth:`scaled_log_depth`): the log-scale becomes its value
-        at the anchor and the unscaled shape the rest (bends 0: baked in)."""
+        at the anchor and the unscaled shape the rest."""
         L = np.asarray(scaled_log_depth, dtype=np.float64).reshape(-1)
         if L.shape != self.log_depth.shape or not np.all(np.isfinite(L)):
             raise ValueError(f"scaled_log_depth must be ({self.log_depth.size},) finite")
@@ -468,8 +428,7 @@ class PrimitiveSet:
                        ) -> Tuple[np.ndarray, np.ndarray]:
         """Per-primitive robust scale from a (possibly sparse) metric depth map.
 
-        ``s_i = median over valid pixels of (log depth - log D_i)`` (docs/design.md §5;
-        ``log D_i`` with the primitive's bend).
+        ``s_i = median over valid pixels of (log depth - log D_i)`` (docs/design.md §5).
         Args:
             depth: (H, W) metres; NaN / <= 0 are missing.
             min_points: primitives with fewer valid pixels get NaN.
@@ -482,7 +441,7 @@ class PrimitiveSet:
         d = depth.reshape(-1)[self.pixels]
         with np.errstate(invalid="ignore", divide="ignore"):
             valid = np.isfinite(d) & (d > 0)
-            resid = np.log(np.where(valid, d, 1.0)) - self.scaled_log_depth(np.zeros(len(self)))
+            resid = np.log(np.where(valid, d, 1.0)) - self.log_depth
         ids = self.primitive_ids[valid]
         r = resid[valid]
         n_points = np.bincount(ids, minlength=len(self))
@@ -511,7 +470,7 @@ class PrimitiveSet:
         return PrimitiveSet(self.camera, self.pixels[ent], np.concatenate([[0], np.cumsum(sizes)]),
                             self.log_depth[ent], self.anchors[idx], self.log_scales[idx],
                             self.scores[idx], None if self.normals is None else self.normals[ent],
-                            self.meta, self.bends[idx])
+                            self.meta)
 
     def save(self, path: Union[str, os.PathLike]) -> None:
         """Save to a compressed ``.npz`` (camera, arrays and JSON meta)."""
@@ -523,8 +482,6 @@ class PrimitiveSet:
                       format_version=_FORMAT_VERSION)
         if self.normals is not None:
             arrays["normals"] = self.normals.astype(np.float16)
-        if np.any(self.bends):
-            arrays["bends"] = self.bends
         np.savez_compressed(path, **arrays)
 
     @classmethod
@@ -545,4 +502,4 @@ class PrimitiveSet:
             normals = z["normals"].astype(np.float32) if "normals" in z else None
             return cls(cam, z["pixels"], z["offsets"], z["log_depth"].astype(np.float64),
                        z["anchors"], z["log_scales"], z["scores"], normals,
-                       json.loads(str(z["meta"])), z["bends"] if "bends" in z else None)
+                       json.loads(str(z["meta"])))

@@ -48,7 +48,7 @@ CASES = (("tum 0-4-8", "tum", "tum_fr1_desk_9", "0:9:4"),
          ("7scenes 100-110-120", "7scenes", "7scenes_redkitchen_dev", "100:121:10"),
          ("7scenes 200-210-220", "7scenes", "7scenes_redkitchen_dev", "200:221:10"))
 FRONTENDS = ("classical", "manhattan", "depth", "onnx-depth")
-SHAPE_MODELS = ("scaled", "bent", "planar")
+SHAPE_MODELS = ("scaled", "planar")
 DEPTH_RANGE_M = (0.2, 5.0)
 
 _COLUMNS = (("case", "case", 0), ("front-end", "frontend", 0), ("shape", "shape_model", 0),

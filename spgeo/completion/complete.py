@@ -91,9 +91,7 @@ from .choose import Candidate, HeldoutChoice, choose_by_heldout
 from .config import CompletionConfig
 from .fill import fill_holes, resample_sparse, residual_correction, upsample
 from .graph import solve_log_scales_graph, solve_planes_graph
-from .planes import (MODE_NONE, MODE_PLANE, MODE_SCALE, fit_primitive_planes,
-                     lend_across_weak_edges)
-from .slopes import fit_log_slopes
+from .planes import MODE_NONE, MODE_SCALE, fit_primitive_planes, lend_across_weak_edges
 from .scales import (flat_primitives, grouped_median, solve_log_scales_joint,
                      sparse_point_assignments, working_pixels)
 
@@ -559,14 +557,6 @@ def _fit_scales(work: np.ndarray, prims: PrimitiveSet, uv: np.ndarray, sd: np.nd
     if config.shape_model == "plane" and n:
         sub, kept, modes = _plane_model(work, prims, uv, camera, point, prim, sd[point], s,
                                         counts, kept, config, point_w)
-    elif config.shape_model == "slope" and n:
-        s_ok = np.full(n, np.nan)
-        s_ok[kept] = s[kept]
-        sl = fit_log_slopes(prims, prim, working_pixels(uv, camera, prims.camera)[point],
-                            sd[point], s_ok, point_w, config.plane_min_points,
-                            config.slope_sigma)
-        sub = prims.with_scaled_log_depth(sl.scaled_log_depth).subset(kept)
-        modes = np.where(sl.bent[kept], MODE_PLANE, MODE_SCALE).astype(np.int8)
     else:
         sub = prims.subset(kept).with_log_scales(s[kept])
     return _ScaleFit(sub, kept, modes, counts, solver)

@@ -14,7 +14,7 @@ from .network import ALIGNMENTS
 __all__ = ["CompletionConfig", "METHODS", "SHAPE_MODELS", "CHOOSE", "CANDIDATES"]
 
 METHODS = ("median", "joint", "graph")
-SHAPE_MODELS = ("scale", "plane", "slope")
+SHAPE_MODELS = ("scale", "plane")
 CHOOSE = ("none", "heldout")
 #: Candidate names of ``CompletionConfig.candidates``; ``"network:<alignment>"``
 #: for each alignment of :data:`spgeo.completion.network.ALIGNMENTS`.
@@ -64,14 +64,7 @@ class CompletionConfig:
             normals) tried, and depth lent to empty primitives across weak
             edges; with ``method="graph"`` one joint solve with continuity
             across weak edges, :func:`spgeo.completion.graph.solve_planes_graph`).
-            ``"slope"``: :mod:`spgeo.completion.slopes`: the scale plus two
-            slopes of the log-depth in normalised image coordinates where a
-            primitive holds ``plane_min_points`` points, a Gaussian prior of
-            standard deviation ``slope_sigma`` pulling the slopes to 0.
-        slope_sigma: ``"slope"``: prior standard deviation of the log-depth
-            slopes (log-depth per unit normalised coordinate; > 0).
-        plane_min_points: ``"plane"`` / ``"slope"``: points needed for the
-            planar / sloped fit (>= 3).
+        plane_min_points: ``"plane"``: points needed for the planar fit (>= 3).
         plane_prior: ``"plane"``: ridge weight pulling the plane towards the
             primitive's own orientation (>= 0).
         plane_huber: ``"plane"``: Huber threshold on the relative
@@ -117,7 +110,6 @@ class CompletionConfig:
     min_coverage: float = 0.05
     shape_model: str = "plane"
     plane_min_points: int = 3
-    slope_sigma: float = 1.0
     plane_prior: float = 0.1
     plane_huber: float = 0.05
     lend_edge_threshold: Optional[float] = 0.08
@@ -151,8 +143,6 @@ class CompletionConfig:
         if self.shape_model not in SHAPE_MODELS:
             raise ValueError(f"CompletionConfig: shape_model must be one of {SHAPE_MODELS}, "
                              f"got {self.shape_model!r}")
-        if not (np.isfinite(self.slope_sigma) and self.slope_sigma > 0):
-            raise ValueError(f"CompletionConfig: slope_sigma must be > 0, got {self.slope_sigma}")
         if int(self.plane_min_points) != self.plane_min_points or self.plane_min_points < 3:
             raise ValueError(f"CompletionConfig: plane_min_points must be an integer >= 3, "
                              f"got {self.plane_min_points}")

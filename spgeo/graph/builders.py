@@ -18,7 +18,7 @@
   report and log).
 
 Prior sigmas of the keyframe graphs (module constants: nothing overrides them):
-:data:`GAUGE_SIGMA`, :data:`PLANAR_SLOPE_SIGMA`, :data:`BEND_SIGMA`,
+:data:`GAUGE_SIGMA`, :data:`PLANAR_SLOPE_SIGMA`,
 :data:`BRIGHTNESS_PRIOR_SIGMA`, and of the SfM depth stage's :func:`continuity_factors`:
 :data:`CONTINUITY_SIGMA`, :data:`CONTINUITY_EDGE_SCALE`.
 """
@@ -31,10 +31,10 @@ import numpy as np
 import gtsam
 
 from ..camera import PinholeCamera
-from ..factors.photometric import BentShape, PlanarShape, ScaledShape, ShapeModel
+from ..factors.photometric import PlanarShape, ScaledShape, ShapeModel
 from ..factors.photometric_group import PhotometricFactorGroup
-from ..factors.priors import (bend_prior, brightness_prior, log_scale_prior,
-                              planar_slope_prior, pose_gauge_prior)
+from ..factors.priors import (brightness_prior, log_scale_prior, planar_slope_prior,
+                              pose_gauge_prior)
 from ..primitive_models import shape_values
 from ..primitives import PrimitiveSet
 from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
@@ -43,7 +43,7 @@ from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 # (spgeo.vo.config, spgeo.vo.map, spgeo.sfm.config): not imported, as those packages
 # import this module (no import circle, not even a type-only one: tests/test_layering.py)
 
-__all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BEND_SIGMA", "BRIGHTNESS_PRIOR_SIGMA",
+__all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA",
            "CONTINUITY_SIGMA", "CONTINUITY_EDGE_SCALE", "gtsam_error_line", "primitive_shape",
            "add_shape_prior", "continuity_factors",
            "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
@@ -54,9 +54,6 @@ __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BEND_SIGMA", "BRIGHTNESS_PRIOR_
 GAUGE_SIGMA = 1e-6
 #: sigma of the planar model's slope prior (towards fronto-parallel; weak)
 PLANAR_SLOPE_SIGMA = 2.0
-#: sigma of the bent model's slope prior (log-depth per unit of normalised image
-#: coordinate, towards the integrated shape; docs/results.md, issue 54)
-BEND_SIGMA = 100.0
 #: log-depth sigma of the continuity factors between adjacent primitives in the
 #: few-view SfM's depth stage (:func:`continuity_factors`; docs/results.md, issue 54)
 CONTINUITY_SIGMA = 5.0
@@ -82,13 +79,10 @@ def primitive_shape(prims: PrimitiveSet, entries: np.ndarray, rays: np.ndarray,
                     model: str) -> ShapeModel:
     """The factors' shape model of the entries ``entries`` (into ``prims.pixels``)
     with rays ``rays`` (K, 3): :class:`PlanarShape` for ``model == "planar"``,
-    :class:`BentShape` on the integrated shape for ``"bent"`` (the bends are
-    variables), else :class:`ScaledShape` on the shape with its bends."""
+    else :class:`ScaledShape` on the primitives' unscaled log-depth."""
     if model == "planar":
         return PlanarShape(rays)
-    if model == "bent":
-        return BentShape(rays, prims.log_depth[entries], prims.bend_coordinates()[entries])
-    return ScaledShape(rays, prims.scaled_log_depth(np.zeros(len(prims)))[entries])
+    return ScaledShape(rays, prims.log_depth[entries])
 
 
 def add_shape_prior(graph: gtsam.NonlinearFactorGraph, key: int, theta: np.ndarray,
@@ -96,15 +90,12 @@ def add_shape_prior(graph: gtsam.NonlinearFactorGraph, key: int, theta: np.ndarr
                     slope: Optional[np.ndarray] = None) -> None:
     """The prior of one primitive's shape variable ``theta`` (as
     :func:`~spgeo.primitive_models.shape_values` gives it) under ``model``
-    (``"planar"``, ``"bent"`` or a 1-DoF model): its log-scale (planar: its
-    inverse depth ``c``) held with ``weight``, a plane's slopes towards ``slope``
-    (None: theta's own) with ``planar_sigma``, bends towards 0 with
-    :data:`BEND_SIGMA`."""
+    (``"planar"`` or a 1-DoF model): its log-scale (planar: its inverse depth
+    ``c``) held with ``weight``, a plane's slopes towards ``slope`` (None:
+    theta's own) with ``planar_sigma``."""
     if model == "planar":
         graph.add(planar_slope_prior(key, float(theta[2]), planar_sigma, 1.0 / np.sqrt(weight),
                                      slope=theta[:2] if slope is None else slope))
-    elif model == "bent":
-        graph.add(bend_prior(key, float(theta[0]), BEND_SIGMA, weight))
     else:
         graph.add(log_scale_prior(key, float(theta[0]), weight))
 
@@ -120,7 +111,7 @@ def continuity_factors(prims: PrimitiveSet, image: np.ndarray, keys: List[int],
     :func:`spgeo.completion.graph.weak_edges`), one ``BetweenFactorVector`` on
     their log-scales, ``s_j - s_i = c_ij`` with ``c_ij`` the mean of
     ``l_i(p) - l_j(q)`` over the boundary pixel pairs ``(p, q)`` (``l``: the
-    unscaled log-depth, bends included), Gaussian noise of sigma
+    unscaled log-depth), Gaussian noise of sigma
     ``sigma / sqrt(w_ij)`` (log units; ``w_ij = exp(-(step / edge_scale)^2)``).
     Gaussian, not robust: a robust kernel is flat far from 0 and lets a
     primitive that no view constrains run away (measured, docs/results.md).
@@ -139,7 +130,7 @@ def continuity_factors(prims: PrimitiveSet, image: np.ndarray, keys: List[int],
         raise ValueError(f"continuity_factors: {len(keys)} keys for {len(prims)} primitives")
     e = weak_edges(prims, image, edge_scale)
     ok = (e.ent_p >= 0) & (e.ent_q >= 0)
-    ld = prims.scaled_log_depth(np.zeros(len(prims)))
+    ld = prims.log_depth
     n_e = e.edge_a.size
     c = (np.bincount(e.pair_edge[ok], weights=ld[e.ent_p[ok]] - ld[e.ent_q[ok]], minlength=n_e)
          / np.maximum(np.bincount(e.pair_edge[ok], minlength=n_e), 1))
@@ -233,7 +224,7 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
 def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig) -> None:
     """A (live) keyframe's pose and shape variables at their current values,
     with the shapes' priors (weights ``kf.prior_weights`` (N,), else
-    ``scale_prior_weight``; planar and bent: the slope prior too,
+    ``scale_prior_weight``; planar: the slope prior too,
     :func:`add_shape_prior`); timestamps ``kf.index``."""
     batch.insert(pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
     th = shape_values(kf.keyframe.primitives, config.primitive_model)

@@ -18,10 +18,7 @@ class SfMConfig:
 
     Attributes:
         shape_model: ``"scaled"`` (1-DoF log-scale on the integrated shape, the
-            paper), ``"bent"`` (log-scale and two log-depth slopes on the
-            integrated shape, the slopes held towards 0 by a prior:
-            :class:`~spgeo.factors.photometric.BentShape`) or ``"planar"``
-            (3-DoF inverse-depth plane per primitive).
+            paper) or ``"planar"`` (3-DoF inverse-depth plane per primitive).
         levels: pyramid levels (coarse-to-fine; 4 at 320x240 -> 40x30 coarsest).
         max_iterations: LM iterations per level, coarsest first (the last
             value repeats for extra levels).
@@ -118,9 +115,8 @@ class SfMConfig:
     chunk: int = 32
 
     def __post_init__(self) -> None:
-        if self.shape_model not in ("scaled", "bent", "planar"):
-            raise ValueError(f"shape_model must be 'scaled', 'bent' or 'planar', "
-                             f"got {self.shape_model!r}")
+        if self.shape_model not in ("scaled", "planar"):
+            raise ValueError(f"shape_model must be 'scaled' or 'planar', got {self.shape_model!r}")
         if self.levels < 1 or not self.max_iterations:
             raise ValueError("levels must be >= 1 and max_iterations non-empty")
         if self.init not in ("features", "twoview", "identity"):

@@ -151,8 +151,7 @@ def _problem(ref_image, views, camera, prims, cam, config) -> _Problem:
 
 def _initial_values(prims: PrimitiveSet, n_views: int, init_T_ref_view, config) -> gtsam.Values:
     """Start values: reference at identity, each view at its initial pose (identity
-    when none), brightness 0, log-scales (bent: with the bends; planar:
-    fronto-parallel planes) from ``prims``."""
+    when none), brightness 0, log-scales (or fronto-parallel planes) from ``prims``."""
     values = gtsam.Values()
     values.insert(pose_key(0), gtsam.Pose3())
     for j in range(n_views):
@@ -163,9 +162,6 @@ def _initial_values(prims: PrimitiveSet, n_views: int, init_T_ref_view, config) 
     if config.shape_model == "scaled":
         for i in range(len(prims)):
             values.insert(scale_key(i), np.array([prims.log_scales[i]]))
-    elif config.shape_model == "bent":
-        for i in range(len(prims)):
-            values.insert(scale_key(i), np.array([prims.log_scales[i], *prims.bends[i]]))
     else:
         for i in range(len(prims)):
             values.insert(scale_key(i), PlanarShape.fronto_parallel(np.exp(prims.log_scales[i])))
@@ -260,16 +256,13 @@ def _depth_stage(pb: _Problem, values: gtsam.Values, config: SfMConfig, report: 
 
 
 def _solved_primitives(pb: _Problem, values: gtsam.Values, config: SfMConfig) -> PrimitiveSet:
-    """The reference primitives at the solved log-scales (bent model: and
-    bends); planar model: the
+    """The reference primitives at the solved log-scales; planar model: the
     planes' depths baked into ``log_depth`` (a plane behind the camera keeps
     its primitive's median depth there)."""
     prims, cam, rays_all = pb.prims, pb.cam, pb.rays_all
     thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
     if config.shape_model == "scaled":
         return prims.with_log_scales(thetas[:, 0])
-    if config.shape_model == "bent":
-        return prims.with_log_scales(thetas[:, 0]).with_bends(thetas[:, 1:])
     rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
     bad = ~(rho > 1e-9)
     rho = np.where(bad, np.nan, rho)
@@ -296,7 +289,7 @@ class _Marginals:
     covs: List[Optional[np.ndarray]]
 
 
-def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float, dim: int = 1):
+def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float):
     """Std of each log-scale with the global-scale gauge removed, and a mask of
     the scales constrained by nothing but their prior.
 
@@ -304,12 +297,10 @@ def gauge_free_scale_std(marg: "gtsam.Marginals", n: int, prior_sigma: float, di
     only by the weak prior) as one large shared mode.  Scales whose own std is
     over half the prior's are constrained by the prior alone (returned in the
     mask, raw std kept).  The others are conditioned on their mean log-scale:
-    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.  ``dim``: the size of
-    each shape variable, whose first component is the log-scale (3: bent).
+    ``diag(C - C 1 1^T C / (1^T C 1))`` over that set.
     """
     keys = gtsam.KeyVector([scale_key(i) for i in range(n)])
     C = marg.jointMarginalCovariance(keys).fullMatrix()
-    C = C[np.ix_(np.arange(n) * dim, np.arange(n) * dim)]   # the log-scales
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     con = np.flatnonzero(std <= 0.5 * prior_sigma)
     if con.size >= 2:
@@ -354,10 +345,9 @@ def _marginals(pb: _Problem, values: gtsam.Values, builders: Sequence[Photometri
             release_groups(mgroups)
             covs = stage.covariances() if stage is not None else [
                 marg.marginalCovariance(pose_key(j + 1)) for j in range(pb.n_views)]
-            if config.shape_model in ("scaled", "bent"):
-                log_std, prior_only = gauge_free_scale_std(
-                    marg, len(prims), 1.0 / np.sqrt(prior_w),
-                    3 if config.shape_model == "bent" else 1)
+            if config.shape_model == "scaled":
+                log_std, prior_only = gauge_free_scale_std(marg, len(prims),
+                                                            1.0 / np.sqrt(prior_w))
         except RuntimeError as exc:  # indeterminant system: report, do not crash
             report["marginals_error"] = gtsam_error_line(exc)
             log.warning("marginals failed: %s", report["marginals_error"])

@@ -240,9 +240,10 @@ class Keyframe:
         ids = compact[ids_all[entries]]
         pix = prims.pixels[entries]
         img = self.pyramid.images[level]
-        # X = rays * exp(log_depth + s (+ bend)) (the factors' expression)
+        # ScaledShape: X = rays * exp(log_depth + s) (same expression as the factor)
         rays = prims.camera.rays().reshape(-1, 3)[pix]
-        X = rays * np.exp(prims.scaled_log_depth()[entries])[:, None]
+        s = prims.log_scales[ids_all[entries]]
+        X = rays * np.exp(prims.log_depth[entries] + s)[:, None]
         ref = img[(pix // w) // stride, (pix % w) // stride].astype(np.float64)
         n_pix = np.bincount(ids, minlength=prim_index.size).astype(np.float64)
         data = _LevelData(int(level), entries, np.ascontiguousarray(X.T), ref, ids, prim_index, n_pix)
