@@ -73,9 +73,9 @@ class SfMConfig:
             at the finest level with every pose held and continuity factors
             between adjacent primitives across weak image edges
             (:func:`spgeo.graph.builders.continuity_factors`): the reference
-            depth's AbsRel falls on every measured case (7-Scenes gaps of 10 to
-            45 frames, TUM, ICL: docs/results.md, issue 54) and the poses are
-            those of the solve before it.  Default True; the VO's two-view
+            depth's AbsRel falls on 17 of 18 real reference views (7-Scenes gaps
+            of 10 to 45 frames, TUM, ICL) and 7 of 8 synthetic ones
+            (docs/results.md, issue 54); the poses are those of the solve before it.  Default True; the VO's two-view
             initialisation sets False (its window re-solves the scales; there
             the stage measured neither better nor worse).
         marginals: compute per-primitive scale stds and pose covariances.
