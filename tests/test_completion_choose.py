@@ -408,7 +408,7 @@ def test_never_worse_than_linear_on_synthetic_regimes(regime):
 
 def test_margin_keeps_linear_unless_a_candidate_is_clearly_better():
     """``ChooseConfig.margin`` (issue 54): a candidate whose held-out error is 0.9x
-    linear interpolation's (within the margin: 0.9 > 1 / 1.6) does not replace it;
+    linear interpolation's (within the margin: 0.9 > 1 / 1.4) does not replace it;
     one at 0.5x does, pure; with ``margin=0`` the lowest score wins as before."""
     h, w = 60, 80
     truth = 2.0 + np.add.outer(np.arange(h), np.arange(w)) / 100.0

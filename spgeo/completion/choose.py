@@ -88,8 +88,9 @@ class ChooseConfig:
             by ``margin`` (module docstring, step 5; ignored when no
             candidate has that name).
         margin: a blend's score is multiplied by ``1 + margin`` times its
-            weight off the fallback (>= 0; 0: the lowest score wins; the
-            notes of issue 54 say why 0.6).
+            weight off the fallback (>= 0; 0: the lowest score wins;
+            docs/results.md, issue 54, says why 0.4: 0.5 and 0.6 give up the
+            primitives' robustness to outlier points).
     """
 
     folds: int = 5
@@ -99,7 +100,7 @@ class ChooseConfig:
     grid: Tuple[int, int] = (4, 3)
     blend_step: float = 0.25
     fallback: str = "linear"
-    margin: float = 0.6
+    margin: float = 0.4
 
     def __post_init__(self) -> None:
         if int(self.folds) != self.folds or self.folds < 2:
