@@ -13,14 +13,10 @@ import time
 import numpy as np
 
 from spgeo.evaluation.depth_eval import sfm_reference_depth
+from spgeo.evaluation.pose_metrics import rotation_error_deg
 from spgeo.evaluation.sfm.baselines import view_set_frames
 from spgeo.frontend import FrontEndConfig, make_frontend
 from spgeo.sfm import SfMConfig, few_view_sfm
-
-
-def rotation_error_deg(T_est, T_gt):
-    R = T_est[:3, :3].T @ T_gt[:3, :3]
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
 
 
 def main() -> None:

@@ -45,7 +45,7 @@ from .keys import brightness_key, pair_brightness_key, pose_key, scale_key
 
 __all__ = ["GAUGE_SIGMA", "PLANAR_SLOPE_SIGMA", "BRIGHTNESS_PRIOR_SIGMA",
            "CONTINUITY_SIGMA", "CONTINUITY_EDGE_SCALE", "gtsam_error_line", "primitive_shape",
-           "add_shape_prior", "continuity_factors",
+           "continuity_factors",
            "FactorBatch", "mapping_pixels", "pair_factor_group", "add_keyframe_variables",
            "add_factor_group", "link_keyframe_pair", "level_pixels",
            "hold_translation_and_shape", "build_level_graph", "projection_model"]
@@ -85,21 +85,6 @@ def primitive_shape(prims: PrimitiveSet, entries: np.ndarray, rays: np.ndarray,
     return ScaledShape(rays, prims.log_depth[entries])
 
 
-def add_shape_prior(graph: gtsam.NonlinearFactorGraph, key: int, theta: np.ndarray,
-                    model: str, weight: float, planar_sigma: float,
-                    slope: Optional[np.ndarray] = None) -> None:
-    """The prior of one primitive's shape variable ``theta`` (as
-    :func:`~spgeo.primitive_models.shape_values` gives it) under ``model``
-    (``"planar"`` or a 1-DoF model): its log-scale (planar: its inverse depth
-    ``c``) held with ``weight``, a plane's slopes towards ``slope`` (None:
-    theta's own) with ``planar_sigma``."""
-    if model == "planar":
-        graph.add(planar_slope_prior(key, float(theta[2]), planar_sigma, 1.0 / np.sqrt(weight),
-                                     slope=theta[:2] if slope is None else slope))
-    else:
-        graph.add(log_scale_prior(key, float(theta[0]), weight))
-
-
 def continuity_factors(prims: PrimitiveSet, image: np.ndarray, keys: List[int],
                        sigma: float = CONTINUITY_SIGMA,
                        edge_scale: float = CONTINUITY_EDGE_SCALE) -> List[gtsam.NonlinearFactor]:
@@ -113,8 +98,9 @@ def continuity_factors(prims: PrimitiveSet, image: np.ndarray, keys: List[int],
     ``l_i(p) - l_j(q)`` over the boundary pixel pairs ``(p, q)`` (``l``: the
     unscaled log-depth), Gaussian noise of sigma
     ``sigma / sqrt(w_ij)`` (log units; ``w_ij = exp(-(step / edge_scale)^2)``).
-    Gaussian, not robust: a robust kernel is flat far from 0 and lets a
-    primitive that no view constrains run away (measured, docs/results.md).
+    Gaussian, not robust: far from 0 a Cauchy kernel's pull vanishes and a
+    Huber kernel's stops growing, and a primitive that no view constrains ran
+    away again with them (docs/results.md).
 
     Args:
         prims: the primitives (``prims.camera`` their resolution).
@@ -224,8 +210,7 @@ def pair_factor_group(config: OdometryConfig, ref: MapKeyframe, tgt_key: int,
 def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: OdometryConfig) -> None:
     """A (live) keyframe's pose and shape variables at their current values,
     with the shapes' priors (weights ``kf.prior_weights`` (N,), else
-    ``scale_prior_weight``; planar: the slope prior too,
-    :func:`add_shape_prior`); timestamps ``kf.index``."""
+    ``scale_prior_weight``; planar: the slope prior too); timestamps ``kf.index``."""
     batch.insert(pose_key(kf.index), gtsam.Pose3(kf.keyframe.T_world_kf), kf.index)
     th = shape_values(kf.keyframe.primitives, config.primitive_model)
     pw = kf.prior_weights
@@ -234,8 +219,11 @@ def add_keyframe_variables(batch: FactorBatch, kf: MapKeyframe, config: Odometry
     for i in range(th.shape[0]):
         key = scale_key(i, keyframe=kf.index)
         batch.insert(key, th[i].copy(), kf.index)
-        add_shape_prior(batch.graph, key, th[i], config.primitive_model, pw[i],
-                        PLANAR_SLOPE_SIGMA)
+        if config.primitive_model == "planar":
+            batch.graph.add(planar_slope_prior(key, float(th[i, 2]), PLANAR_SLOPE_SIGMA,
+                                               1.0 / np.sqrt(pw[i]), slope=th[i, :2]))
+        else:
+            batch.graph.add(log_scale_prior(key, float(th[i, 0]), pw[i]))
 
 
 def add_factor_group(batch: FactorBatch, group: Optional[PhotometricFactorGroup], bkey: int,
@@ -308,15 +296,16 @@ def build_level_graph(prims: PrimitiveSet, rays_all: np.ndarray, ref_pyr, view_p
     if config.brightness:
         for j in range(n_views):
             graph.add(brightness_prior(brightness_key(j + 1), config.brightness_prior_sigma))
-    for i in range(len(prims)):
-        th = values.atVector(scale_key(i))
-        if config.shape_model == "planar":
+    if config.shape_model == "scaled":
+        for i in range(len(prims)):
+            graph.add(log_scale_prior(scale_key(i), prims.log_scales[i], config.scale_prior_weight))
+    else:
+        for i in range(len(prims)):
+            c0 = values.atVector(scale_key(i))[2]
             # slope prior towards the primitive's orientation (a/c, b/c), at the current c
-            slope = np.zeros(2) if orientations is None else th[2] * orientations[i]
-        else:
-            th, slope = np.array([prims.log_scales[i], 0.0, 0.0]), None
-        add_shape_prior(graph, scale_key(i), th, config.shape_model, config.scale_prior_weight,
-                        config.planar_prior_sigma, slope)
+            slope = (0.0, 0.0) if orientations is None else c0 * orientations[i]
+            graph.add(planar_slope_prior(scale_key(i), c0, config.planar_prior_sigma,
+                                         1.0 / np.sqrt(config.scale_prior_weight), slope=slope))
     if continuity and config.shape_model == "scaled":
         for f in continuity_factors(prims, ref_pyr.images[0],
                                     [scale_key(i) for i in range(len(prims))]):

@@ -72,12 +72,10 @@ class SfMConfig:
         depth_stage: with ``shape_model="scaled"``, solve the scales once more
             at the finest level with every pose held and continuity factors
             between adjacent primitives across weak image edges
-            (:func:`spgeo.graph.builders.continuity_factors`): the reference
-            depth's AbsRel falls on 17 of 18 real reference views (7-Scenes gaps
-            of 10 to 45 frames, TUM, ICL) and 7 of 8 synthetic ones
-            (docs/results.md, issue 54); the poses are those of the solve before it.  Default True; the VO's two-view
-            initialisation sets False (its window re-solves the scales; there
-            the stage measured neither better nor worse).
+            (:func:`spgeo.graph.builders.continuity_factors`); the poses are
+            those of the solve before it.  Default True (docs/results.md, issue
+            54, has the measurements); the VO's two-view initialisation sets
+            False (its window re-solves the scales).
         marginals: compute per-primitive scale stds and pose covariances.
         max_log_scale_std: primitives whose gauge-free log-scale std exceeds
             this (0.5: a factor 1.65 in depth) are unconstrained by the views

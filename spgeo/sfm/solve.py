@@ -203,8 +203,9 @@ def _coarse_to_fine(pb: _Problem, values: gtsam.Values, config: SfMConfig, init_
     photometric pose only where its held-out matches fit it at least as well as the
     bundle's (:meth:`LandmarkStage.choose_poses`); otherwise it takes the bundle's,
     and the finest level solves the scales once more with the poses held.  With
-    the 1-DoF model and ``config.depth_stage`` the last stage is :func:`_depth_stage`.  Returns the solved
-    values and the factor groups of the last stage."""
+    the 1-DoF model and ``config.depth_stage`` the last stage is
+    :func:`_depth_stage`.  Returns the solved values and the factor groups of the
+    last stage."""
     builders: List[PhotometricFactorGroup] = []
     n_levels = pb.n_levels
     stages = [(lvl, False) for lvl in reversed(range(n_levels))]
@@ -260,9 +261,10 @@ def _solved_primitives(pb: _Problem, values: gtsam.Values, config: SfMConfig) ->
     planes' depths baked into ``log_depth`` (a plane behind the camera keeps
     its primitive's median depth there)."""
     prims, cam, rays_all = pb.prims, pb.cam, pb.rays_all
-    thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
     if config.shape_model == "scaled":
-        return prims.with_log_scales(thetas[:, 0])
+        s = np.array([values.atVector(scale_key(i))[0] for i in range(len(prims))])
+        return prims.with_log_scales(s)
+    thetas = np.array([values.atVector(scale_key(i)) for i in range(len(prims))])
     rho = np.einsum("kj,kj->k", rays_all, thetas[prims.primitive_ids])
     bad = ~(rho > 1e-9)
     rho = np.where(bad, np.nan, rho)
